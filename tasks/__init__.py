@@ -1,0 +1,1 @@
+"""Tasks: language task specs, episode datasets, metrics and the episode runner."""

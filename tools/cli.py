@@ -1,0 +1,60 @@
+"""The ``helios`` / ``python -m tools`` command line.
+
+Each command lives in its own module with ``add_arguments(parser)`` and ``run(args) -> int``;
+heavy imports (PyBullet, torch) happen inside ``run`` so ``--help`` stays instant. Errors caused by
+the user's input are printed as one line (``error: ...``) with exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# command name -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("tools.demo", "scripted Spot pick-and-place in a small scene; prints the outcome, writes a .rrd"),
+    "bench": ("tools.bench", "performance benchmarks printed as tables (sim, ...)"),
+}
+
+
+def user_error_types() -> tuple[type[BaseException], ...]:
+    """Exception classes that mean 'bad input', reported without a traceback."""
+    from helios.configuration import ConfigError
+    from robots.hal import HalError
+    from robots.spot.urdf import UrdfError
+
+    return (ConfigError, HalError, UrdfError, CliError, FileNotFoundError)
+
+
+class CliError(Exception):
+    """A command-line usage problem detected after argument parsing."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="helios", description="HELIOS testbed command line.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name, (module, help_) in COMMANDS.items():
+        mod = importlib.import_module(module)
+        p = sub.add_parser(name, help=help_, description=(mod.__doc__ or help_).strip().splitlines()[0])
+        mod.add_arguments(p)
+        p.set_defaults(_module=module)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(importlib.import_module(args._module).run(args) or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except user_error_types() as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
