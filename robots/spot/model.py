@@ -136,8 +136,8 @@ HAND_CAMERA = CameraMount(
 
 # --- claw geometry (our primitives, in arm0.link_wr1 / arm0.link_fngr frames) ------------------
 GRIPPER_BODY = Geometry("box", (0.115, 0.08, 0.07), xyz=(0.0575, 0.0, 0.0))
-FIXED_JAW = Geometry("box", (0.105, 0.044, 0.017), xyz=(0.1625, 0.0, -0.0165))   # top face at z = -0.008
-MOVING_JAW = Geometry("box", (0.100, 0.040, 0.012), xyz=(0.050, 0.0, -0.014))     # hangs below its hinge
+FIXED_JAW = Geometry("box", (0.125, 0.030, 0.017), xyz=(0.1725, 0.0, -0.0165))   # inner face z = -0.008, tip x = 0.235
+MOVING_JAW = Geometry("box", (0.118, 0.030, 0.012), xyz=(0.059, 0.0, -0.014))     # hangs below its hinge
 
 
 def _leg_sign(leg: str) -> tuple[float, float]:

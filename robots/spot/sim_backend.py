@@ -1,0 +1,567 @@
+"""The PyBullet implementation of the HAL: a simulated Spot that walks (kinematically, along ruckig
+trajectories, stopping on contact), looks through its hand camera and grasps and drops objects
+with real physics.
+
+It exposes exactly the ``robots.hal.RobotBackend`` contract. Simulation-only facilities (the
+world, collision events, ground-truth segmentation for the simulated detector, a frame stream for
+recordings) are separate attributes that agents never receive.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from robots.hal import (
+    CameraIntrinsics,
+    CommandResult,
+    GraspResult,
+    InvalidCommandError,
+    NavigateResult,
+    Observation,
+    PlaceResult,
+    Reason,
+    SE2Pose,
+)
+from robots.spot import kinematics, model
+from robots.spot.motion import MotionConfig, check_arm_target, plan_arm, plan_base
+from robots.transforms import invert_transform, rot_y, rot_z, transform_points
+from sim import camera as sim_camera
+from sim import grasping
+from sim.camera import CameraConfig
+from sim.grasping import GraspConfig
+from sim.spot import SpotBody
+from sim.world import OBJECT, World, WorldConfig
+
+
+@dataclass(frozen=True)
+class SimBackendConfig:
+    world: WorldConfig = WorldConfig()
+    camera: CameraConfig = CameraConfig()
+    motion: MotionConfig = MotionConfig()
+    grasp: GraspConfig = GraspConfig()
+    stream_hz: float = 2.0                 # hand-camera frames per simulated second handed to listeners
+    gaze_hand_position: tuple[float, float, float] = (0.65, 0.0, 0.35)   # body frame, m
+    carry_hand_position: tuple[float, float, float] = (0.55, 0.0, 0.50)  # body frame, m (object held in front)
+    arm_tolerance: float = 0.03            # rad, per joint, for an arm move to count as arrived
+    arm_settle_time: float = 0.6           # s allowed after a trajectory ends to reach the tolerance
+    contact_check_every: int = 4           # physics steps between arm contact checks
+    # Free-space arm moves (nothing held, no intended gripper contact) replay the ruckig trajectory
+    # kinematically with collision checks at every control sample, and hand over to physics the
+    # moment the arm touches a movable object. Holding, grasping and placing always run physics.
+    kinematic_free_arm: bool = True
+
+
+@dataclass(frozen=True)
+class CollisionEvent:
+    """The robot started touching part of the scene (one event per contact onset)."""
+
+    time: float
+    robot_link: str
+    body: str
+    phase: str
+
+
+@dataclass
+class _Held:
+    body_id: int
+    constraint_id: int
+
+
+class SimSpotBackend:
+    """Spot in a PyBullet :class:`World` behind the :class:`robots.hal.RobotBackend` contract."""
+
+    def __init__(self, world: World, spot: SpotBody, config: SimBackendConfig = SimBackendConfig(),
+                 owns_world: bool = True):
+        self.world = world
+        self.spot = spot
+        self.config = config
+        self._owns_world = owns_world
+        native = model.HAND_CAMERA
+        self.intrinsics = CameraIntrinsics(native.width, native.height, native.fx, native.fy, native.cx,
+                                           native.cy).scaled(config.camera.width, config.camera.height)
+        self.collision_events: list[CollisionEvent] = []
+        self._active_contacts: set[tuple[str, int]] = set()
+        self._held: _Held | None = None
+        self._frame_id = 0
+        self._segmentations: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._listeners: list[Callable[[Observation], None]] = []
+        self._next_stream = world.time
+        self._step_remainder = 0.0
+        self._closed = False
+
+    # ================================================================== observation
+    def observe(self) -> Observation:
+        self._check_open()
+        T_world_cam = self.spot.T_world_camera()
+        frame = sim_camera.render(self.world, self.intrinsics, T_world_cam, self.config.camera)
+        self._frame_id += 1
+        self._segmentations[self._frame_id] = frame.segmentation
+        while len(self._segmentations) > 16:
+            self._segmentations.popitem(last=False)
+        return Observation(rgb=frame.rgb, depth=frame.depth, intrinsics=self.intrinsics, T_world_cam=T_world_cam,
+                           T_world_body=self.spot.T_world_body(), stamp=self.world.time, holding=self.holding,
+                           joint_positions=self.spot.joint_positions(), frame_id=self._frame_id)
+
+    def segmentation_for(self, obs: Observation) -> np.ndarray:
+        """Ground-truth instance segmentation of a recent observation (sim only; for the simulated
+        detector and metrics, never for agents). Raw PyBullet ids; decode with ``sim.camera``."""
+        try:
+            return self._segmentations[obs.frame_id]
+        except KeyError:
+            raise KeyError(f"segmentation of frame {obs.frame_id} is no longer kept (only the last 16 are)") from None
+
+    def add_frame_listener(self, fn: Callable[[Observation], None]) -> None:
+        """Call ``fn`` with a fresh observation every 1/stream_hz simulated seconds during motions."""
+        self._listeners.append(fn)
+        self._next_stream = self.world.time
+
+    @property
+    def holding(self) -> bool:
+        return self._held is not None
+
+    @property
+    def held_body(self) -> int | None:
+        return self._held.body_id if self._held else None
+
+    # ================================================================== base
+    def navigate_to(self, goal: SE2Pose, via: Sequence[SE2Pose] = ()) -> NavigateResult:
+        self._check_open()
+        goal = _as_se2(goal, "goal")
+        via = [_as_se2(v, f"via[{i}]") for i, v in enumerate(via)]
+        start = self.spot.base_pose()
+        traj = plan_base(start, [*via, goal], self.config.motion.base)
+        t0, travelled, prev = self.world.time, 0.0, start
+        times = traj.sample_times(self.config.motion.control_dt)
+        dynamic = self._physics_needed()
+        for t_prev, t in zip(times[:-1], times[1:]):
+            pose = traj.pose_at(t)
+            self.spot.set_base_pose(pose)
+            hits = self._new_base_hits()
+            if hits:
+                self.spot.set_base_pose(prev)
+                self._advance(t - t_prev, dynamic)
+                link, body = hits[0]
+                return NavigateResult(False, Reason.COLLISION,
+                                      f"{link} touched {self.world.bodies[body].name} at "
+                                      f"({pose.x:.2f}, {pose.y:.2f}); stopped at the last free pose",
+                                      duration=self.world.time - t0, final_pose=prev, collided=True,
+                                      distance=travelled)
+            travelled += prev.distance_to(pose)
+            prev = pose
+            self._advance(t - t_prev, dynamic)
+        self._check_slip()
+        return NavigateResult(True, Reason.OK, duration=self.world.time - t0, final_pose=self.spot.base_pose(),
+                              distance=travelled)
+
+    def _new_base_hits(self, phase: str = "base") -> list[tuple[str, int]]:
+        """Robot-scene overlaps at the current (kinematically set) pose; records contact onsets."""
+        exclude = [self._held.body_id] if self._held else []
+        hits = self.spot.touching(exclude_bodies=exclude)
+        current = set(hits)
+        for link, body in current - self._active_contacts:
+            self.collision_events.append(CollisionEvent(self.world.time, link, self.world.bodies[body].name, phase))
+        self._active_contacts = current
+        return hits
+
+    # ================================================================== arm
+    def move_arm_joints(self, joints: Sequence[float]) -> CommandResult:
+        self._check_open()
+        q = check_arm_target(joints)
+        return self._move_arm(q, phase="arm")
+
+    def move_hand(self, T_body_hand: np.ndarray) -> CommandResult:
+        self._check_open()
+        T = np.asarray(T_body_hand, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise InvalidCommandError(f"hand pose must be a finite 4x4 transform, got shape {T.shape}")
+        q = kinematics.inverse_kinematics(T, self.spot.arm_q())
+        if q is None:
+            return CommandResult(False, Reason.IK_FAILED, "no arm configuration within limits reaches that hand pose")
+        return self._move_arm(q, phase="arm")
+
+    def gaze_at(self, point: Sequence[float]) -> CommandResult:
+        self._check_open()
+        p_world = _as_point(point, "gaze point")
+        T_body_world = invert_transform(self.spot.T_world_body())
+        p_body = transform_points(T_body_world, p_world[None])[0]
+        q = self._gaze_solution(p_body)
+        if q is None:
+            return CommandResult(False, Reason.UNREACHABLE,
+                                 f"cannot point the hand camera at ({p_world[0]:.2f}, {p_world[1]:.2f}, "
+                                 f"{p_world[2]:.2f}) from here; turn the body towards it")
+        return self._move_arm(q, phase="gaze")
+
+    def _gaze_solution(self, p_body: np.ndarray) -> np.ndarray | None:
+        cam = model.HAND_CAMERA
+        R_hand_cam = kinematics.forward_kinematics(model.ARM_READY)
+        R_hand_cam = (invert_transform(R_hand_cam["arm0.hand"]) @ R_hand_cam[cam.name])[:3, :3]
+        axis = R_hand_cam[:, 2]
+        tilt = math.atan2(axis[2], axis[0])  # the camera looks ~9 degrees above the hand's x axis
+        base = np.array(self.config.gaze_hand_position)
+        for dz, dx in ((0.0, 0.0), (0.15, 0.0), (-0.15, 0.0), (0.0, -0.2), (0.25, -0.15)):
+            hand_p = base + np.array([dx, 0.0, dz])
+            if np.linalg.norm(p_body - hand_p) < 0.15:
+                continue
+            try:
+                T = kinematics.look_at_hand_pose(hand_p, p_body)
+            except ValueError:
+                continue
+            T[:3, :3] = T[:3, :3] @ rot_y(tilt)
+            q = kinematics.inverse_kinematics(T, self.spot.arm_q())
+            if q is not None:
+                return q
+        return None
+
+    def stow_arm(self) -> CommandResult:
+        """Stow; with an object in the claw, go to the carry pose instead (Spot refuses to stow it)."""
+        self._check_open()
+        if self._held is not None:
+            q = self._carry_solution()
+            if q is None:
+                return CommandResult(False, Reason.IK_FAILED, "carry pose unreachable")
+            return self._move_arm(q, phase="carry")
+        return self._move_arm(np.array(model.ARM_STOW), phase="stow")
+
+    def _carry_solution(self) -> np.ndarray | None:
+        """Hand at the carry position, facing forward, keeping the roll it grasped with."""
+        T_cur = kinematics.hand_pose(self.spot.arm_q())
+        x = T_cur[:3, 0]
+        R = rot_z(-math.atan2(x[1], x[0])) @ T_cur[:3, :3]
+        T = np.eye(4)
+        T[:3, :3] = R
+        T[:3, 3] = self.config.carry_hand_position
+        return kinematics.inverse_kinematics(T, self.spot.arm_q())
+
+    def _move_arm(self, q_goal: np.ndarray, phase: str, allow_gripper_contact: bool = False) -> CommandResult:
+        t0 = self.world.time
+        traj = plan_arm(self.spot.arm_q(), q_goal, self.config.motion.arm)
+        if self.config.kinematic_free_arm and self._held is None and not allow_gripper_contact:
+            result = self._follow_arm_kinematically(traj, q_goal, phase, t0)
+            if result is not None:
+                return result
+            traj = plan_arm(self.spot.arm_q(), q_goal, self.config.motion.arm)  # continue under physics
+        ts = self.world.timestep
+        n = max(1, int(math.ceil(traj.duration / ts)))
+        every = self.config.contact_check_every
+        for k in range(1, n + 1):
+            q, qd = traj.at_time(k * ts)
+            self.spot.command_arm(q, qd)
+            self._step(1)
+            if k % every == 0 or k == n:
+                hit = self._new_arm_hits(phase, allow_gripper_contact)
+                if hit:
+                    self.spot.command_arm(self.spot.arm_q())
+                    self._step(every)
+                    link, body = hit
+                    return CommandResult(False, Reason.COLLISION,
+                                         f"{link} touched {self.world.bodies[body].name} during the {phase} move",
+                                         duration=self.world.time - t0)
+        # Let the position controllers converge on the final target.
+        self.spot.command_arm(q_goal)
+        settle_steps = int(self.config.arm_settle_time / ts)
+        for _ in range(settle_steps):
+            if np.max(np.abs(self.spot.arm_q() - q_goal)) < self.config.arm_tolerance:
+                break
+            self._step(1)
+        self._check_slip()
+        err = float(np.max(np.abs(self.spot.arm_q() - q_goal)))
+        if err >= self.config.arm_tolerance:
+            return CommandResult(False, Reason.TIMEOUT, f"arm stopped {err:.3f} rad short of the target",
+                                 duration=self.world.time - t0)
+        return CommandResult(True, Reason.OK, duration=self.world.time - t0)
+
+    def _follow_arm_kinematically(self, traj, q_goal: np.ndarray, phase: str, t0: float) -> CommandResult | None:
+        """Replay a free-space arm trajectory pose by pose; None means 'touched an object, use physics'."""
+        times = traj.sample_times(self.config.motion.control_dt)
+        dynamic = self._physics_needed()
+        q_prev = self.spot.arm_q()
+        for t_prev, t in zip(times[:-1], times[1:]):
+            q, qd = traj.at_time(t)
+            self.spot.set_arm_state(q, qd)
+            hits = self._new_base_hits(phase)
+            if hits:
+                static = [(l, b) for l, b in hits if self.world.bodies[b].kind != OBJECT]
+                if not static:
+                    return None
+                self.spot.set_arm_state(q_prev)
+                self._advance(t - t_prev, dynamic)
+                link, body = static[0]
+                return CommandResult(False, Reason.COLLISION,
+                                     f"{link} touched {self.world.bodies[body].name} during the {phase} move",
+                                     duration=self.world.time - t0)
+            q_prev = q
+            self._advance(t - t_prev, dynamic)
+        self.spot.set_arm_state(q_goal)
+        return CommandResult(True, Reason.OK, duration=self.world.time - t0)
+
+    def _new_arm_hits(self, phase: str, allow_gripper_contact: bool) -> tuple[str, int] | None:
+        held = self._held.body_id if self._held else None
+        current = set()
+        for pt in self.world.contacts(self.spot.id):
+            body, link = pt[2], pt[3]
+            if body == held or body == self.spot.id:
+                continue
+            if allow_gripper_contact and link in self.spot.gripper_link_ids:
+                continue
+            current.add((self.spot.link_name.get(link, str(link)), body))
+        for link, body in current - self._active_contacts:
+            self.collision_events.append(CollisionEvent(self.world.time, link, self.world.bodies[body].name, phase))
+        self._active_contacts = current
+        if not current:
+            return None
+        # Only contacts with the static scene stop the arm; nudging a small object is allowed.
+        static = [(l, b) for l, b in sorted(current) if self.world.bodies[b].kind != OBJECT]
+        return static[0] if static else None
+
+    # ================================================================== grasp and place
+    def grasp(self, observation: Observation, pixel: tuple[int, int]) -> GraspResult:
+        self._check_open()
+        if not isinstance(observation, Observation):
+            raise InvalidCommandError(f"grasp needs the Observation the pixel refers to, got {type(observation).__name__}")
+        u, v = _as_pixel(pixel, observation)
+        t0 = self.world.time
+        if self._held is not None:
+            return GraspResult(False, Reason.ALREADY_HOLDING, "the claw already holds an object", holding=True)
+        target = observation.point_at_pixel(u, v)
+        if target is None:
+            return GraspResult(False, Reason.NO_DEPTH, f"no depth at pixel ({u}, {v})")
+        tgt = tuple(float(x) for x in target)
+        cfg = self.config.grasp
+        T_world_body = self.spot.T_world_body()
+        shoulder = (T_world_body @ np.array([*model.SHOULDER_ORIGIN, 1.0]))[:3]
+        reach = model.UPPER_ARM[0] + math.hypot(model.FOREARM[0], model.FOREARM[2]) + model.HAND_OFFSET
+        dist = float(np.linalg.norm(target - shoulder))
+        plan = grasping.plan_side_grasp(observation, target, T_world_body[:2, 3], cfg, model.HAND_OFFSET)
+        T_body_world = invert_transform(T_world_body)
+        solution = None
+        for T_world_grasp in plan.hand_poses:
+            T_grasp = T_body_world @ T_world_grasp
+            T_pre = T_grasp.copy()
+            T_pre[:3, 3] -= cfg.approach_back * T_grasp[:3, 0]
+            T_pre[:3, 3] += cfg.approach_up * (T_body_world[:3, :3] @ np.array([0.0, 0.0, 1.0]))
+            q_pre = kinematics.inverse_kinematics(T_pre, self.spot.arm_q())
+            q_grasp = kinematics.inverse_kinematics(T_grasp, q_pre) if q_pre is not None else None
+            if q_pre is not None and q_grasp is not None:
+                solution = (T_grasp, q_pre, q_grasp)
+                break
+        if solution is None:
+            reason = Reason.OUT_OF_REACH if dist > reach - 0.3 else Reason.IK_FAILED
+            return GraspResult(False, reason, f"grasp point {dist:.2f} m from the shoulder cannot be reached from "
+                                              f"here (arm length {reach:.2f} m); move closer", target_world=tgt)
+        T_grasp, q_pre, q_grasp = solution
+        res = self._move_arm(q_pre, "grasp")  # free-space move to the pre-grasp pose
+        if not res:
+            return GraspResult(False, res.reason, f"approach failed: {res.message}", target_world=tgt,
+                               duration=self.world.time - t0)
+        self._gripper_to(cfg.open_angle, cfg.close_force, cfg.close_speed * 2, 0.4)
+        res = self._move_arm(q_grasp, "grasp", allow_gripper_contact=True)
+        if res.reason == Reason.COLLISION:
+            self._retreat_after_failed_grasp()
+            return GraspResult(False, Reason.COLLISION, f"approach hit the scene: {res.message}", target_world=tgt,
+                               duration=self.world.time - t0)
+        fixed_link = self.spot.link_index["arm0.link_wr1"]
+        moving_link = self.spot.link_index["arm0.link_fngr"]
+        body = self._close_until_pinch(fixed_link, moving_link)
+        if body is None:
+            self._retreat_after_failed_grasp()
+            return GraspResult(False, Reason.GRASP_MISSED, "the jaws closed without both touching an object",
+                               target_world=tgt, duration=self.world.time - t0)
+        cid = grasping.attach(self.world, self.spot.id, fixed_link, body, cfg.hold_force)
+        self._held = _Held(body, cid)
+        T_lift = kinematics.hand_pose(self.spot.arm_q())
+        T_lift[:3, 3] += cfg.lift_height * (T_body_world[:3, :3] @ np.array([0.0, 0.0, 1.0]))
+        q_lift = kinematics.inverse_kinematics(T_lift, self.spot.arm_q())
+        if q_lift is not None:
+            self._move_arm(q_lift, "grasp", allow_gripper_contact=True)
+        self._check_slip()
+        if self._held is None:
+            return GraspResult(False, Reason.GRASP_SLIPPED, "the object slipped out of the claw during the lift",
+                               target_world=tgt, duration=self.world.time - t0)
+        return GraspResult(True, Reason.OK, f"holding {self.world.bodies[body].name}", holding=True,
+                           target_world=tgt, duration=self.world.time - t0)
+
+    def _retreat_after_failed_grasp(self) -> None:
+        """Open, back the hand out along its approach axis, close again."""
+        cfg = self.config.grasp
+        self._gripper_to(cfg.open_angle, cfg.close_force, 4.0, 0.3)
+        T = kinematics.hand_pose(self.spot.arm_q())
+        T[:3, 3] -= cfg.approach_back * T[:3, 0]
+        q = kinematics.inverse_kinematics(T, self.spot.arm_q())
+        if q is not None:
+            self._move_arm(q, "grasp", allow_gripper_contact=True)
+        self._gripper_to(0.0, cfg.close_force, 4.0, 0.3)
+
+    def _close_until_pinch(self, fixed_link: int, moving_link: int) -> int | None:
+        """Close the claw under motor force; return the object as soon as both jaws touch it.
+
+        Attaching at the first pinch (rather than after the jaw stops) keeps the sweeping jaw from
+        pushing the object out past the jaw tips.
+        """
+        cfg = self.config.grasp
+        self.spot.command_gripper(0.0, cfg.close_force, cfg.close_speed)
+        for _ in range(max(1, int(cfg.close_time / self.world.timestep))):
+            self._step(1)
+            body = grasping.pinched_object(self.world, self.spot.id, fixed_link, moving_link)
+            if body is not None:
+                self._step(4)  # let the jaw press in before the constraint freezes the relative pose
+                return body
+        return None
+
+    def _gripper_to(self, angle: float, force: float, speed: float, duration: float) -> None:
+        self.spot.command_gripper(angle, force, speed)
+        self._step(max(1, int(duration / self.world.timestep)))
+
+    def place(self, point: Sequence[float], release_height: float = 0.10) -> PlaceResult:
+        self._check_open()
+        p_world = _as_point(point, "place point")
+        if not (math.isfinite(release_height) and 0.0 <= release_height <= 1.0):
+            raise InvalidCommandError(f"release_height must be within [0, 1] m, got {release_height}")
+        if self._held is None:
+            return PlaceResult(False, Reason.NOT_HOLDING, "nothing in the claw to place")
+        t0 = self.world.time
+        held = self._held.body_id
+        T_world_hand = self.spot.T_world_hand()
+        lo, hi = self.world.aabb(held)
+        below = T_world_hand[2, 3] - lo[2]   # how far the object hangs below the hand frame
+        centre_hand = invert_transform(T_world_hand) @ np.array([*(lo[:2] + hi[:2]) / 2, T_world_hand[2, 3], 1.0])
+        T_world_body = self.spot.T_world_body()
+        yaw = math.atan2(p_world[1] - T_world_body[1, 3], p_world[0] - T_world_body[0, 3])
+        # Turn the hand (about world z) to face the release point, keeping its roll and the grip.
+        x = T_world_hand[:3, 0]
+        R = rot_z(yaw - math.atan2(x[1], x[0])) @ T_world_hand[:3, :3]
+        T_target = np.eye(4)
+        T_target[:3, :3] = R
+        offset = R @ centre_hand[:3]
+        T_target[:3, 3] = [p_world[0] - offset[0], p_world[1] - offset[1], p_world[2] + release_height + below]
+        T_body = invert_transform(T_world_body) @ T_target
+        q = kinematics.inverse_kinematics(T_body, self.spot.arm_q())
+        if q is None:
+            return PlaceResult(False, Reason.OUT_OF_REACH, "the release point cannot be reached from here; move closer",
+                               duration=self.world.time - t0)
+        res = self._move_arm(q, "place", allow_gripper_contact=True)
+        if res.reason == Reason.COLLISION:
+            return PlaceResult(False, Reason.COLLISION, res.message, duration=self.world.time - t0)
+        release = tuple(float(v) for v in self.spot.T_world_hand()[:3, 3])
+        self._release()
+        T_back = kinematics.hand_pose(self.spot.arm_q())
+        T_back[:3, 3] -= self.config.grasp.release_retreat * T_back[:3, 0]
+        T_back[:3, 3] += 0.05 * (invert_transform(T_world_body)[:3, :3] @ np.array([0.0, 0.0, 1.0]))
+        q_back = kinematics.inverse_kinematics(T_back, self.spot.arm_q())
+        if q_back is not None:
+            self._move_arm(q_back, "place", allow_gripper_contact=True)
+        self._gripper_to(0.0, self.config.grasp.close_force, 4.0, 0.2)
+        self.world.settle([held])
+        return PlaceResult(True, Reason.OK, f"released {self.world.bodies[held].name}", duration=self.world.time - t0,
+                           release_point=release)
+
+    def _release(self) -> None:
+        if self._held is None:
+            return
+        grasping.detach(self.world, self._held.constraint_id)
+        self._held = None
+        self._gripper_to(self.config.grasp.open_angle, self.config.grasp.close_force, 4.0, 0.25)
+
+    def _check_slip(self) -> None:
+        """Drop the constraint if the object was pulled away from the claw (finite hold force)."""
+        if self._held is None:
+            return
+        hand = self.spot.link_pose("arm0.link_wr1")[:3, 3]
+        lo, hi = self.world.aabb(self._held.body_id)
+        nearest = np.clip(hand, lo, hi)
+        if np.linalg.norm(nearest - hand) > 0.25:
+            grasping.detach(self.world, self._held.constraint_id)
+            self._held = None
+
+    # ================================================================== misc
+    def stand(self) -> CommandResult:
+        self._check_open()
+        return CommandResult(True, Reason.OK, "standing")
+
+    def stop(self) -> CommandResult:
+        self._check_open()
+        self.spot.command_arm(self.spot.arm_q())
+        return CommandResult(True, Reason.OK, "holding position")
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            if self._owns_world:
+                self.world.close()
+
+    def __enter__(self) -> "SimSpotBackend":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError("this backend has been closed")
+
+    # ================================================================== time
+    def _physics_needed(self) -> bool:
+        """Physics must run while something can move by itself: a held object or a moving object."""
+        if self._held is not None:
+            return True
+        return any(not self.world.is_at_rest(b.body_id) for b in self.world.bodies_of_kind(OBJECT))
+
+    def _advance(self, dt: float, dynamic: bool) -> None:
+        if dynamic:
+            self._step_remainder += dt
+            n = int(self._step_remainder / self.world.timestep + 1e-9)
+            self._step_remainder -= n * self.world.timestep
+            self._step(n)
+        else:
+            self.world.advance(dt)
+            self._stream()
+
+    def _step(self, n: int) -> None:
+        for _ in range(n):
+            self.world.step()
+            self._stream()
+
+    def _stream(self) -> None:
+        if not self._listeners or self.config.stream_hz <= 0:
+            return
+        if self.world.time + 1e-9 >= self._next_stream:
+            obs = self.observe()
+            for fn in self._listeners:
+                fn(obs)
+            period = 1.0 / self.config.stream_hz
+            while self._next_stream <= self.world.time + 1e-9:
+                self._next_stream += period
+
+
+def _as_se2(value, name: str) -> SE2Pose:
+    if isinstance(value, SE2Pose):
+        return value
+    try:
+        x, y, yaw = (float(v) for v in value)
+    except (TypeError, ValueError) as exc:
+        raise InvalidCommandError(f"{name} must be an SE2Pose or (x, y, yaw), got {value!r}") from exc
+    return SE2Pose(x, y, yaw)
+
+
+def _as_point(value, name: str) -> np.ndarray:
+    try:
+        p = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise InvalidCommandError(f"{name} must be 3 numbers, got {value!r}") from exc
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise InvalidCommandError(f"{name} must be 3 finite numbers, got {value!r}")
+    return p
+
+
+def _as_pixel(pixel, obs: Observation) -> tuple[int, int]:
+    try:
+        u, v = (int(round(float(x))) for x in pixel)
+    except (TypeError, ValueError) as exc:
+        raise InvalidCommandError(f"pixel must be (u, v), got {pixel!r}") from exc
+    if not (0 <= u < obs.intrinsics.width and 0 <= v < obs.intrinsics.height):
+        raise InvalidCommandError(f"pixel ({u}, {v}) is outside the {obs.intrinsics.width}x{obs.intrinsics.height} image")
+    return u, v

@@ -1,0 +1,190 @@
+"""Spot's body in PyBullet: loading the URDF, holding the stand pose, kinematic base placement,
+position-controlled arm and claw, link and camera poses, and robot-scene collision queries.
+
+The base is a fixed-base multibody that we *place* along trajectories (Spot's API takes SE2 goals
+and walks there; gait is not simulated). Legs hold the stand pose with position motors. The arm
+and the claw are motor-driven, so grasps and carried objects obey physics.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from robots.hal import SE2Pose
+from robots.spot import model
+from robots.spot.urdf import SIM_URDF_PATH, UrdfError, parse_urdf
+from robots.transforms import pose_to_transform, transform_to_pose
+from sim.world import GROUND, ROBOT, World
+
+GRIPPER_LINKS = ("arm0.link_wr1", "arm0.link_fngr")
+
+
+class SpotBody:
+    """The simulated Spot multibody inside a :class:`World`."""
+
+    def __init__(self, world: World, pose: SE2Pose = SE2Pose(0.0, 0.0, 0.0), urdf_path: str | Path = SIM_URDF_PATH):
+        self.world = world
+        c = world.client
+        parse_urdf(urdf_path)  # one clear UrdfError for missing/malformed files before PyBullet sees it
+        self.body_height = model.stand_body_height()
+        try:
+            self.id = c.loadURDF(str(urdf_path), useFixedBase=True)
+        except Exception as exc:  # pybullet.error: "Cannot load URDF file."
+            raise UrdfError(f"PyBullet could not load URDF {str(urdf_path)!r}: {exc}") from exc
+        world.register(self.id, "spot", "robot", ROBOT)
+        # PyBullet reports and sets a base's pose at its centre of mass; Spot's body frame is the URDF
+        # link frame, offset by the body's CoM (BD: z -4.96 mm). Keep the offset to convert.
+        dyn = c.getDynamicsInfo(self.id, -1)
+        self._T_body_com = pose_to_transform(dyn[3], dyn[4])
+        self._T_com_body = np.linalg.inv(self._T_body_com)
+        self.joint_index: dict[str, int] = {}
+        self.link_index: dict[str, int] = {model.BODY: -1}
+        for i in range(c.getNumJoints(self.id)):
+            info = c.getJointInfo(self.id, i)
+            self.joint_index[info[1].decode()] = i
+            self.link_index[info[12].decode()] = i
+        missing = [j for j in (*model.ARM_JOINTS, model.GRIPPER_JOINT) if j not in self.joint_index]
+        if missing:
+            raise UrdfError(f"URDF {str(urdf_path)!r} lacks Spot joints {missing}")
+        self.link_name = {i: n for n, i in self.link_index.items()}
+        self._arm_idx = [self.joint_index[j] for j in model.ARM_JOINTS]
+        self._grip_idx = self.joint_index[model.GRIPPER_JOINT]
+        self.gripper_link_ids = {self.link_index[n] for n in GRIPPER_LINKS}
+        for link in self.gripper_link_ids:  # rubber jaw pads
+            c.changeDynamics(self.id, link, lateralFriction=1.5, spinningFriction=0.01)
+        # The feet stand on the floor: those contacts are not collisions and cost solver time.
+        for link in range(-1, c.getNumJoints(self.id)):
+            c.setCollisionFilterPair(self.id, world.ground_id, link, -1, 0)
+            c.changeDynamics(self.id, link, linearDamping=0.0, angularDamping=0.0)
+        self.set_base_pose(pose)
+        # Legs: locked at the stand pose in the sim URDF; a URDF with revolute legs gets them set
+        # and held by position motors instead.
+        self._stand = model.stand_pose()
+        free_legs = [j for j in model.LEG_JOINTS
+                     if j in self.joint_index and c.getJointInfo(self.id, self.joint_index[j])[2] != world.pb.JOINT_FIXED]
+        for name in free_legs:
+            c.resetJointState(self.id, self.joint_index[name], self._stand[name])
+        if free_legs:
+            c.setJointMotorControlArray(self.id, [self.joint_index[j] for j in free_legs], world.pb.POSITION_CONTROL,
+                                        targetPositions=[self._stand[j] for j in free_legs],
+                                        forces=[model.LEG_EFFORT[j.split(".")[1]] for j in free_legs])
+        self.reset_arm(model.ARM_STOW)
+        self.reset_gripper(0.0)
+
+    # ------------------------------------------------------------------ base
+    def base_pose(self) -> SE2Pose:
+        return SE2Pose.from_matrix(self.T_world_body())
+
+    def T_world_body(self) -> np.ndarray:
+        return self.world.pose(self.id) @ self._T_com_body
+
+    def set_base_pose(self, pose: SE2Pose) -> None:
+        """Place the body (kinematically) at an SE2 pose at standing height."""
+        T_world_com = pose.to_matrix(self.body_height) @ self._T_body_com
+        pos, quat = transform_to_pose(T_world_com)
+        self.world.client.resetBasePositionAndOrientation(self.id, pos.tolist(), quat.tolist())
+
+    # ------------------------------------------------------------------ joints
+    def arm_q(self) -> np.ndarray:
+        return np.array([s[0] for s in self.world.client.getJointStates(self.id, self._arm_idx)])
+
+    def gripper_q(self) -> float:
+        return float(self.world.client.getJointState(self.id, self._grip_idx)[0])
+
+    def joint_positions(self) -> dict[str, float]:
+        """All joints as Spot's robot state reports them (legs at the stand pose they hold)."""
+        names = (*model.ARM_JOINTS, model.GRIPPER_JOINT)
+        states = self.world.client.getJointStates(self.id, [self.joint_index[n] for n in names])
+        out = dict(self._stand)
+        out.update({n: float(s[0]) for n, s in zip(names, states)})
+        return out
+
+    def reset_arm(self, q) -> None:
+        """Teleport the arm (setup only) and hold the pose with the motors."""
+        c = self.world.client
+        for idx, v in zip(self._arm_idx, q):
+            c.resetJointState(self.id, idx, float(v), 0.0)
+        self.command_arm(q)
+
+    def set_arm_state(self, q, qd=None) -> None:
+        """Kinematically place the arm at q (velocities qd) and point the motors at q."""
+        c = self.world.client
+        qd = [0.0] * 6 if qd is None else qd
+        for idx, v, w in zip(self._arm_idx, q, qd):
+            c.resetJointState(self.id, idx, float(v), float(w))
+        self.command_arm(q)
+
+    def command_arm(self, q, qd=None) -> None:
+        """Position-control targets for the six arm joints (tracked during physics steps)."""
+        kwargs = {}
+        if qd is not None:
+            kwargs["targetVelocities"] = [float(v) for v in qd]
+        self.world.client.setJointMotorControlArray(
+            self.id, self._arm_idx, self.world.pb.POSITION_CONTROL, targetPositions=[float(v) for v in q],
+            forces=[model.ARM_EFFORT[j] for j in model.ARM_JOINTS], positionGains=[0.3] * 6,
+            velocityGains=[1.0] * 6, **kwargs)
+
+    def reset_gripper(self, q: float) -> None:
+        self.world.client.resetJointState(self.id, self._grip_idx, float(q), 0.0)
+        self.command_gripper(q)
+
+    def command_gripper(self, q: float, force: float = model.GRIPPER_EFFORT, max_velocity: float = 3.0) -> None:
+        self.world.client.setJointMotorControl2(self.id, self._grip_idx, self.world.pb.POSITION_CONTROL,
+                                                targetPosition=float(q), force=float(force),
+                                                maxVelocity=float(max_velocity))
+
+    # ------------------------------------------------------------------ frames
+    def link_pose(self, link_name: str) -> np.ndarray:
+        """World pose of a URDF link frame (not its centre of mass)."""
+        idx = self.link_index[link_name]
+        if idx < 0:
+            return self.T_world_body()
+        st = self.world.client.getLinkState(self.id, idx, computeForwardKinematics=True)
+        return pose_to_transform(st[4], st[5])
+
+    def T_world_hand(self) -> np.ndarray:
+        return self.link_pose("arm0.hand")
+
+    def T_world_camera(self) -> np.ndarray:
+        return self.link_pose(model.HAND_CAMERA.name)
+
+    # ------------------------------------------------------------------ collisions
+    def touching(self, exclude_bodies=(), exclude_links=(), margin: float = 0.0) -> list[tuple[str, int]]:
+        """(robot link, other body id) pairs closer than ``margin`` at the current poses.
+
+        Works without stepping physics (closest-point queries on current transforms), so kinematic
+        base motion can be checked pose by pose. The floor and excluded bodies/links are ignored.
+        """
+        c = self.world.client
+        lo, hi = self._robot_aabb()
+        lo -= margin + 0.01
+        hi += margin + 0.01
+        hits: list[tuple[str, int]] = []
+        skip = set(exclude_bodies) | {self.id}
+        for info in self.world.bodies.values():
+            if info.body_id in skip or info.kind == GROUND:
+                continue
+            blo, bhi = self.world.aabb(info.body_id)
+            n_links = c.getNumJoints(info.body_id)
+            if n_links:
+                for link in range(n_links):
+                    llo, lhi = self.world.aabb(info.body_id, link)
+                    blo, bhi = np.minimum(blo, llo), np.maximum(bhi, lhi)
+            if np.any(bhi < lo) or np.any(blo > hi):
+                continue
+            for pt in c.getClosestPoints(self.id, info.body_id, distance=margin):
+                link_name = self.link_name.get(pt[3], str(pt[3]))
+                if pt[3] in exclude_links:
+                    continue
+                hits.append((link_name, info.body_id))
+        return hits
+
+    def _robot_aabb(self) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = self.world.aabb(self.id, -1)
+        for idx in self.link_name:
+            if idx >= 0:
+                llo, lhi = self.world.aabb(self.id, idx)
+                lo, hi = np.minimum(lo, llo), np.maximum(hi, lhi)
+        return lo, hi
