@@ -26,6 +26,7 @@ class GraspConfig:
     close_speed: float = 2.0          # rad/s
     close_time: float = 0.8           # s allowed for the jaws to close
     hold_force: float = 60.0          # N, maximum force of the holding constraint (~6x a 1 kg weight)
+    slip_distance: float = 0.03       # m an object may be dragged from its grasp pose before it is lost
     lift_height: float = 0.20         # m the hand rises after the jaws close
     approach_pitch: float = 0.35      # rad the claw points below horizontal (keeps the wrist off the support)
     approach_back: float = 0.12       # m the pre-grasp pose sits behind the grasp pose (hand -x)
@@ -121,10 +122,15 @@ def pinched_object(world: World, robot_id: int, fixed_link: int, moving_link: in
 
 
 def attach(world: World, robot_id: int, link: int, body_id: int, max_force: float) -> int:
-    """Fix ``body_id`` to a robot link at their current relative pose; returns the constraint id."""
+    """Fix ``body_id`` to a robot link at their current relative pose; returns the constraint id.
+
+    While held, the object's contacts with the robot are switched off: the constraint does the
+    holding, and jaw contacts pressing on a constrained body only cost solver time (~40% of a step).
+    """
     c = world.client
+    _robot_collisions(world, robot_id, body_id, enable=False)
     st = c.getLinkState(robot_id, link, computeForwardKinematics=True)
-    T_world_link = pose_to_transform(st[4], st[5])
+    T_world_link = pose_to_transform(st[0], st[1])  # constraint frames are relative to the link's CoM frame
     T_world_obj = world.pose(body_id)
     T_link_obj = invert_transform(T_world_link) @ T_world_obj
     pos, quat = transform_to_pose(T_link_obj)
@@ -135,8 +141,14 @@ def attach(world: World, robot_id: int, link: int, body_id: int, max_force: floa
     return cid
 
 
-def detach(world: World, constraint_id: int) -> None:
+def detach(world: World, constraint_id: int, robot_id: int, body_id: int) -> None:
     world.client.removeConstraint(constraint_id)
+    _robot_collisions(world, robot_id, body_id, enable=True)
+
+
+def _robot_collisions(world: World, robot_id: int, body_id: int, enable: bool) -> None:
+    for link in range(-1, world.client.getNumJoints(robot_id)):
+        world.client.setCollisionFilterPair(robot_id, body_id, link, -1, int(enable))
 
 
 def support_body(world: World, body_id: int) -> int | None:

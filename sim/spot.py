@@ -52,6 +52,8 @@ class SpotBody:
         self._arm_idx = [self.joint_index[j] for j in model.ARM_JOINTS]
         self._grip_idx = self.joint_index[model.GRIPPER_JOINT]
         self.gripper_link_ids = {self.link_index[n] for n in GRIPPER_LINKS}
+        self.moving_joint_indices = [i for i in range(c.getNumJoints(self.id))
+                                     if c.getJointInfo(self.id, i)[2] != world.pb.JOINT_FIXED]
         for link in self.gripper_link_ids:  # rubber jaw pads
             c.changeDynamics(self.id, link, lateralFriction=1.5, spinningFriction=0.01)
         # The feet stand on the floor: those contacts are not collisions and cost solver time.

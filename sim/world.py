@@ -48,6 +48,33 @@ class WorldConfig:
 GROUND, STRUCTURE, FURNITURE, OBJECT, ROBOT = "ground", "structure", "furniture", "object", "robot"
 
 
+# Client calls that change what a camera sees; the World logs them so a render worker process can
+# rebuild an identical visual scene (same body and shape ids) by replaying them in order.
+VISUAL_CALLS = frozenset({
+    "createCollisionShape", "createCollisionShapeArray", "createVisualShape", "createVisualShapeArray",
+    "createMultiBody", "loadURDF", "changeVisualShape", "removeBody",
+})
+
+
+class _LoggedClient:
+    """A BulletClient proxy that records visual-scene calls (name, args, kwargs) before forwarding."""
+
+    def __init__(self, client, log: list):
+        self._client = client
+        self._log = log
+
+    def __getattr__(self, name: str):
+        attr = getattr(self._client, name)
+        if name not in VISUAL_CALLS:
+            return attr
+
+        def logged(*args, **kwargs):
+            self._log.append((name, args, kwargs))
+            return attr(*args, **kwargs)
+
+        return logged
+
+
 @dataclass
 class BodyInfo:
     """Registry entry for a body: its name, semantic category (e.g. 'mug', 'table') and kind."""
@@ -69,7 +96,9 @@ class World:
 
         self.config = config
         self.pb = pybullet
-        self.client = BulletClient(connection_mode=pybullet.DIRECT)
+        self.visual_log: list[tuple[str, tuple, dict]] = []
+        self._raw_client = BulletClient(connection_mode=pybullet.DIRECT)
+        self.client = _LoggedClient(self._raw_client, self.visual_log)
         self.time = 0.0
         self.steps = 0
         self.bodies: dict[int, BodyInfo] = {}
@@ -86,7 +115,7 @@ class World:
         c.setGravity(0.0, 0.0, ph.gravity)
 
     def _add_ground(self) -> int:
-        """The floor's collision plane. Its visual is a separate body made at the first render."""
+        """The floor: a collision plane at z = 0. Cameras draw it analytically (``sim.camera``)."""
         c = self.client
         col = c.createCollisionShape(self.pb.GEOM_PLANE)
         # A body without a visual gets its collision shape drawn (an infinite checker plane, one
@@ -95,37 +124,7 @@ class World:
         gid = c.createMultiBody(0.0, col, hidden, basePosition=[0, 0, 0])
         c.changeDynamics(gid, -1, lateralFriction=0.9)
         self.register(gid, "ground", "floor", GROUND)
-        self.floor_visual_id: int | None = None
         return gid
-
-    def ensure_floor_visual(self, tile: float = 2.0, margin: float = 6.0) -> int:
-        """Create the floor's visual once, after the scene is built: a grid of ``tile``-sized squares
-        covering the scene's extent plus ``margin``.
-
-        Rendering cost in PyBullet's TinyRenderer grows with triangle *size* (each triangle scans
-        its screen bounding box) and it shades before its depth test; a tiled floor drawn last is
-        ~35% cheaper per frame than one huge floor box drawn first (measured, ``tools bench sim``).
-        """
-        if self.floor_visual_id is None:
-            c = self.client
-            lo, hi = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
-            for info in self.bodies.values():
-                if info.kind != GROUND:
-                    blo, bhi = self.aabb(info.body_id)
-                    lo, hi = np.minimum(lo, blo[:2]), np.maximum(hi, bhi[:2])
-            lo = np.floor((lo - margin) / tile) * tile
-            hi = np.ceil((hi + margin) / tile) * tile
-            verts, idx = [], []
-            for x0 in np.arange(lo[0], hi[0], tile):
-                for y0 in np.arange(lo[1], hi[1], tile):
-                    k = len(verts)
-                    verts += [[x0, y0, 0.0], [x0 + tile, y0, 0.0], [x0 + tile, y0 + tile, 0.0], [x0, y0 + tile, 0.0]]
-                    idx += [k, k + 1, k + 2, k, k + 2, k + 3]
-            vis = c.createVisualShape(self.pb.GEOM_MESH, vertices=verts, indices=idx, normals=[[0, 0, 1]] * len(verts),
-                                      uvs=[[0, 0]] * len(verts), rgbaColor=[0.62, 0.6, 0.56, 1])
-            self.floor_visual_id = c.createMultiBody(0.0, -1, vis, basePosition=[0, 0, 0])
-            self.register(self.floor_visual_id, "floor", "floor", GROUND)
-        return self.floor_visual_id
 
     def register(self, body_id: int, name: str, category: str, kind: str, **extra) -> BodyInfo:
         if any(info.name == name for info in self.bodies.values()):
@@ -219,7 +218,7 @@ class World:
         if not self._closed:
             self._closed = True
             try:
-                self.client.disconnect()
+                self._raw_client.disconnect()
             except Exception:  # already disconnected (e.g. interpreter shutdown)
                 pass
 

@@ -2,4 +2,6 @@
 
 from tools.cli import main
 
-raise SystemExit(main())
+# Guarded: multiprocessing's spawn start method re-imports the main module in worker processes.
+if __name__ == "__main__":
+    raise SystemExit(main())

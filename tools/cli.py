@@ -44,6 +44,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from helios.runtime import configure_threads
+
+    configure_threads(1)  # see helios.runtime: one native thread per process is fastest here
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -35,6 +35,7 @@ class DemoOutcome:
     settled: bool
     lifted_by: float            # m the mug rose above its start during the grasp
     final_position: tuple[float, float, float]
+    object_poses: dict[str, tuple[float, ...]]   # every movable object: (x, y, z, qx, qy, qz, qw)
     offset_from_target: float   # m between the mug and the commanded release point (xy)
     collisions: int
     sim_time: float             # simulated seconds of the episode (scene building excluded)
@@ -165,6 +166,10 @@ def run_demo(seed: int = 0, overrides: list[str] | tuple[str, ...] = (), record_
         step("stow the arm", backend.stow_arm())
     except _Abort:
         pass
+    # Judge the physical outcome only once everything has come to rest (a failed grasp may still
+    # be tumbling).
+    world.settle([b.body_id for b in world.bodies_of_kind("object")], max_time=3.0)
+    backend.drain_frames()  # streamed frames render in a worker process; collect the last ones
     final = world.position(mug)
     support = support_body(world, mug)
     resting_on = world.bodies[support].name if support is not None else None
@@ -173,6 +178,8 @@ def run_demo(seed: int = 0, overrides: list[str] | tuple[str, ...] = (), record_
     outcome = DemoOutcome(
         seed=seed, success=bool(resting_on == scene["place_table"] and settled and not backend.holding),
         resting_on=resting_on, settled=settled, lifted_by=lifted, final_position=tuple(map(float, final)),
+        object_poses={b.name: tuple(map(float, np.concatenate(world.client.getBasePositionAndOrientation(b.body_id))))
+                      for b in world.bodies_of_kind("object")},
         offset_from_target=offset, collisions=len(backend.collision_events), sim_time=world.time - sim0,
         wall_time=time.perf_counter() - wall0, setup_time=setup_wall, frames=frames[0], steps=steps,
         recording=str(record_path) if record_path else None)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Callable, Literal, Sequence
 
 import numpy as np
 
@@ -34,6 +34,7 @@ from sim import camera as sim_camera
 from sim import grasping
 from sim.camera import CameraConfig
 from sim.grasping import GraspConfig
+from sim.render_worker import RenderWorker, moving_state
 from sim.spot import SpotBody
 from sim.world import OBJECT, World, WorldConfig
 
@@ -45,6 +46,9 @@ class SimBackendConfig:
     motion: MotionConfig = MotionConfig()
     grasp: GraspConfig = GraspConfig()
     stream_hz: float = 2.0                 # hand-camera frames per simulated second handed to listeners
+    # "process": streamed frames render in a worker process, overlapping physics (needs a spare
+    # core); "inline": render in this process (use when several simulations share the cores).
+    stream_renderer: Literal["process", "inline"] = "process"
     gaze_hand_position: tuple[float, float, float] = (0.65, 0.0, 0.35)   # body frame, m
     carry_hand_position: tuple[float, float, float] = (0.55, 0.0, 0.50)  # body frame, m (object held in front)
     arm_tolerance: float = 0.03            # rad, per joint, for an arm move to count as arrived
@@ -70,6 +74,7 @@ class CollisionEvent:
 class _Held:
     body_id: int
     constraint_id: int
+    T_wrist_obj: np.ndarray   # where the object sat in the claw when the constraint was made
 
 
 class SimSpotBackend:
@@ -85,12 +90,13 @@ class SimSpotBackend:
         self.intrinsics = CameraIntrinsics(native.width, native.height, native.fx, native.fy, native.cx,
                                            native.cy).scaled(config.camera.width, config.camera.height)
         self.collision_events: list[CollisionEvent] = []
-        self._active_contacts: set[tuple[str, int]] = set()
+        self._active_contacts: set[int] = set()
         self._held: _Held | None = None
         self._frame_id = 0
         self._segmentations: OrderedDict[int, np.ndarray] = OrderedDict()
         self._listeners: list[Callable[[Observation], None]] = []
         self._next_stream = world.time
+        self._render_worker: RenderWorker | None = None
         self._step_remainder = 0.0
         self._closed = False
 
@@ -99,13 +105,19 @@ class SimSpotBackend:
         self._check_open()
         T_world_cam = self.spot.T_world_camera()
         frame = sim_camera.render(self.world, self.intrinsics, T_world_cam, self.config.camera)
+        return self._make_observation(self._capture_state(T_world_cam), frame)
+
+    def _capture_state(self, T_world_cam: np.ndarray) -> dict:
+        """Everything an observation reports besides the images, read at capture time."""
         self._frame_id += 1
-        self._segmentations[self._frame_id] = frame.segmentation
+        return {"T_world_cam": T_world_cam, "T_world_body": self.spot.T_world_body(), "stamp": self.world.time,
+                "holding": self.holding, "joint_positions": self.spot.joint_positions(), "frame_id": self._frame_id}
+
+    def _make_observation(self, state: dict, frame) -> Observation:
+        self._segmentations[state["frame_id"]] = frame.segmentation
         while len(self._segmentations) > 16:
             self._segmentations.popitem(last=False)
-        return Observation(rgb=frame.rgb, depth=frame.depth, intrinsics=self.intrinsics, T_world_cam=T_world_cam,
-                           T_world_body=self.spot.T_world_body(), stamp=self.world.time, holding=self.holding,
-                           joint_positions=self.spot.joint_positions(), frame_id=self._frame_id)
+        return Observation(rgb=frame.rgb, depth=frame.depth, intrinsics=self.intrinsics, **state)
 
     def segmentation_for(self, obs: Observation) -> np.ndarray:
         """Ground-truth instance segmentation of a recent observation (sim only; for the simulated
@@ -116,9 +128,15 @@ class SimSpotBackend:
             raise KeyError(f"segmentation of frame {obs.frame_id} is no longer kept (only the last 16 are)") from None
 
     def add_frame_listener(self, fn: Callable[[Observation], None]) -> None:
-        """Call ``fn`` with a fresh observation every 1/stream_hz simulated seconds during motions."""
+        """Call ``fn`` with a fresh observation every 1/stream_hz simulated seconds during motions.
+
+        With ``stream_renderer="process"`` frames are rendered in a worker process (started here)
+        and reach ``fn`` a little later, in order; ``drain_frames()`` waits for all of them.
+        """
         self._listeners.append(fn)
         self._next_stream = self.world.time
+        if self.config.stream_renderer == "process" and self._render_worker is None and self.config.stream_hz > 0:
+            self._render_worker = RenderWorker(self.world)
 
     @property
     def holding(self) -> bool:
@@ -162,11 +180,18 @@ class SimSpotBackend:
         """Robot-scene overlaps at the current (kinematically set) pose; records contact onsets."""
         exclude = [self._held.body_id] if self._held else []
         hits = self.spot.touching(exclude_bodies=exclude)
-        current = set(hits)
-        for link, body in current - self._active_contacts:
-            self.collision_events.append(CollisionEvent(self.world.time, link, self.world.bodies[body].name, phase))
-        self._active_contacts = current
+        self._record_contacts(hits, phase)
         return hits
+
+    def _record_contacts(self, hits, phase: str) -> None:
+        """One collision event per scene body the robot starts touching (not per link pair)."""
+        current: dict[int, str] = {}
+        for link, body in hits:
+            current.setdefault(body, link)
+        for body, link in current.items():
+            if body not in self._active_contacts:
+                self.collision_events.append(CollisionEvent(self.world.time, link, self.world.bodies[body].name, phase))
+        self._active_contacts = set(current)
 
     # ================================================================== arm
     def move_arm_joints(self, joints: Sequence[float]) -> CommandResult:
@@ -309,9 +334,7 @@ class SimSpotBackend:
             if allow_gripper_contact and link in self.spot.gripper_link_ids:
                 continue
             current.add((self.spot.link_name.get(link, str(link)), body))
-        for link, body in current - self._active_contacts:
-            self.collision_events.append(CollisionEvent(self.world.time, link, self.world.bodies[body].name, phase))
-        self._active_contacts = current
+        self._record_contacts(sorted(current), phase)
         if not current:
             return None
         # Only contacts with the static scene stop the arm; nudging a small object is allowed.
@@ -372,7 +395,8 @@ class SimSpotBackend:
             return GraspResult(False, Reason.GRASP_MISSED, "the jaws closed without both touching an object",
                                target_world=tgt, duration=self.world.time - t0)
         cid = grasping.attach(self.world, self.spot.id, fixed_link, body, cfg.hold_force)
-        self._held = _Held(body, cid)
+        T_wrist_obj = invert_transform(self.spot.link_pose("arm0.link_wr1")) @ self.world.pose(body)
+        self._held = _Held(body, cid, T_wrist_obj)
         T_lift = kinematics.hand_pose(self.spot.arm_q())
         T_lift[:3, 3] += cfg.lift_height * (T_body_world[:3, :3] @ np.array([0.0, 0.0, 1.0]))
         q_lift = kinematics.inverse_kinematics(T_lift, self.spot.arm_q())
@@ -380,6 +404,7 @@ class SimSpotBackend:
             self._move_arm(q_lift, "grasp", allow_gripper_contact=True)
         self._check_slip()
         if self._held is None:
+            self._retreat_after_failed_grasp()
             return GraspResult(False, Reason.GRASP_SLIPPED, "the object slipped out of the claw during the lift",
                                target_world=tgt, duration=self.world.time - t0)
         return GraspResult(True, Reason.OK, f"holding {self.world.bodies[body].name}", holding=True,
@@ -462,19 +487,19 @@ class SimSpotBackend:
     def _release(self) -> None:
         if self._held is None:
             return
-        grasping.detach(self.world, self._held.constraint_id)
+        grasping.detach(self.world, self._held.constraint_id, self.spot.id, self._held.body_id)
         self._held = None
         self._gripper_to(self.config.grasp.open_angle, self.config.grasp.close_force, 4.0, 0.25)
 
     def _check_slip(self) -> None:
-        """Drop the constraint if the object was pulled away from the claw (finite hold force)."""
+        """Let go if the object was dragged out of its grasp pose (the hold force is finite, so a
+        heavy or snagged object can slip); beyond ``slip_distance`` the claw no longer holds it."""
         if self._held is None:
             return
-        hand = self.spot.link_pose("arm0.link_wr1")[:3, 3]
-        lo, hi = self.world.aabb(self._held.body_id)
-        nearest = np.clip(hand, lo, hi)
-        if np.linalg.norm(nearest - hand) > 0.25:
-            grasping.detach(self.world, self._held.constraint_id)
+        expected = self.spot.link_pose("arm0.link_wr1") @ self._held.T_wrist_obj
+        actual = self.world.pose(self._held.body_id)
+        if np.linalg.norm(expected[:3, 3] - actual[:3, 3]) > self.config.grasp.slip_distance:
+            grasping.detach(self.world, self._held.constraint_id, self.spot.id, self._held.body_id)
             self._held = None
 
     # ================================================================== misc
@@ -489,7 +514,10 @@ class SimSpotBackend:
 
     def close(self) -> None:
         if not self._closed:
+            self.drain_frames()
             self._closed = True
+            if self._render_worker is not None:
+                self._render_worker.close()
             if self._owns_world:
                 self.world.close()
 
@@ -528,13 +556,36 @@ class SimSpotBackend:
     def _stream(self) -> None:
         if not self._listeners or self.config.stream_hz <= 0:
             return
-        if self.world.time + 1e-9 >= self._next_stream:
+        if self._render_worker is not None and self._render_worker.pending:
+            self._deliver(self._render_worker.poll())
+        if self.world.time + 1e-9 < self._next_stream:
+            return
+        period = 1.0 / self.config.stream_hz
+        while self._next_stream <= self.world.time + 1e-9:
+            self._next_stream += period
+        if self.config.stream_renderer == "inline":
             obs = self.observe()
             for fn in self._listeners:
                 fn(obs)
-            period = 1.0 / self.config.stream_hz
-            while self._next_stream <= self.world.time + 1e-9:
-                self._next_stream += period
+            return
+        if self._render_worker is None:
+            self._render_worker = RenderWorker(self.world)
+        T_world_cam = self.spot.T_world_camera()
+        poses, joints = moving_state(self.world, self.spot.id, self.spot.moving_joint_indices)
+        request = sim_camera.camera_request(self.intrinsics, T_world_cam, self.config.camera, self.world.ground_id)
+        done = self._render_worker.submit(poses, joints, request, self.config.camera, self._capture_state(T_world_cam))
+        self._deliver(done)
+
+    def _deliver(self, results) -> None:
+        for state, frame in results:
+            obs = self._make_observation(state, frame)
+            for fn in self._listeners:
+                fn(obs)
+
+    def drain_frames(self) -> None:
+        """Block until every streamed frame has been rendered and handed to the listeners."""
+        if self._render_worker is not None:
+            self._deliver(self._render_worker.poll(block=True))
 
 
 def _as_se2(value, name: str) -> SE2Pose:

@@ -26,7 +26,7 @@ class UrdfError(ValueError):
 
 
 def _fmt(values) -> str:
-    return " ".join(f"{v:.6g}" for v in values)
+    return " ".join(f"{v:.9g}" for v in values)
 
 
 def _inertia(link: model.Link) -> tuple[float, float, float]:
@@ -53,9 +53,9 @@ def _geometry_xml(parent: ET.Element, g: model.Geometry) -> None:
     if g.kind == "box":
         ET.SubElement(geom, "box", size=_fmt(g.size))
     elif g.kind == "cylinder":
-        ET.SubElement(geom, "cylinder", radius=f"{g.size[0]:.6g}", length=f"{g.size[1]:.6g}")
+        ET.SubElement(geom, "cylinder", radius=f"{g.size[0]:.9g}", length=f"{g.size[1]:.9g}")
     elif g.kind == "sphere":
-        ET.SubElement(geom, "sphere", radius=f"{g.size[0]:.6g}")
+        ET.SubElement(geom, "sphere", radius=f"{g.size[0]:.9g}")
     else:
         raise ValueError(f"unknown geometry kind {g.kind!r}")
 
@@ -71,10 +71,10 @@ def build_urdf(lock_legs: bool = False) -> str:
         el = ET.SubElement(robot, "link", name=link.name)
         inertial = ET.SubElement(el, "inertial")
         ET.SubElement(inertial, "origin", xyz=_fmt(link.com), rpy="0 0 0")
-        ET.SubElement(inertial, "mass", value=f"{link.mass:.6g}")
+        ET.SubElement(inertial, "mass", value=f"{link.mass:.9g}")
         ixx, iyy, izz = _inertia(link)
-        ET.SubElement(inertial, "inertia", ixx=f"{ixx:.6g}", ixy="0", ixz="0", iyy=f"{iyy:.6g}", iyz="0",
-                      izz=f"{izz:.6g}")
+        ET.SubElement(inertial, "inertia", ixx=f"{ixx:.9g}", ixy="0", ixz="0", iyy=f"{iyy:.9g}", iyz="0",
+                      izz=f"{izz:.9g}")
         for g in link.geometry:
             vis = ET.SubElement(el, "visual")
             _geometry_xml(vis, g)
@@ -92,8 +92,8 @@ def build_urdf(lock_legs: bool = False) -> str:
         ET.SubElement(el, "origin", xyz=_fmt(j.xyz), rpy=_fmt(rpy))
         if j.kind == "revolute" and not locked:
             ET.SubElement(el, "axis", xyz=_fmt(j.axis))
-            ET.SubElement(el, "limit", lower=f"{j.lower:.6g}", upper=f"{j.upper:.6g}", effort=f"{j.effort:.6g}",
-                          velocity=f"{j.velocity:.6g}")
+            ET.SubElement(el, "limit", lower=f"{j.lower:.9g}", upper=f"{j.upper:.9g}", effort=f"{j.effort:.9g}",
+                          velocity=f"{j.velocity:.9g}")
             ET.SubElement(el, "dynamics", damping="0.5", friction="0.0")
     ET.indent(robot)
     return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"
