@@ -1,9 +1,11 @@
 """Bodies built from primitive shapes: furniture, walls and small graspable objects.
 
-Static bodies whose parts have different colours are built as one multibody with fixed-joint
-links (PyBullet colours a compound shape as a whole), which also gives each part its own link index
-in the segmentation image. Dynamic objects are single rigid bodies with a compound collision shape,
-the cheapest thing for the solver.
+Every body is a single rigid body with a compound collision shape, the cheapest thing for the
+solver (static multi-link bodies were measured to cost ~4.5 us per body per physics step). Static
+bodies get one merged visual mesh whose faces are cut into cells of at most ``max_cell``: PyBullet's
+TinyRenderer scans each triangle's whole screen bounding box, so a wall or a table top drawn as two
+huge triangles costs milliseconds per frame even when barely visible. A static body has one colour
+(and optionally a texture); dynamic objects use the primitive shapes directly.
 """
 
 from __future__ import annotations
@@ -46,35 +48,21 @@ def _quat(rpy) -> list[float]:
     return matrix_to_quat_xyzw(rpy_to_matrix(*rpy)).tolist()
 
 
-def _shape_kwargs(pb, part: Part) -> dict:
-    if part.shape == "box":
-        return {"shapeType": pb.GEOM_BOX, "halfExtents": list(part.size)}
-    if part.shape == "cylinder":
-        return {"shapeType": pb.GEOM_CYLINDER, "radius": part.size[0], "height": part.size[1]}
-    return {"shapeType": pb.GEOM_SPHERE, "radius": part.size[0]}
+def box_mesh(half_extents, max_cell: float = 0.25) -> tuple[list, list, list, list]:
+    """A box surface cut into cells of at most ``max_cell``: (vertices, indices, normals, uvs).
 
-
-def _collision(world: World, part: Part) -> int:
-    kw = _shape_kwargs(world.pb, part)
-    return world.client.createCollisionShape(**kw, collisionFramePosition=list(part.xyz),
-                                             collisionFrameOrientation=_quat(part.rpy))
-
-
-def box_mesh(half_extents, max_cell: float = 0.25) -> tuple[list, list, list]:
-    """A box surface as triangles no larger than ``max_cell`` (vertices, indices, normals).
-
-    PyBullet's TinyRenderer scans every triangle's whole screen bounding box, so a large face seen
-    from close by (a table top under the hand camera) costs tens of ms; small cells keep each scan
-    tight (``tools bench sim`` reports the effect).
+    UVs run over each face in metres (a texture repeats once per metre).
     """
     h = np.asarray(half_extents, dtype=float)
-    verts, idx, normals = [], [], []
+    verts, idx, normals, uvs = [], [], [], []
     for axis in range(3):
         u_ax, v_ax = [a for a in range(3) if a != axis]
         nu = max(1, int(math.ceil(2 * h[u_ax] / max_cell)))
         nv = max(1, int(math.ceil(2 * h[v_ax] / max_cell)))
         for sign in (1.0, -1.0):
             base = len(verts)
+            n = [0.0, 0.0, 0.0]
+            n[axis] = sign
             for i in range(nu + 1):
                 for j in range(nv + 1):
                     p = np.zeros(3)
@@ -82,57 +70,112 @@ def box_mesh(half_extents, max_cell: float = 0.25) -> tuple[list, list, list]:
                     p[u_ax] = -h[u_ax] + 2 * h[u_ax] * i / nu
                     p[v_ax] = -h[v_ax] + 2 * h[v_ax] * j / nv
                     verts.append(p.tolist())
-                    n = [0.0, 0.0, 0.0]
-                    n[axis] = sign
                     normals.append(n)
+                    uvs.append([p[u_ax] + h[u_ax], p[v_ax] + h[v_ax]])
+            # counter-clockwise seen from outside: the (u, v, n) frame is right-handed for axis 0 and
+            # 2 with u < v ordering, left-handed for axis 1.
+            flip = (sign < 0) != (axis == 1)
             for i in range(nu):
                 for j in range(nv):
                     a, b = base + i * (nv + 1) + j, base + (i + 1) * (nv + 1) + j
-                    tri = [a, b, b + 1, a, b + 1, a + 1]
-                    # keep counter-clockwise winding seen from outside the face
-                    if (sign > 0) != ((axis == 1)):
-                        idx += tri
-                    else:
-                        idx += [tri[0], tri[2], tri[1], tri[3], tri[5], tri[4]]
-    return verts, idx, normals
+                    quad = [a, b, b + 1, a, b + 1, a + 1]
+                    idx += [quad[0], quad[2], quad[1], quad[3], quad[5], quad[4]] if flip else quad
+    return verts, idx, normals, uvs
 
 
-def _visual(world: World, part: Part, color: Color) -> int:
-    if part.shape == "box" and max(part.size) * 2 > 0.3:
-        verts, idx, normals = box_mesh(part.size)
-        return world.client.createVisualShape(
-            world.pb.GEOM_MESH, vertices=verts, indices=idx, normals=normals, uvs=[[0.0, 0.0]] * len(verts),
-            rgbaColor=list(color), visualFramePosition=list(part.xyz), visualFrameOrientation=_quat(part.rpy))
-    kw = _shape_kwargs(world.pb, part)
-    if "height" in kw:  # PyBullet names the cylinder height "length" for visual shapes
-        kw["length"] = kw.pop("height")
-    return world.client.createVisualShape(**kw, rgbaColor=list(color), visualFramePosition=list(part.xyz),
-                                          visualFrameOrientation=_quat(part.rpy))
+def cylinder_mesh(radius: float, height: float, segments: int = 16, max_cell: float = 0.25):
+    """A closed cylinder along z (vertices, indices, normals, uvs), side cut into rings."""
+    verts, idx, normals, uvs = [], [], [], []
+    rings = max(1, int(math.ceil(height / max_cell)))
+    angles = np.linspace(0.0, 2 * math.pi, segments + 1)
+    for r in range(rings + 1):
+        z = -height / 2 + height * r / rings
+        for a in angles:
+            verts.append([radius * math.cos(a), radius * math.sin(a), z])
+            normals.append([math.cos(a), math.sin(a), 0.0])
+            uvs.append([radius * a, z + height / 2])
+    for r in range(rings):
+        for k in range(segments):
+            a, b = r * (segments + 1) + k, (r + 1) * (segments + 1) + k
+            idx += [a, a + 1, b + 1, a, b + 1, b]
+    for sign in (1.0, -1.0):
+        centre = len(verts)
+        verts.append([0.0, 0.0, sign * height / 2])
+        normals.append([0.0, 0.0, sign])
+        uvs.append([0.0, 0.0])
+        first = len(verts)
+        for a in angles:
+            verts.append([radius * math.cos(a), radius * math.sin(a), sign * height / 2])
+            normals.append([0.0, 0.0, sign])
+            uvs.append([radius * math.cos(a), radius * math.sin(a)])
+        for k in range(segments):
+            tri = [centre, first + k, first + k + 1]
+            idx += tri if sign > 0 else [tri[0], tri[2], tri[1]]
+    return verts, idx, normals, uvs
+
+
+def _part_mesh(part: Part, max_cell: float):
+    if part.shape == "box":
+        mesh = box_mesh(part.size, max_cell)
+    elif part.shape == "cylinder":
+        mesh = cylinder_mesh(part.size[0], part.size[1], max_cell=max_cell)
+    else:
+        r = part.size[0]
+        mesh = box_mesh((r, r, r), max_cell)  # spheres only appear as tiny markers on static bodies
+    verts, idx, normals, uvs = mesh
+    R = rpy_to_matrix(*part.rpy)
+    v = np.asarray(verts) @ R.T + np.asarray(part.xyz)
+    n = np.asarray(normals) @ R.T
+    return v, np.asarray(idx), n, np.asarray(uvs)
+
+
+def merged_mesh(parts: Sequence[Part], max_cell: float = 0.25):
+    """All parts of a static body as one mesh in the body frame."""
+    vs, ids, ns, us = [], [], [], []
+    offset = 0
+    for part in parts:
+        v, i, n, u = _part_mesh(part, max_cell)
+        vs.append(v)
+        ids.append(i + offset)
+        ns.append(n)
+        us.append(u)
+        offset += len(v)
+    return (np.concatenate(vs).tolist(), np.concatenate(ids).astype(int).tolist(), np.concatenate(ns).tolist(),
+            np.concatenate(us).tolist())
 
 
 def add_static(world: World, name: str, category: str, parts: Sequence[Part], position, yaw: float = 0.0,
                color: Color = (0.6, 0.45, 0.3, 1.0), kind: str = FURNITURE, friction: float = 0.8,
-               **extra) -> int:
-    """A static (mass 0) body: one link per part so parts can differ in colour."""
+               texture: int | None = None, max_cell: float = 0.25, **extra) -> int:
+    """A static (mass 0) body: compound collision shape, one merged visual mesh, one colour."""
     if not parts:
         raise ValueError(f"body {name!r} needs at least one part")
-    c = world.client
-    cols = [_collision(world, p) for p in parts]
-    viss = [_visual(world, p, p.color or color) for p in parts]
-    n = len(parts) - 1
-    body = c.createMultiBody(
-        baseMass=0.0, baseCollisionShapeIndex=cols[0], baseVisualShapeIndex=viss[0],
-        basePosition=list(map(float, position)), baseOrientation=_quat((0.0, 0.0, yaw)),
-        linkMasses=[0.0] * n, linkCollisionShapeIndices=cols[1:], linkVisualShapeIndices=viss[1:],
-        linkPositions=[[0.0, 0.0, 0.0]] * n, linkOrientations=[[0.0, 0.0, 0.0, 1.0]] * n,
-        linkInertialFramePositions=[[0.0, 0.0, 0.0]] * n, linkInertialFrameOrientations=[[0, 0, 0, 1]] * n,
-        linkParentIndices=[0] * n, linkJointTypes=[world.pb.JOINT_FIXED] * n, linkJointAxis=[[0, 0, 1]] * n,
-    )
-    for link in range(-1, n):
-        c.changeDynamics(body, link, lateralFriction=friction)
+    c, pb = world.client, world.pb
+    col = c.createCollisionShapeArray(**_shape_array(pb, parts))
+    verts, idx, normals, uvs = merged_mesh(parts, max_cell)
+    vis = c.createVisualShape(pb.GEOM_MESH, vertices=verts, indices=idx, normals=normals, uvs=uvs,
+                              rgbaColor=list(color))
+    body = c.createMultiBody(baseMass=0.0, baseCollisionShapeIndex=col, baseVisualShapeIndex=vis,
+                             basePosition=list(map(float, position)), baseOrientation=_quat((0.0, 0.0, yaw)))
+    c.changeDynamics(body, -1, lateralFriction=friction)
+    if texture is not None:
+        c.changeVisualShape(body, -1, textureUniqueId=texture)
     info = world.register(body, name, category, kind, **extra)
-    info.link_names = {i - 1: (p.name or f"part{i}") for i, p in enumerate(parts)}
+    info.link_names = {-1: name}
     return body
+
+
+def _shape_array(pb, parts: Sequence[Part]) -> dict:
+    types, half, radii, lengths, pos, orn = [], [], [], [], [], []
+    for p in parts:
+        types.append({"box": pb.GEOM_BOX, "cylinder": pb.GEOM_CYLINDER, "sphere": pb.GEOM_SPHERE}[p.shape])
+        half.append(list(p.size) if p.shape == "box" else [0.0, 0.0, 0.0])
+        radii.append(p.size[0] if p.shape != "box" else 0.0)
+        lengths.append(p.size[1] if p.shape == "cylinder" else 0.0)
+        pos.append(list(p.xyz))
+        orn.append(_quat(p.rpy))
+    return {"shapeTypes": types, "radii": radii, "halfExtents": half, "lengths": lengths,
+            "collisionFramePositions": pos, "collisionFrameOrientations": orn}
 
 
 def add_object(world: World, name: str, category: str, parts: Sequence[Part], position, yaw: float = 0.0,
@@ -144,18 +187,11 @@ def add_object(world: World, name: str, category: str, parts: Sequence[Part], po
     if not (math.isfinite(mass) and mass > 0):
         raise ValueError(f"object {name!r} needs a positive mass, got {mass}")
     c, pb = world.client, world.pb
-    types, half, radii, lengths, pos, orn = [], [], [], [], [], []
-    for p in parts:
-        types.append({"box": pb.GEOM_BOX, "cylinder": pb.GEOM_CYLINDER, "sphere": pb.GEOM_SPHERE}[p.shape])
-        half.append(list(p.size) if p.shape == "box" else [0.0, 0.0, 0.0])
-        radii.append(p.size[0] if p.shape != "box" else 0.0)
-        lengths.append(p.size[1] if p.shape == "cylinder" else 0.0)
-        pos.append(list(p.xyz))
-        orn.append(_quat(p.rpy))
-    col = c.createCollisionShapeArray(types, radii=radii, halfExtents=half, lengths=lengths,
-                                      collisionFramePositions=pos, collisionFrameOrientations=orn)
-    vis = c.createVisualShapeArray(types, radii=radii, halfExtents=half, lengths=lengths,
-                                   visualFramePositions=pos, visualFrameOrientations=orn)
+    arrays = _shape_array(pb, parts)
+    col = c.createCollisionShapeArray(**arrays)
+    vis = c.createVisualShapeArray(arrays["shapeTypes"], radii=arrays["radii"], halfExtents=arrays["halfExtents"],
+                                   lengths=arrays["lengths"], visualFramePositions=arrays["collisionFramePositions"],
+                                   visualFrameOrientations=arrays["collisionFrameOrientations"])
     body = c.createMultiBody(mass, col, vis, basePosition=list(map(float, position)),
                              baseOrientation=_quat((0.0, 0.0, yaw)))
     c.changeVisualShape(body, -1, rgbaColor=list(color))

@@ -12,6 +12,7 @@ from robots.transforms import matrix_to_rpy
 from sim import assets
 from sim.camera import CameraConfig, decode_body_ids, decode_link_indices, render
 from sim.render_worker import RenderWorker, moving_state
+from robots.spot.sim_backend import SimSpotBackend
 from sim.spot import SpotBody
 
 
@@ -64,13 +65,18 @@ def test_floor_pixels_are_filled_analytically_at_z_zero(world):
 def test_segmentation_decodes_body_and_link(world):
     parts = assets.table_parts(1.0, 0.6, 0.5, (0.6, 0.4, 0.2, 1), (0.2, 0.2, 0.2, 1))
     table = assets.add_static(world, "table", "table", parts, (2.0, 0.0, 0.0))
+    mug = assets.add_mug(world, "mug", (1.8, 0.0, 0.5))
+    spot = SpotBody(world, SE2Pose(0.8, 0.0, 0.0))
+    backend = SimSpotBackend(world, spot, owns_world=False)
+    assert backend.gaze_at([1.8, 0.0, 0.55]).success                   # looking down at the mug
     intr = CameraIntrinsics(320, 240, 276.0, 276.0, 160.0, 120.0)
-    frame = render(world, intr, _optical_pose([0.0, 0.0, 0.6], [2.0, 0.0, 0.3]), CameraConfig())
+    frame = render(world, intr, spot.T_world_camera(), CameraConfig())
     ids, links = decode_body_ids(frame.segmentation), decode_link_indices(frame.segmentation)
-    on_table = ids == table
-    assert on_table.sum() > 1000
-    assert set(np.unique(links[on_table])) >= {-1, 0}      # the top (base) and at least one leg link
-    assert world.bodies[table].link_names[-1] == "top"
+    assert (ids == table).sum() > 1000 and (ids == mug).sum() > 50
+    assert set(np.unique(links[(ids == table) | (ids == mug)])) == {-1}       # single-link bodies
+    jaw = ids == spot.id                                                     # the claw in view
+    assert jaw.any() and set(np.unique(links[jaw])) <= set(spot.link_name) - {-1}
+    assert np.all(ids[frame.segmentation < 0] == -1)
 
 
 def test_render_worker_frames_are_identical_to_inline_frames(world):
