@@ -37,7 +37,16 @@ def _sim_backend():
     return backend, facts
 
 
-BACKENDS = {"sim": _sim_backend}
+def _sdk_backend():
+    """The Spot SDK backend, through the unmodified bosdyn client over TLS, against the fake Spot
+    (gRPC on 127.0.0.1, backed by the same PyBullet demo scene)."""
+    pytest.importorskip("bosdyn.client")   # the optional [spot] extra
+    from spot_fake_fixtures import sdk_backend_factory
+
+    return sdk_backend_factory()
+
+
+BACKENDS = {"sim": _sim_backend, "sdk": _sdk_backend}
 
 
 @pytest.fixture(params=sorted(BACKENDS))

@@ -15,6 +15,7 @@ import sys
 COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("tools.demo", "scripted Spot pick-and-place in a small scene; prints the outcome, writes a .rrd"),
     "bench": ("tools.bench", "performance benchmarks printed as tables (sim, ...)"),
+    "spot": ("tools.spot", "run an agent on a real Spot via the Spot SDK (--fake: dry run against a simulated Spot)"),
 }
 
 
@@ -24,6 +25,8 @@ def user_error_types() -> tuple[type[BaseException], ...]:
     from robots.hal import HalError
     from robots.spot.urdf import UrdfError
 
+    # HalError covers the Spot SDK backend's errors too (robots.spot.sdk_backend: CredentialsError,
+    # SpotConnectError, SpotSdkMissingError and the HAL's RobotFault subclasses).
     return (ConfigError, HalError, UrdfError, CliError, FileNotFoundError)
 
 

@@ -1,0 +1,71 @@
+"""Start a fake Spot in the demo scene (two tables and a mug), for tests and ``tools spot --fake``."""
+
+from __future__ import annotations
+
+import secrets
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from robots.spot.fake_spot.certs import TestPKI, make_test_pki
+from robots.spot.fake_spot.server import FakeSpot
+from robots.spot.fake_spot.sim_robot import FakeRobotSim
+from robots.spot.sim_backend import SimBackendConfig
+
+
+@dataclass
+class DemoFake:
+    """A running fake Spot plus what a test or a dry run needs to know about its scene."""
+
+    fake: FakeSpot
+    pki: TestPKI
+    scene: dict                      # sim.scenes.demo.build_demo_scene's facts
+    facts: dict = field(default_factory=dict)   # ground truth: mug position, table poses, sizes
+
+    @property
+    def port(self) -> int:
+        return int(self.fake.port)
+
+    @property
+    def world(self):
+        return self.fake.sim.world
+
+    def stop(self) -> None:
+        self.fake.stop()
+
+
+def scene_facts(world, scene: dict) -> dict:
+    """Ground truth of the demo scene (world = odometry frame of the fake robot)."""
+    facts = {"mug_position": world.position(scene["mug"]), "table_height": scene["layout"].table_height}
+    for key in ("pick_table", "place_table"):
+        info = world.body(scene[key])
+        T = world.pose(info.body_id)
+        facts[key] = {"name": scene[key], "centre": T[:2, 3].copy(), "yaw": float(np.arctan2(T[1, 0], T[0, 0])),
+                      "half_extents": tuple(float(v) for v in info.extra["top_half_extents"]),
+                      "top_height": float(info.extra["top_height"])}
+    return facts
+
+
+def start_demo_fake(pki: TestPKI | str | Path, username: str | None = None, password: str | None = None,
+                    seed: int = 0, sim_config: SimBackendConfig = SimBackendConfig(), **fake_kwargs) -> DemoFake:
+    """Build the demo scene (``seed`` jitters the mug), start a fake Spot serving it on an
+    ephemeral 127.0.0.1 port. ``pki`` is a made PKI or a folder to make one in. Without
+    credentials the fake accepts a throwaway pair nobody knows (callers that log in pass theirs)."""
+    from sim.scenes.demo import build_demo_scene
+    from sim.spot import SpotBody
+    from sim.world import World
+
+    if not isinstance(pki, TestPKI):
+        pki = make_test_pki(pki)
+    world = World(sim_config.world)
+    try:
+        scene = build_demo_scene(world, np.random.default_rng(seed))
+        spot = SpotBody(world, scene["robot_start"])
+        sim = FakeRobotSim(world, spot, sim_config)
+    except Exception:
+        world.close()
+        raise
+    fake = FakeSpot(sim, pki, username or "helios", password or secrets.token_urlsafe(16), **fake_kwargs)
+    fake.start()
+    return DemoFake(fake, pki, scene, scene_facts(world, scene))

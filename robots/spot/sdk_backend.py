@@ -1,0 +1,1137 @@
+"""The Spot SDK implementation of the HAL: the same agent code drives a real Boston Dynamics Spot.
+
+Bring-up (``SdkSpotBackend(config)``): resolve the host, authenticate over TLS with credentials
+from ``BOSDYN_CLIENT_USERNAME`` / ``BOSDYN_CLIENT_PASSWORD`` (never from config, never logged),
+time sync, e-stop check (an external e-stop must be released) or our own e-stop endpoint with a
+keep-alive, acquire the body lease with a keep-alive, power on, stand.
+
+Commands map onto the SDK as Spot's own examples use it:
+
+| HAL | Spot SDK |
+|---|---|
+| ``navigate_to(goal, via)`` | one ``SE2TrajectoryCommand`` in ``odom`` whose points sample our ruckig trajectory |
+| ``move_arm_joints(q)`` | ``ArmJointMoveCommand``, ruckig samples with velocities, at most 250 points |
+| ``move_hand(T)`` / ``place`` | ``ArmCartesianCommand`` (hand frame; reachability checked with our IK first) |
+| ``gaze_at(p)`` | ``GazeCommand`` at a point in ``odom`` |
+| ``grasp(obs, pixel)`` | ``ManipulationApi`` ``PickObjectInImage`` with the image's own frame snapshot and camera model |
+| ``place(p, h)`` | hand over ``p`` (object geometry estimated at grasp time), claw open, retreat, claw close |
+| ``stow_arm`` | named ``STOW`` (``CARRY`` while holding) |
+| ``observe`` | ``hand_color_image`` + ``hand_depth_in_hand_color_frame``: intrinsics from the response, depth / ``depth_scale``, poses from the shot's frame snapshot |
+| ``stop`` / ``close`` | full-body stop / stop, stow, sit + power off, return the lease, stop every keep-alive thread |
+
+Every command is sent, then its feedback polled every ``feedback_period`` until it ends; a command
+that does not end within its planned duration + ``command_margin`` is stopped and raises
+:class:`CommandTimeoutError`. Robot faults raise the HAL's typed errors and most are *sticky*: once
+the lease is lost, the robot e-stopped, powered off, the link or time sync lost, every further
+command raises the same error without reaching the robot (``stand()`` retries power after an
+e-stop is released). TLS verification is never disabled: the backend only ever uses the SDK's
+secure channels, checked against BD's root CA or ``cert_path``.
+
+``bosdyn`` is imported lazily (the ``[spot]`` extra); importing this module needs only numpy.
+"""
+
+from __future__ import annotations
+
+import glob
+import logging
+import math
+import os
+import socket
+import ssl
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Callable, Literal, Sequence
+
+import numpy as np
+
+from robots.hal import (
+    CommandResult,
+    CommandTimeoutError,
+    ConnectionLostError,
+    EstopError,
+    GraspResult,
+    HalError,
+    InvalidCommandError,
+    LeaseLostError,
+    NavigateResult,
+    Observation,
+    PlaceResult,
+    PowerError,
+    Reason,
+    RobotFault,
+    SE2Pose,
+    TimeSyncLostError,
+)
+from robots.spot import kinematics, model
+from robots.spot.motion import MotionConfig, check_arm_target, plan_arm, plan_base
+from robots.transforms import invert_transform, is_valid_transform, rot_z
+
+_LOG = logging.getLogger("helios.spot")
+
+USERNAME_ENV = "BOSDYN_CLIENT_USERNAME"
+PASSWORD_ENV = "BOSDYN_CLIENT_PASSWORD"
+
+
+# --------------------------------------------------------------------------------------------
+# Errors (all HalError: the command line reports them as one line, no traceback)
+# --------------------------------------------------------------------------------------------
+class SpotSdkMissingError(HalError):
+    """bosdyn-client is not installed."""
+
+
+class CredentialsError(HalError):
+    """Credentials are missing from the environment or were rejected by the robot."""
+
+
+class SpotConnectError(ConnectionLostError):
+    """The robot could not be reached or its TLS certificate was not accepted."""
+
+
+class CommandRejectedError(RobotFault):
+    """The robot refused or could not execute a command for a reason the HAL has no type for."""
+
+
+# --------------------------------------------------------------------------------------------
+# Configuration
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SdkBackendConfig:
+    """How to reach and drive a Spot. Credentials are not part of it (environment only)."""
+
+    hostname: str = ""
+    port: int = 443                        # the robot's secure gRPC port
+    cert_path: str | None = None           # CA bundle (PEM); None = BD's root CA shipped with bosdyn-client
+    estop_mode: Literal["external", "endpoint"] = "external"
+    # external: someone else holds the e-stop (tablet, e-stop app) and must have released it;
+    # endpoint: this client registers its own software e-stop and keeps it alive (replaces the
+    # robot's e-stop configuration; only for setups without another e-stop).
+    estop_timeout: float = 9.0             # s without our check-in before our endpoint stops the robot
+    take_lease: bool = False               # take the body lease from its current holder instead of failing
+    client_name: str = "helios"
+    rpc_timeout: float = 1.5               # s per RPC: bounds how long a dead or slow link takes to surface
+    image_rpc_timeout: float = 3.0         # s for an image request (larger payloads)
+    connect_timeout: float = 5.0           # s for authentication and the first time sync
+    power_on_timeout: float = 20.0
+    stand_timeout: float = 10.0
+    feedback_period: float = 0.05          # s between command feedback polls
+    command_margin: float = 2.0            # s a command may run past its planned duration before it times out
+    arm_move_timeout: float = 10.0         # s for moves the robot plans itself (gaze, stow, carry)
+    grasp_timeout: float = 20.0            # s for a pick-in-image
+    time_sync_interval: float = 5.0        # s between time-sync updates (the SDK default is 60)
+    lease_retain_period: float = 2.0       # s between lease keep-alive check-ins
+    stand_on_connect: bool = True          # power on and stand during bring-up
+    power_off_on_close: bool = True        # sit and power off in close()
+    image_format: Literal["jpeg", "raw"] = "jpeg"
+    jpeg_quality: int = 90
+    max_trajectory_points: int = 250       # per SE2 or arm joint trajectory command (Spot's arm limit)
+    goal_tolerance: float = 0.05           # m / rad: a navigation counts as arrived within this
+    release_retreat: float = 0.12          # m the hand backs off after releasing an object
+    motion: MotionConfig = MotionConfig()
+
+    def __post_init__(self) -> None:
+        if not (0 < int(self.port) < 65536):
+            raise ValueError(f"port must be within 1..65535, got {self.port}")
+        for name in ("estop_timeout", "rpc_timeout", "image_rpc_timeout", "connect_timeout", "power_on_timeout",
+                     "stand_timeout", "feedback_period", "arm_move_timeout", "grasp_timeout",
+                     "time_sync_interval", "lease_retain_period"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive number of seconds, got {v!r}")
+        if not (self.command_margin >= 0 and math.isfinite(self.command_margin)):
+            raise ValueError(f"command_margin must be >= 0, got {self.command_margin!r}")
+        if not 2 <= int(self.max_trajectory_points) <= 250:
+            raise ValueError(f"max_trajectory_points must be within 2..250, got {self.max_trajectory_points}")
+        if not 1 <= int(self.jpeg_quality) <= 100:
+            raise ValueError(f"jpeg_quality must be within 1..100, got {self.jpeg_quality}")
+
+
+def credentials_from_env(environ=None) -> tuple[str, str]:
+    """(username, password) from the environment, or one clear CredentialsError."""
+    env = os.environ if environ is None else environ
+    user, password = env.get(USERNAME_ENV, ""), env.get(PASSWORD_ENV, "")
+    missing = [n for n, v in ((USERNAME_ENV, user), (PASSWORD_ENV, password)) if not v]
+    if missing:
+        raise CredentialsError(f"Spot credentials missing: set {' and '.join(missing)} in the environment "
+                               f"(credentials are never read from config files or the command line)")
+    return user, password
+
+
+# --------------------------------------------------------------------------------------------
+# Lazy bosdyn import
+# --------------------------------------------------------------------------------------------
+class _Bosdyn:
+    """The bosdyn modules the backend uses, imported on first use."""
+
+    def __init__(self) -> None:
+        try:
+            import bosdyn.client
+            from bosdyn.api import (basic_command_pb2, geometry_pb2, image_pb2, manipulation_api_pb2,
+                                    mobility_command_pb2, robot_command_pb2, synchronized_command_pb2)
+            from bosdyn.api import arm_command_pb2, gripper_command_pb2, estop_pb2
+            from bosdyn.client import auth, estop, exceptions, lease, power, robot_command, time_sync
+            from bosdyn.client.image import ImageClient, build_image_request
+            from bosdyn.client.manipulation_api_client import ManipulationApiClient
+            from bosdyn.client.robot_state import RobotStateClient
+            from robots.spot import sdk_conversions
+        except ImportError as exc:  # pragma: no cover - exercised only without the extra
+            raise SpotSdkMissingError(
+                f"the Spot SDK is not installed ({exc}); install it with: pip install 'helios-testbed[spot]'") from exc
+        self.client = bosdyn.client
+        self.basic = basic_command_pb2
+        self.geometry = geometry_pb2
+        self.image_pb2 = image_pb2
+        self.manip = manipulation_api_pb2
+        self.mobility = mobility_command_pb2
+        self.robot_command_pb2 = robot_command_pb2
+        self.synchro = synchronized_command_pb2
+        self.arm = arm_command_pb2
+        self.gripper = gripper_command_pb2
+        self.estop_pb2 = estop_pb2
+        self.auth = auth
+        self.estop = estop
+        self.exc = exceptions
+        self.lease = lease
+        self.power = power
+        self.rc = robot_command
+        self.ts = time_sync
+        self.ImageClient = ImageClient
+        self.build_image_request = build_image_request
+        self.ManipulationApiClient = ManipulationApiClient
+        self.RobotStateClient = RobotStateClient
+        self.Builder = robot_command.RobotCommandBuilder
+        self.cv = sdk_conversions
+
+
+_BD: _Bosdyn | None = None
+
+
+def _bosdyn() -> _Bosdyn:
+    global _BD
+    if _BD is None:
+        _BD = _Bosdyn()
+    return _BD
+
+
+def _lease_keep_alive_class(bd: _Bosdyn):
+    """LeaseKeepAlive whose check-ins use a bounded RPC timeout (the SDK's default is 30 s, which
+    would stall shutdown on a dead link)."""
+
+    class BoundedLeaseKeepAlive(bd.lease.LeaseKeepAlive):
+        rpc_timeout = 1.5
+
+        def _check_in(self):
+            lease = self._lease_wallet.get_lease(self._resource)
+            if not lease:
+                return None
+            return self._lease_client.retain_lease(lease, timeout=self.rpc_timeout)
+
+    return BoundedLeaseKeepAlive
+
+
+# --------------------------------------------------------------------------------------------
+# Helpers
+# --------------------------------------------------------------------------------------------
+def _as_se2(value, name: str) -> SE2Pose:
+    if isinstance(value, SE2Pose):
+        return value
+    try:
+        x, y, yaw = (float(v) for v in value)
+    except (TypeError, ValueError) as exc:
+        raise InvalidCommandError(f"{name} must be an SE2Pose or (x, y, yaw), got {value!r}") from exc
+    return SE2Pose(x, y, yaw)
+
+
+def _as_point(value, name: str) -> np.ndarray:
+    try:
+        p = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise InvalidCommandError(f"{name} must be 3 numbers, got {value!r}") from exc
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise InvalidCommandError(f"{name} must be 3 finite numbers, got {value!r}")
+    return p
+
+
+def _as_pixel(pixel, obs: Observation) -> tuple[int, int]:
+    try:
+        u, v = (int(round(float(x))) for x in pixel)
+    except (TypeError, ValueError) as exc:
+        raise InvalidCommandError(f"pixel must be (u, v), got {pixel!r}") from exc
+    if not (0 <= u < obs.intrinsics.width and 0 <= v < obs.intrinsics.height):
+        raise InvalidCommandError(f"pixel ({u}, {v}) is outside the {obs.intrinsics.width}x{obs.intrinsics.height} image")
+    return u, v
+
+
+def estimate_object_base(obs: Observation, target: np.ndarray, radius: float = 0.12) -> np.ndarray:
+    """Bottom centre (world) of the object seen at ``target``, from the observation's depth alone:
+    its support is the 90th-percentile height of points just around and below the target, its
+    centre the mean of the points above that support near the target (what a robot without an
+    object model can know)."""
+    v, u = np.nonzero(obs.depth > 0)
+    pts = obs.intrinsics.backproject(u, v, obs.depth[v, u]) @ obs.T_world_cam[:3, :3].T + obs.T_world_cam[:3, 3]
+    d_xy = np.linalg.norm(pts[:, :2] - target[:2], axis=1)
+    below = pts[(d_xy < radius + 0.08) & (pts[:, 2] < target[2] - 0.01)]
+    support_z = float(np.percentile(below[:, 2], 90)) if len(below) >= 20 else float(target[2]) - 0.05
+    obj = pts[(d_xy < radius) & (pts[:, 2] > support_z + 0.008)]
+    centre = obj[:, :2].mean(axis=0) if len(obj) >= 5 else np.asarray(target[:2], dtype=float)
+    return np.array([centre[0], centre[1], support_z])
+
+
+@dataclass
+class _Shot:
+    """What a pick-in-image request needs about an observation this backend produced."""
+
+    stamp: float
+    snapshot: object          # geometry_pb2.FrameTreeSnapshot
+    sensor_frame: str
+    pinhole: object           # image_pb2.ImageSource.PinholeModel
+
+
+_FATAL = (LeaseLostError, ConnectionLostError, TimeSyncLostError)   # no command can reach the robot
+
+
+# --------------------------------------------------------------------------------------------
+# The backend
+# --------------------------------------------------------------------------------------------
+class SdkSpotBackend:
+    """A real (or fake) Spot behind the :class:`robots.hal.RobotBackend` contract."""
+
+    def __init__(self, config: SdkBackendConfig, *, connect: bool = True):
+        if not isinstance(config, SdkBackendConfig):
+            raise TypeError(f"config must be an SdkBackendConfig, got {type(config).__name__}")
+        if not config.hostname or not config.hostname.strip():
+            raise SpotConnectError("no robot hostname given")
+        self.config = config
+        self._bd = _bosdyn()
+        self._sdk = None
+        self.robot = None
+        self.robot_id = None
+        self._fault: RobotFault | None = None
+        self._closed = False
+        self._closing = False
+        self._lease_keepalive = None
+        self._estop_keepalive = None
+        self._estop_endpoint = None
+        self._token_manager_thread: threading.Thread | None = None
+        self._frame_id = 0
+        self._shots: OrderedDict[int, _Shot] = OrderedDict()
+        self._grip: np.ndarray | None = None     # held object's bottom centre in the hand frame
+        self._on_close: list[Callable[[], None]] = []
+        self._power_wanted = False
+        self._unresponsive = False               # the last command timed out (skip arm moves at close)
+        if connect:
+            try:
+                self.connect()
+            except BaseException:
+                self.close()
+                raise
+
+    # ================================================================== bring-up
+    def connect(self) -> None:
+        """Authenticate, time sync, e-stop, lease, and (``stand_on_connect``) power on and stand."""
+        cfg, bd = self.config, self._bd
+        user, password = credentials_from_env()
+        self._resolve(cfg.hostname, cfg.port)
+        cert_glob = None
+        if cfg.cert_path is not None:
+            if not os.path.isfile(cfg.cert_path):
+                raise SpotConnectError(f"certificate file {cfg.cert_path!r} does not exist")
+            cert_glob = glob.escape(os.path.abspath(cfg.cert_path))
+        try:
+            self._sdk = bd.client.create_standard_sdk(cfg.client_name, cert_resource_glob=cert_glob)
+        except OSError as exc:
+            raise SpotConnectError(f"cannot load the CA certificate: {exc}") from None
+        robot = self._sdk.create_robot(cfg.hostname)
+        robot.update_secure_channel_port(int(cfg.port))
+        self.robot = robot
+        self._quiet_auth_logging()
+        _LOG.info("connecting to %s:%d (%s)", cfg.hostname, cfg.port,
+                  "CA " + cfg.cert_path if cfg.cert_path else "Boston Dynamics root CA")
+        try:
+            robot.authenticate(user, password, timeout=cfg.connect_timeout)
+        except bd.auth.InvalidLoginError:
+            raise CredentialsError(f"the robot at {cfg.hostname} rejected the credentials in "
+                                   f"{USERNAME_ENV}/{PASSWORD_ENV}") from None
+        except bd.exc.Error as exc:
+            raise self._connect_error(exc) from None
+        finally:
+            del password
+        self._token_manager_thread = getattr(getattr(robot, "_token_manager", None), "th", None)
+        try:
+            self.robot_id = robot.ensure_client("robot-id").get_id(timeout=cfg.rpc_timeout)
+            robot.time_sync.time_sync_interval_sec = cfg.time_sync_interval
+            robot.time_sync.wait_for_sync(timeout_sec=cfg.connect_timeout)
+            self._state_client = robot.ensure_client(bd.RobotStateClient.default_service_name)
+            self._cmd_client = robot.ensure_client(bd.rc.RobotCommandClient.default_service_name)
+            self._image_client = robot.ensure_client(bd.ImageClient.default_service_name)
+            self._manip_client = robot.ensure_client(bd.ManipulationApiClient.default_service_name)
+            self._lease_client = robot.ensure_client(bd.lease.LeaseClient.default_service_name)
+            self._estop_client = robot.ensure_client(bd.estop.EstopClient.default_service_name)
+        except (bd.ts.TimedOutError, bd.ts.InactiveThreadError) as exc:
+            raise TimeSyncLostError(f"no time sync with the robot within {cfg.connect_timeout} s "
+                                    f"({type(exc).__name__})") from None
+        except bd.exc.Error as exc:
+            raise self._translate(exc, "connecting") from None
+        _LOG.info("connected to %s (serial %s), time sync established", self.robot_id.nickname or "robot",
+                  self.robot_id.serial_number)
+        self._setup_estop()
+        self._acquire_lease()
+        if cfg.stand_on_connect:
+            res = self.stand()
+            if not res:
+                raise PowerError(f"the robot did not stand up: {res.message}")
+
+    def _resolve(self, host: str, port: int) -> None:
+        try:
+            socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+        except (socket.gaierror, UnicodeError) as exc:
+            raise SpotConnectError(f"cannot resolve robot hostname {host!r}: {getattr(exc, 'strerror', None) or exc}") from None
+
+    def _quiet_auth_logging(self) -> None:
+        """The SDK logs every request and response at DEBUG; for the auth service those carry the
+        password and the token. Keep that logger (and its per-method children) at INFO."""
+        auth = self.robot.ensure_client("auth")
+        for lg in (auth.logger, auth.logger.getChild("GetAuthToken")):
+            lg.setLevel(logging.INFO)
+
+    def _connect_error(self, exc) -> SpotConnectError:
+        """A clear message for why authentication could not reach the robot."""
+        cfg, bd = self.config, self._bd
+        where = f"{cfg.hostname}:{cfg.port}"
+        if isinstance(exc, (bd.exc.UnknownDnsNameError,)):
+            return SpotConnectError(f"cannot resolve robot hostname {cfg.hostname!r}")
+        if isinstance(exc, bd.exc.TimedOutError):
+            return SpotConnectError(f"no answer from {where} within {cfg.connect_timeout} s")
+        if isinstance(exc, bd.exc.RpcError):
+            return SpotConnectError(self._diagnose_link(where))
+        return SpotConnectError(f"cannot connect to {where}: {type(exc).__name__}")
+
+    def _diagnose_link(self, where: str) -> str:
+        """Tell 'nothing listening' from 'certificate not trusted / wrong name' (verification on)."""
+        cfg = self.config
+        ca = "CA " + cfg.cert_path if cfg.cert_path else "the Boston Dynamics root CA"
+        try:
+            sock = socket.create_connection((cfg.hostname, int(cfg.port)), timeout=min(cfg.connect_timeout, 2.0))
+        except OSError as exc:
+            return f"cannot connect to {where}: {exc.strerror or exc}"
+        try:
+            ctx = ssl.create_default_context(cadata=self._sdk.cert.decode("ascii", "ignore"))
+            ctx.set_alpn_protocols(["h2"])
+            with ctx.wrap_socket(sock, server_hostname="auth.spot.robot"):
+                pass   # the handshake (chain and name verified) is all we need
+        except ssl.SSLCertVerificationError as exc:
+            return (f"TLS verification of the robot at {where} failed against {ca}: {exc.verify_message}; "
+                    f"give the CA that signed the robot's certificate (cert_path / --cert); verification is "
+                    f"never disabled")
+        except (ssl.SSLError, OSError) as exc:
+            return f"TLS handshake with {where} failed: {exc}"
+        finally:
+            sock.close()
+        return f"the robot at {where} accepted TLS but its API did not answer (is it a Spot?)"
+
+    def _setup_estop(self) -> None:
+        cfg, bd = self.config, self._bd
+        try:
+            if cfg.estop_mode == "endpoint":
+                ep = bd.estop.EstopEndpoint(self._estop_client, f"{cfg.client_name}-estop", cfg.estop_timeout)
+                ep.force_simple_setup()
+                self._estop_endpoint = ep
+                self._estop_keepalive = bd.estop.EstopKeepAlive(ep, rpc_timeout_seconds=cfg.rpc_timeout,
+                                                               rpc_interval_seconds=min(cfg.estop_timeout / 3.0, 2.0))
+                _LOG.info("registered software e-stop endpoint %r (timeout %.1f s)", f"{cfg.client_name}-estop",
+                          cfg.estop_timeout)
+            status = self._estop_client.get_status(timeout=cfg.rpc_timeout)
+        except bd.exc.Error as exc:
+            raise self._translate(exc, "setting up the e-stop") from None
+        if status.stop_level != bd.estop_pb2.ESTOP_LEVEL_NONE:
+            level = bd.estop_pb2.EstopStopLevel.Name(status.stop_level)
+            details = f" ({status.stop_level_details})" if status.stop_level_details else ""
+            raise EstopError(f"the robot is e-stopped: {level}{details}; release the e-stop before connecting")
+
+    def _acquire_lease(self) -> None:
+        cfg, bd = self.config, self._bd
+        try:
+            if cfg.take_lease:
+                self._lease_client.take(timeout=cfg.rpc_timeout)
+            else:
+                self._lease_client.acquire(timeout=cfg.rpc_timeout)
+        except bd.lease.ResourceAlreadyClaimedError:
+            raise LeaseLostError("another client holds the body lease (the tablet?); release it, or take it with "
+                                 "take_lease=true") from None
+        except bd.exc.Error as exc:
+            raise self._translate(exc, "acquiring the lease") from None
+        cls = _lease_keep_alive_class(bd)
+        cls.rpc_timeout = cfg.rpc_timeout
+        self._lease_keepalive = cls(self._lease_client, must_acquire=True, return_at_exit=False,
+                                    rpc_interval_seconds=cfg.lease_retain_period,
+                                    on_failure_callback=self._on_lease_keepalive_error, warnings=False)
+        _LOG.info("body lease acquired")
+
+    def _on_lease_keepalive_error(self, exc) -> None:
+        bd = self._bd
+        if isinstance(exc, (bd.exc.LeaseUseError, bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease)) \
+                and self._fault is None:
+            self._fault = LeaseLostError(f"the body lease was revoked or taken by another client ({type(exc).__name__})")
+            _LOG.warning("lease keep-alive: %s", self._fault)
+
+    # ================================================================== fault handling
+    @property
+    def fault(self) -> RobotFault | None:
+        """The sticky fault that ended this session, if any."""
+        return self._fault
+
+    def _guard(self, sensing: bool = False) -> None:
+        """Refuse to work on a closed backend or after a sticky fault. Sensing (images, state)
+        needs neither motor power nor the lease, so it goes on after an e-stop or a lost lease."""
+        if self._closed:
+            raise RuntimeError("this backend has been closed")
+        if self._fault is not None and not (sensing and isinstance(self._fault, (EstopError, PowerError,
+                                                                                  LeaseLostError))):
+            raise type(self._fault)(str(self._fault))
+
+    def _set_fault(self, fault: RobotFault) -> RobotFault:
+        if isinstance(fault, (*_FATAL, EstopError, PowerError)) and self._fault is None:
+            self._fault = fault
+            _LOG.warning("robot fault: %s: %s", type(fault).__name__, fault)
+        return fault
+
+    def _translate(self, exc: BaseException, during: str) -> HalError:
+        """A bosdyn exception to the HAL's typed error (recording sticky faults)."""
+        bd = self._bd
+        what = f"while {during}"
+        if isinstance(exc, (bd.exc.LeaseUseError, bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease,
+                            bd.lease.LeaseResponseError)):
+            return self._set_fault(LeaseLostError(f"the body lease is no longer ours {what} "
+                                                  f"(revoked or taken by another client)"))
+        if isinstance(exc, (bd.rc.NotPoweredOnError, bd.power.EstoppedError, bd.power.KeepaliveMotorsOffError)):
+            return self._power_fault(what)
+        if isinstance(exc, (bd.rc.NoTimeSyncError, bd.ts.TimeSyncError, bd.exc.TimeSyncRequired)):
+            return self._set_fault(TimeSyncLostError(f"time sync with the robot was lost {what}; timed commands "
+                                                     f"cannot be sent safely"))
+        if isinstance(exc, bd.exc.TimedOutError):
+            return CommandTimeoutError(f"the robot did not answer within {self.config.rpc_timeout} s {what}")
+        if isinstance(exc, (bd.power.CommandTimedOutError, bd.rc.CommandTimedOutError)):
+            return CommandTimeoutError(f"the robot did not finish {during} in time")
+        if isinstance(exc, (bd.exc.UnableToConnectToRobotError, bd.exc.ProxyConnectionError,
+                            bd.exc.TransientFailureError, bd.exc.ServiceUnavailableError,
+                            bd.exc.UnknownDnsNameError, bd.exc.ClientCancelledOperationError,
+                            bd.exc.NonexistentAuthorityError, bd.exc.InvalidClientCertificateError,
+                            bd.exc.UnauthenticatedError, bd.exc.PermissionDeniedError)):
+            return self._set_fault(ConnectionLostError(f"lost the connection to the robot {what} "
+                                                       f"({type(exc).__name__})"))
+        if isinstance(exc, bd.exc.RpcError):
+            return self._set_fault(ConnectionLostError(f"communication with the robot failed {what} "
+                                                       f"({type(exc).__name__})"))
+        msg = getattr(exc, "error_message", None) or str(exc).split("\n")[0]
+        return CommandRejectedError(f"the robot rejected a command {what}: {type(exc).__name__}: {msg}")
+
+    def _power_fault(self, what: str) -> RobotFault:
+        """Motors are off: because of an e-stop (EstopError) or otherwise (PowerError)."""
+        bd = self._bd
+        try:
+            status = self._estop_client.get_status(timeout=self.config.rpc_timeout)
+            if status.stop_level != bd.estop_pb2.ESTOP_LEVEL_NONE:
+                level = bd.estop_pb2.EstopStopLevel.Name(status.stop_level)
+                details = f" ({status.stop_level_details})" if status.stop_level_details else ""
+                return self._set_fault(EstopError(f"the robot is e-stopped {what}: {level}{details}; motion is cut "
+                                                  f"and commands are refused"))
+        except bd.exc.Error:
+            pass
+        return self._set_fault(PowerError(f"motor power is off {what}"))
+
+    def _diagnose(self, what: str) -> RobotFault | None:
+        """After a command ended abnormally: the fault that explains it, if there is one."""
+        if self._fault is not None:
+            return self._fault
+        bd = self._bd
+        try:
+            self._lease_client.lease_wallet.get_lease()
+        except (bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease):
+            return self._set_fault(LeaseLostError(f"the body lease was taken by another client {what}"))
+        try:
+            state = self._state_client.get_robot_state(timeout=self.config.rpc_timeout)
+        except bd.exc.Error as exc:
+            fault = self._translate(exc, what)
+            return fault if isinstance(fault, RobotFault) else None
+        on = state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_ON
+        if not on and self._power_wanted:
+            return self._power_fault(what)
+        return None
+
+    def _stop_quietly(self) -> None:
+        """Best-effort full-body stop (after a timeout); errors are ignored."""
+        try:
+            self._cmd_client.robot_command(self._bd.Builder.stop_command(), timeout=self.config.rpc_timeout)
+        except Exception as exc:  # noqa: BLE001 - best effort on an already failing link
+            _LOG.debug("stop after a failure did not go through: %s", type(exc).__name__)
+
+    # ================================================================== command plumbing
+    def _call(self, fn, *args, during: str, **kwargs):
+        """An SDK call with HAL error translation."""
+        try:
+            return fn(*args, **kwargs)
+        except (self._bd.exc.Error, self._bd.lease.Error) as exc:
+            err = self._translate(exc, during)
+            self._unresponsive = isinstance(err, CommandTimeoutError)
+            raise err from None
+
+    def _run_command(self, command, *, during: str, expected: float, done: Callable, end_time_secs=None):
+        """Send a RobotCommand and poll its feedback until ``done(feedback) -> (finished, ok)``
+        reports it finished. Returns (ok, feedback response, seconds); ok is None when the command
+        was interrupted (overridden, e.g. by stop()). Abnormal endings are diagnosed first (the
+        typed fault is raised when there is one); a command that overruns its planned duration +
+        margin is stopped and raises CommandTimeoutError."""
+        self._guard()
+        cfg = self.config
+        # The SDK's time-sync thread exits on its first failed update; reading the property restarts
+        # it (the last estimate stays valid meanwhile; the robot refuses commands once it is not).
+        self.robot.time_sync
+        t0 = time.monotonic()
+        cmd_id = self._call(self._cmd_client.robot_command, command, end_time_secs=end_time_secs,
+                            timeout=cfg.rpc_timeout, during=during)
+        deadline = t0 + expected + cfg.command_margin
+        while True:
+            fb = self._call(self._cmd_client.robot_command_feedback, cmd_id, timeout=cfg.rpc_timeout, during=during)
+            ended = self._ended(fb)
+            if ended:
+                fault = self._diagnose(during)
+                if fault is not None:
+                    raise type(fault)(str(fault))
+                return None, fb, time.monotonic() - t0
+            finished, ok = done(fb)
+            if finished:
+                self._unresponsive = False
+                return ok, fb, time.monotonic() - t0
+            if self._fault is not None:        # e.g. the lease keep-alive found the lease gone
+                self._stop_quietly()
+                self._guard()
+            if time.monotonic() > deadline:
+                self._stop_quietly()
+                self._unresponsive = True
+                raise CommandTimeoutError(f"the robot did not finish {during} within {expected + cfg.command_margin:.1f} s "
+                                          f"(planned {expected:.1f} s); it was told to stop")
+            time.sleep(cfg.feedback_period)
+
+    def _ended(self, fb) -> bool:
+        """True when the command is no longer being processed (overridden, timed out, frozen)."""
+        P = self._bd.basic.RobotCommandFeedbackStatus.STATUS_PROCESSING
+        f = fb.feedback
+        if f.HasField("full_body_feedback"):
+            return f.full_body_feedback.status != P
+        s = f.synchronized_feedback
+        for part in ("mobility_command_feedback", "arm_command_feedback", "gripper_command_feedback"):
+            if s.HasField(part) and getattr(s, part).status != P:
+                return True
+        return False
+
+    def _state(self, during: str):
+        return self._call(self._state_client.get_robot_state, timeout=self.config.rpc_timeout, during=during)
+
+    def _tree(self, state):
+        return state.kinematic_state.transforms_snapshot
+
+    def _T(self, state, a: str, b: str) -> np.ndarray:
+        return self._bd.cv.tform(self._tree(state), a, b)
+
+    def _arm_q(self, state) -> np.ndarray:
+        joints = {j.name: j.position.value for j in state.kinematic_state.joint_states}
+        try:
+            return np.array([joints[n] for n in model.ARM_JOINTS])
+        except KeyError as exc:
+            raise CommandRejectedError(f"the robot reports no arm joint {exc}; is the arm attached?") from None
+
+    @staticmethod
+    def _local_now_ts(cv):
+        return cv.seconds_to_timestamp(time.time())
+
+    # ================================================================== observation
+    def observe(self) -> Observation:
+        self._guard(sensing=True)
+        cfg, bd = self.config, self._bd
+        cv, I = bd.cv, bd.image_pb2.Image
+        fmt = I.FORMAT_JPEG if cfg.image_format == "jpeg" else I.FORMAT_RAW
+        requests = [bd.build_image_request(cv.HAND_COLOR_SOURCE, quality_percent=cfg.jpeg_quality, image_format=fmt,
+                                           pixel_format=I.PIXEL_FORMAT_RGB_U8),
+                    bd.build_image_request(cv.HAND_DEPTH_SOURCE, image_format=I.FORMAT_RAW,
+                                           pixel_format=I.PIXEL_FORMAT_DEPTH_U16)]
+        color, depth = self._call(self._image_client.get_image, requests, timeout=cfg.image_rpc_timeout,
+                                  during="capturing hand-camera images")
+        for r in (color, depth):
+            if r.status != bd.image_pb2.ImageResponse.STATUS_OK:
+                raise CommandRejectedError(f"image source {r.source.name!r} returned "
+                                           f"{bd.image_pb2.ImageResponse.Status.Name(r.status)}")
+        try:
+            intr = cv.pinhole_to_intrinsics(color.source)
+            rgb = cv.decode_rgb(color.shot.image)
+            dep = cv.decode_depth(depth.shot.image, depth.source.depth_scale)
+            snap = color.shot.transforms_snapshot
+            sensor = color.shot.frame_name_image_sensor
+            T_world_cam = cv.tform(snap, cv.ODOM, sensor)
+            T_world_body = cv.tform(snap, cv.ODOM, cv.BODY)
+        except (ValueError, KeyError) as exc:
+            raise CommandRejectedError(f"the robot's images cannot be used: {exc}") from None
+        if dep.shape != rgb.shape[:2]:
+            raise CommandRejectedError(f"depth {dep.shape[::-1]} is not registered to colour {rgb.shape[1::-1]}: "
+                                       f"use {cv.HAND_DEPTH_SOURCE}")
+        state = self._state("reading the robot state")
+        joints = {j.name: float(j.position.value) for j in state.kinematic_state.joint_states}
+        acquired = self._robot_to_local(color.shot.acquisition_time)
+        self._frame_id += 1
+        self._shots[self._frame_id] = _Shot(acquired, snap, sensor, color.source.pinhole)
+        while len(self._shots) > 16:
+            self._shots.popitem(last=False)
+        return Observation(rgb=rgb, depth=dep, intrinsics=intr, T_world_cam=T_world_cam, T_world_body=T_world_body,
+                           stamp=acquired, holding=bool(state.manipulator_state.is_gripper_holding_item),
+                           joint_positions=joints, frame_id=self._frame_id, camera=cv.HAND_COLOR_SOURCE)
+
+    def _robot_to_local(self, ts) -> float:
+        try:
+            conv = self.robot.time_sync.get_robot_time_converter()
+            return float(conv.local_seconds_from_robot_timestamp(ts))
+        except self._bd.ts.TimeSyncError:
+            raise self._set_fault(TimeSyncLostError("time sync with the robot was lost")) from None
+
+    # ================================================================== base
+    def navigate_to(self, goal: SE2Pose, via: Sequence[SE2Pose] = ()) -> NavigateResult:
+        goal = _as_se2(goal, "goal")
+        via = [_as_se2(v, f"via[{i}]") for i, v in enumerate(via)]
+        self._guard()
+        cfg, bd = self.config, self._bd
+        cv = bd.cv
+        state = self._state("planning a base move")
+        start = SE2Pose.from_matrix(self._T(state, cv.ODOM, cv.BODY))
+        traj = plan_base(start, [*via, goal], cfg.motion.base)
+        times = cv.resample_times(traj.duration, cfg.motion.control_dt, cfg.max_trajectory_points)
+        poses = [traj.pose_at(float(t)) for t in times]
+        se2 = cv.se2_trajectory(times, poses)
+        se2.reference_time.CopyFrom(self._local_now_ts(cv))
+        params = bd.Builder.mobility_params()
+        mob = bd.mobility.MobilityCommand.Request(
+            se2_trajectory_request=bd.basic.SE2TrajectoryCommand.Request(trajectory=se2, se2_frame_name=cv.ODOM))
+        mob.params.Pack(params)
+        command = bd.robot_command_pb2.RobotCommand(
+            synchronized_command=bd.synchro.SynchronizedCommand.Request(mobility_command=mob))
+        F = bd.basic.SE2TrajectoryCommand.Feedback
+
+        def done(fb):
+            se2_fb = fb.feedback.synchronized_feedback.mobility_command_feedback.se2_trajectory_feedback
+            return se2_fb.status == F.STATUS_AT_GOAL, se2_fb.final_goal_status != F.FINAL_GOAL_STATUS_BLOCKED
+
+        end_time = time.time() + traj.duration + cfg.command_margin
+        ok, fb, took = self._run_command(command, during="walking to the goal", expected=traj.duration,
+                                         done=done, end_time_secs=end_time)
+        final = SE2Pose.from_matrix(self._T(self._state("checking the base pose"), cv.ODOM, cv.BODY))
+        travelled = self._travelled(poses, final)
+        if ok is None:
+            return NavigateResult(False, Reason.STOPPED, f"interrupted at ({final.x:.2f}, {final.y:.2f})",
+                                  duration=took, final_pose=final, distance=travelled)
+        arrived = final.distance_to(goal) <= cfg.goal_tolerance and \
+            abs(math.remainder(final.yaw - goal.yaw, 2 * math.pi)) <= cfg.goal_tolerance
+        if ok and arrived:
+            return NavigateResult(True, Reason.OK, duration=took, final_pose=final, distance=travelled)
+        blocked = fb.feedback.synchronized_feedback.mobility_command_feedback.se2_trajectory_feedback \
+            .final_goal_status == F.FINAL_GOAL_STATUS_BLOCKED
+        if blocked:
+            return NavigateResult(False, Reason.COLLISION, f"the path is blocked; stopped at ({final.x:.2f}, "
+                                  f"{final.y:.2f})", duration=took, final_pose=final, collided=True, distance=travelled)
+        return NavigateResult(False, Reason.UNREACHABLE, f"stopped {final.distance_to(goal):.2f} m from the goal",
+                              duration=took, final_pose=final, distance=travelled)
+
+    @staticmethod
+    def _travelled(poses: Sequence[SE2Pose], final: SE2Pose) -> float:
+        """Path length along the planned samples up to the one nearest where the body stopped."""
+        k = int(np.argmin([p.distance_to(final) for p in poses]))
+        return float(sum(a.distance_to(b) for a, b in zip(poses[:k], poses[1:k + 1])))
+
+    # ================================================================== arm
+    def move_arm_joints(self, joints: Sequence[float]) -> CommandResult:
+        q_goal = check_arm_target(joints)
+        self._guard()
+        cfg, bd = self.config, self._bd
+        cv = bd.cv
+        q_now = self._arm_q(self._state("planning an arm move"))
+        traj = plan_arm(q_now, q_goal, cfg.motion.arm)
+        times = cv.resample_times(traj.duration, cfg.motion.control_dt, cfg.max_trajectory_points)
+        samples = [traj.at_time(float(t)) for t in times]
+        limits = cfg.motion.arm
+        command = bd.Builder.arm_joint_move_helper(
+            joint_positions=[list(map(float, p)) for p, _ in samples], times=[float(t) for t in times],
+            joint_velocities=[list(map(float, v)) for _, v in samples], ref_time=self._local_now_ts(cv),
+            max_vel=1.05 * limits.velocity, max_acc=1.05 * limits.acceleration)
+        S = bd.arm.ArmJointMoveCommand.Feedback
+
+        def done(fb):
+            st = fb.feedback.synchronized_feedback.arm_command_feedback.arm_joint_move_feedback.status
+            return st in (S.STATUS_COMPLETE, S.STATUS_STALLED), st == S.STATUS_COMPLETE
+
+        ok, _, took = self._run_command(command, during="moving the arm joints", expected=traj.duration, done=done)
+        if ok is None:
+            return CommandResult(False, Reason.STOPPED, "the arm move was interrupted", duration=took)
+        if ok:
+            return CommandResult(True, Reason.OK, duration=took)
+        return CommandResult(False, Reason.COLLISION, "the arm stalled before reaching the joint target", duration=took)
+
+    def move_hand(self, T_body_hand: np.ndarray) -> CommandResult:
+        T = np.asarray(T_body_hand, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise InvalidCommandError(f"hand pose must be a finite 4x4 transform, got shape {T.shape}")
+        if not is_valid_transform(T):
+            raise InvalidCommandError("hand pose must be a rigid transform (orthonormal rotation, last row 0 0 0 1)")
+        self._guard()
+        q_now = self._arm_q(self._state("planning a hand move"))
+        q = kinematics.inverse_kinematics(T, q_now)
+        if q is None:
+            return CommandResult(False, Reason.IK_FAILED, "no arm configuration within limits reaches that hand pose")
+        return self._hand_to(T, self._bd.cv.BODY, plan_arm(q_now, q, self.config.motion.arm).duration, "moving the hand")
+
+    def _hand_to(self, T_frame_hand: np.ndarray, frame: str, seconds: float, during: str) -> CommandResult:
+        bd = self._bd
+        seconds = max(float(seconds), 0.2)
+        command = bd.Builder.arm_pose_command_from_pose(bd.cv.matrix_to_se3(T_frame_hand), frame, seconds=seconds)
+        command.synchronized_command.arm_command.arm_cartesian_command.pose_trajectory_in_task.reference_time \
+            .CopyFrom(self._local_now_ts(bd.cv))
+        S = bd.arm.ArmCartesianCommand.Feedback
+
+        def done(fb):
+            st = fb.feedback.synchronized_feedback.arm_command_feedback.arm_cartesian_feedback.status
+            return (st in (S.STATUS_TRAJECTORY_COMPLETE, S.STATUS_TRAJECTORY_STALLED, S.STATUS_TRAJECTORY_CANCELLED),
+                    st == S.STATUS_TRAJECTORY_COMPLETE)
+
+        ok, fb, took = self._run_command(command, during=during, expected=seconds, done=done)
+        if ok:
+            return CommandResult(True, Reason.OK, duration=took)
+        st = fb.feedback.synchronized_feedback.arm_command_feedback.arm_cartesian_feedback.status
+        if ok is None or st == S.STATUS_TRAJECTORY_CANCELLED:
+            return CommandResult(False, Reason.STOPPED, "the hand move was cancelled", duration=took)
+        return CommandResult(False, Reason.COLLISION, "the arm stalled before reaching the hand pose", duration=took)
+
+    def gaze_at(self, point: Sequence[float]) -> CommandResult:
+        p = _as_point(point, "gaze point")
+        self._guard()
+        bd = self._bd
+        command = bd.Builder.arm_gaze_command(float(p[0]), float(p[1]), float(p[2]), bd.cv.ODOM)
+        S = bd.arm.GazeCommand.Feedback
+
+        def done(fb):
+            st = fb.feedback.synchronized_feedback.arm_command_feedback.arm_gaze_feedback.status
+            return st in (S.STATUS_TRAJECTORY_COMPLETE, S.STATUS_TOOL_TRAJECTORY_STALLED), \
+                st == S.STATUS_TRAJECTORY_COMPLETE
+
+        ok, _, took = self._run_command(command, during="pointing the hand camera", expected=self.config.arm_move_timeout,
+                                        done=done)
+        if ok:
+            return CommandResult(True, Reason.OK, duration=took)
+        if ok is None:
+            return CommandResult(False, Reason.STOPPED, "the gaze was interrupted", duration=took)
+        return CommandResult(False, Reason.UNREACHABLE,
+                             f"cannot point the hand camera at ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}) from here; "
+                             f"turn the body towards it", duration=took)
+
+    def stow_arm(self) -> CommandResult:
+        """Stow; with an object in the claw, go to the carry pose instead (Spot refuses to stow it)."""
+        self._guard()
+        bd = self._bd
+        holding = bool(self._state("checking the gripper").manipulator_state.is_gripper_holding_item)
+        command = bd.Builder.arm_carry_command() if holding else bd.Builder.arm_stow_command()
+        S = bd.arm.NamedArmPositionsCommand.Feedback
+
+        def done(fb):
+            st = fb.feedback.synchronized_feedback.arm_command_feedback.named_arm_position_feedback.status
+            return st in (S.STATUS_COMPLETE, S.STATUS_STALLED_HOLDING_ITEM), st == S.STATUS_COMPLETE
+
+        ok, _, took = self._run_command(command, during="carrying" if holding else "stowing the arm",
+                                        expected=self.config.arm_move_timeout, done=done)
+        if ok:
+            return CommandResult(True, Reason.OK, duration=took)
+        if ok is None:
+            return CommandResult(False, Reason.STOPPED, "the arm move was interrupted", duration=took)
+        return CommandResult(False, Reason.COLLISION, "the arm stalled before reaching the "
+                                                      f"{'carry' if holding else 'stow'} pose", duration=took)
+
+    def _claw(self, open_fraction: float, during: str) -> CommandResult:
+        bd = self._bd
+        command = bd.Builder.claw_gripper_open_fraction_command(open_fraction)
+        C = bd.gripper.ClawGripperCommand.Feedback
+
+        def done(fb):
+            st = fb.feedback.synchronized_feedback.gripper_command_feedback.claw_gripper_feedback.status
+            return st in (C.STATUS_AT_GOAL, C.STATUS_APPLYING_FORCE), True
+
+        ok, _, took = self._run_command(command, during=during, expected=2.0, done=done)
+        return CommandResult(bool(ok), Reason.OK if ok else Reason.STOPPED, duration=took)
+
+    # ================================================================== grasp and place
+    def grasp(self, observation: Observation, pixel: tuple[int, int]) -> GraspResult:
+        if not isinstance(observation, Observation):
+            raise InvalidCommandError(f"grasp needs the Observation the pixel refers to, got "
+                                      f"{type(observation).__name__}")
+        u, v = _as_pixel(pixel, observation)
+        self._guard()
+        cfg, bd = self.config, self._bd
+        cv, M = bd.cv, bd.manip
+        if self._state("checking the gripper").manipulator_state.is_gripper_holding_item:
+            return GraspResult(False, Reason.ALREADY_HOLDING, "the claw already holds an object", holding=True)
+        target = observation.point_at_pixel(u, v)
+        if target is None:
+            return GraspResult(False, Reason.NO_DEPTH, f"no depth at pixel ({u}, {v})")
+        tgt = tuple(float(x) for x in target)
+        snapshot, sensor, pinhole = self._shot_for(observation)
+        pick = M.PickObjectInImage(pixel_xy=bd.geometry.Vec2(x=u, y=v), transforms_snapshot_for_camera=snapshot,
+                                   frame_name_image_sensor=sensor, camera_model=pinhole,
+                                   walk_gaze_mode=M.PICK_NO_AUTO_WALK_OR_GAZE)
+        t0 = time.monotonic()
+        resp = self._call(self._manip_client.manipulation_api_command,
+                          manipulation_api_request=M.ManipulationApiRequest(pick_object_in_image=pick),
+                          timeout=cfg.rpc_timeout, during="starting a grasp")
+        request = M.ManipulationApiFeedbackRequest(manipulation_cmd_id=resp.manipulation_cmd_id)
+        terminal = {M.MANIP_STATE_GRASP_SUCCEEDED, M.MANIP_STATE_GRASP_FAILED, M.MANIP_STATE_GRASP_PLANNING_NO_SOLUTION,
+                    M.MANIP_STATE_GRASP_FAILED_TO_RAYCAST_INTO_MAP, M.MANIP_STATE_DONE}
+        deadline = t0 + cfg.grasp_timeout
+        while True:
+            fb = self._call(self._manip_client.manipulation_api_feedback_command,
+                            manipulation_api_feedback_request=request, timeout=cfg.rpc_timeout, during="grasping")
+            if fb.current_state in terminal:
+                break
+            if self._fault is not None:
+                self._stop_quietly()
+                self._guard()
+            if time.monotonic() > deadline:
+                self._stop_quietly()
+                self._unresponsive = True
+                raise CommandTimeoutError(f"the grasp did not finish within {cfg.grasp_timeout:.0f} s; "
+                                          f"the robot was told to stop")
+            time.sleep(cfg.feedback_period)
+        took = time.monotonic() - t0
+        state_name = M.ManipulationFeedbackState.Name(fb.current_state)
+        if fb.current_state != M.MANIP_STATE_GRASP_SUCCEEDED:
+            fault = self._diagnose("grasping")
+            if fault is not None:
+                raise type(fault)(str(fault))
+        state = self._state("checking the grasp")
+        holding = bool(state.manipulator_state.is_gripper_holding_item)
+        if fb.current_state == M.MANIP_STATE_GRASP_SUCCEEDED and holding:
+            self._remember_grip(observation, np.asarray(tgt), fb, state)
+            return GraspResult(True, Reason.OK, "holding the object", holding=True, target_world=tgt, duration=took)
+        if fb.current_state == M.MANIP_STATE_GRASP_SUCCEEDED:
+            return GraspResult(False, Reason.GRASP_SLIPPED, "the grasp succeeded but the object is no longer held",
+                               target_world=tgt, duration=took)
+        reason = {M.MANIP_STATE_GRASP_PLANNING_NO_SOLUTION: Reason.OUT_OF_REACH,
+                  M.MANIP_STATE_GRASP_FAILED_TO_RAYCAST_INTO_MAP: Reason.NO_DEPTH}.get(fb.current_state,
+                                                                                      Reason.GRASP_MISSED)
+        return GraspResult(False, reason, f"the robot reported {state_name}", holding=holding, target_world=tgt,
+                           duration=took)
+
+    def _shot_for(self, obs: Observation):
+        """The frame snapshot, sensor frame and camera model of an observation: the robot's own
+        when this backend produced it, else synthesised from the observation's poses."""
+        bd = self._bd
+        cv = bd.cv
+        shot = self._shots.get(obs.frame_id)
+        if shot is not None and abs(shot.stamp - obs.stamp) < 1e-9:
+            return shot.snapshot, shot.sensor_frame, shot.pinhole
+        T_body_world = invert_transform(obs.T_world_body)
+        snapshot = cv.frame_tree({cv.BODY: ("", np.eye(4)), cv.ODOM: (cv.BODY, T_body_world),
+                                  cv.VISION: (cv.BODY, T_body_world),
+                                  cv.HAND_COLOR_SENSOR: (cv.BODY, T_body_world @ obs.T_world_cam)})
+        return snapshot, cv.HAND_COLOR_SENSOR, cv.intrinsics_to_pinhole(obs.intrinsics)
+
+    def _remember_grip(self, obs: Observation, target: np.ndarray, fb, state) -> None:
+        """Where the held object sits in the hand: its bottom centre (estimated from the grasp
+        image) in the hand frame at the grasp, from Spot's reported grasp pose when available."""
+        cv = self._bd.cv
+        base = estimate_object_base(obs, target)
+        snap = fb.transforms_snapshot_manipulation_data
+        try:
+            T_world_grasp = cv.tform(snap, cv.ODOM, cv.GRASP_SOLUTION_FRAME)
+        except (KeyError, ValueError):
+            T_world_grasp = self._T(state, cv.ODOM, cv.HAND)
+        self._grip = (invert_transform(T_world_grasp) @ np.append(base, 1.0))[:3]
+
+    def place(self, point: Sequence[float], release_height: float = 0.10) -> PlaceResult:
+        p = _as_point(point, "place point")
+        if not (math.isfinite(release_height) and 0.0 <= release_height <= 1.0):
+            raise InvalidCommandError(f"release_height must be within [0, 1] m, got {release_height}")
+        self._guard()
+        cfg, bd = self.config, self._bd
+        cv = bd.cv
+        t0 = time.monotonic()
+        state = self._state("checking the gripper")
+        if not state.manipulator_state.is_gripper_holding_item:
+            return PlaceResult(False, Reason.NOT_HOLDING, "nothing in the claw to place")
+        T_world_hand = self._T(state, cv.ODOM, cv.HAND)
+        T_world_body = self._T(state, cv.ODOM, cv.BODY)
+        # The held object's bottom centre in the hand frame (unknown grasp: assume 5 cm below the hand).
+        b_hand = self._grip if self._grip is not None else np.array([0.0, 0.0, -0.05])
+        yaw = math.atan2(p[1] - T_world_body[1, 3], p[0] - T_world_body[0, 3])
+        x = T_world_hand[:3, 0]
+        R = rot_z(yaw - math.atan2(x[1], x[0])) @ T_world_hand[:3, :3]   # face the release point, keep the roll
+        T_target = np.eye(4)
+        T_target[:3, :3] = R
+        T_target[:3, 3] = p + np.array([0.0, 0.0, release_height]) - R @ b_hand
+        q_now = self._arm_q(state)
+        q = kinematics.inverse_kinematics(invert_transform(T_world_body) @ T_target, q_now)
+        if q is None:
+            return PlaceResult(False, Reason.OUT_OF_REACH, "the release point cannot be reached from here; move closer",
+                               duration=time.monotonic() - t0)
+        res = self._hand_to(T_target, cv.ODOM, plan_arm(q_now, q, cfg.motion.arm).duration,
+                            "carrying the object over the release point")
+        if not res:
+            return PlaceResult(False, res.reason, res.message, duration=time.monotonic() - t0)
+        state = self._state("checking the hand")
+        release = tuple(float(v) for v in self._T(state, cv.ODOM, cv.HAND)[:3, 3])
+        self._claw(1.0, "opening the claw")
+        self._grip = None
+        # Back off along the hand's approach axis and up a little, then close the claw.
+        state = self._state("checking the hand")
+        T_back = self._T(state, cv.ODOM, cv.HAND)
+        T_back[:3, 3] += -cfg.release_retreat * T_back[:3, 0] + np.array([0.0, 0.0, 0.05])
+        q_now = self._arm_q(state)
+        q_back = kinematics.inverse_kinematics(invert_transform(self._T(state, cv.ODOM, cv.BODY)) @ T_back, q_now)
+        if q_back is not None:
+            self._hand_to(T_back, cv.ODOM, plan_arm(q_now, q_back, cfg.motion.arm).duration, "backing off")
+        self._claw(0.0, "closing the claw")
+        if self._state("checking the gripper").manipulator_state.is_gripper_holding_item:
+            return PlaceResult(False, Reason.GRASP_SLIPPED, "the object is still in the claw after opening",
+                               duration=time.monotonic() - t0)
+        return PlaceResult(True, Reason.OK, "released the object", duration=time.monotonic() - t0,
+                           release_point=release)
+
+    # ================================================================== misc
+    def stand(self) -> CommandResult:
+        """Power on (if needed) and stand. After an e-stop was released, this re-powers the robot."""
+        if self._closed:
+            raise RuntimeError("this backend has been closed")
+        if isinstance(self._fault, (EstopError, PowerError)):
+            self._fault = None            # retry: the checks below raise again if nothing changed
+        self._guard()
+        cfg, bd = self.config, self._bd
+        t0 = time.monotonic()
+        self._power_wanted = True
+        state = self._state("checking motor power")
+        if state.power_state.motor_power_state != state.power_state.MOTOR_POWER_STATE_ON:
+            _LOG.info("powering on")
+            self._call(self.robot.power_on, timeout_sec=cfg.power_on_timeout,
+                       update_frequency=1.0 / cfg.feedback_period, timeout=cfg.rpc_timeout, during="powering on")
+        S = bd.basic.StandCommand.Feedback
+
+        def done(fb):
+            st = fb.feedback.synchronized_feedback.mobility_command_feedback.stand_feedback.status
+            return st == S.STATUS_IS_STANDING, True
+
+        ok, _, _ = self._run_command(bd.Builder.synchro_stand_command(), during="standing up",
+                                     expected=cfg.stand_timeout, done=done)
+        ok = bool(ok)
+        took = time.monotonic() - t0
+        return CommandResult(ok, Reason.OK if ok else Reason.STOPPED, "standing" if ok else "stand was interrupted",
+                             duration=took)
+
+    def stop(self) -> CommandResult:
+        if self._closed:
+            raise RuntimeError("this backend has been closed")
+        if isinstance(self._fault, (EstopError, PowerError)):
+            return CommandResult(True, Reason.OK, f"motion is already cut: {self._fault}")
+        self._guard()
+        t0 = time.monotonic()
+        self._call(self._cmd_client.robot_command, self._bd.Builder.stop_command(), timeout=self.config.rpc_timeout,
+                   during="stopping")
+        return CommandResult(True, Reason.OK, "holding position", duration=time.monotonic() - t0)
+
+    def add_close_callback(self, fn: Callable[[], None]) -> None:
+        """Call ``fn`` at the end of ``close()`` (e.g. to stop a fake robot this backend talks to)."""
+        self._on_close.append(fn)
+
+    def close(self) -> None:
+        """Safe shutdown: stop, stow (if nothing is held), sit and power off, return the lease,
+        stop every keep-alive thread and close the connection. Never raises; safe to call twice."""
+        if self._closed or self._closing:
+            return
+        self._closing = True
+        cfg = self.config
+        reachable = self.robot is not None and self._cmd_client_ready() and not isinstance(self._fault, _FATAL)
+        try:
+            if reachable:
+                reachable = self._shutdown_robot()
+            self._closed = True
+            if self._lease_keepalive is not None:
+                self._lease_keepalive.shutdown()
+            if reachable and self._lease_keepalive is not None:
+                try:
+                    self._lease_client.return_lease(self._lease_client.lease_wallet.get_lease(), timeout=cfg.rpc_timeout)
+                    _LOG.info("lease returned")
+                except Exception as exc:  # noqa: BLE001
+                    _LOG.debug("lease not returned: %s", type(exc).__name__)
+            if self._estop_keepalive is not None:
+                self._estop_keepalive.shutdown()
+                if reachable:
+                    try:
+                        self._estop_endpoint.deregister()
+                    except Exception as exc:  # noqa: BLE001
+                        _LOG.debug("e-stop endpoint not deregistered: %s", type(exc).__name__)
+        finally:
+            self._closed = True
+            self._stop_threads()
+            callbacks, self._on_close = self._on_close, []
+            for fn in callbacks:
+                try:
+                    fn()
+                except Exception:  # noqa: BLE001
+                    _LOG.exception("close callback failed")
+
+    def _cmd_client_ready(self) -> bool:
+        return hasattr(self, "_cmd_client") and hasattr(self, "_lease_client") and self._lease_keepalive is not None
+
+    def _shutdown_robot(self) -> bool:
+        """Stop, stow, sit and power off, each best effort; False once the robot stops answering."""
+        cfg, bd = self.config, self._bd
+        try:
+            self._cmd_client.robot_command(bd.Builder.stop_command(), timeout=cfg.rpc_timeout)
+            if self._fault is None:
+                state = self._state_client.get_robot_state(timeout=cfg.rpc_timeout)
+                powered = state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_ON
+                if powered and not self._unresponsive and not state.manipulator_state.is_gripper_holding_item and \
+                        state.manipulator_state.stow_state != state.manipulator_state.STOWSTATE_STOWED:
+                    try:
+                        self.stow_arm()
+                    except HalError as exc:
+                        _LOG.warning("could not stow the arm at shutdown: %s", exc)
+                if powered and cfg.power_off_on_close:
+                    _LOG.info("sitting down and powering off")
+                    self.robot.power_off(cut_immediately=False, timeout_sec=cfg.stand_timeout,
+                                         update_frequency=1.0 / cfg.feedback_period, timeout=cfg.rpc_timeout)
+            return True
+        except bd.exc.TimedOutError:
+            _LOG.warning("the robot stopped answering during shutdown; skipping the remaining steps")
+            return False
+        except bd.exc.RpcError as exc:
+            _LOG.warning("lost the robot during shutdown (%s)", type(exc).__name__)
+            return False
+        except Exception as exc:  # noqa: BLE001 - shutdown never raises
+            _LOG.warning("shutdown step failed: %s: %s", type(exc).__name__, str(exc).split("\n")[0])
+            return True
+
+    def _stop_threads(self) -> None:
+        """Stop time sync and token refresh, close channels, forget the robot (no thread survives)."""
+        robot = self.robot
+        if robot is None:
+            return
+        token_thread = getattr(getattr(robot, "_token_manager", None), "th", None) or self._token_manager_thread
+        try:
+            robot._shutdown()                 # stops the time-sync thread (joins) and the token manager
+        except Exception:  # noqa: BLE001
+            pass
+        if token_thread is not None:
+            token_thread.join(timeout=2.0)
+        try:
+            robot.shutdown()                  # closes every channel
+        except Exception:  # noqa: BLE001
+            pass
+        if self._sdk is not None:
+            self._sdk.clear_robots()
+        self.robot = None
+
+    def __enter__(self) -> "SdkSpotBackend":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,94 @@
+"""Helpers for tests that drive the SDK backend against the fake Spot over TLS on 127.0.0.1.
+
+One throwaway CA and server certificate per test process (EC keys, ~50 ms); one fake robot per
+test (a fresh demo scene, an ephemeral port). Credentials are random per process and reach the
+backend only through the environment, as on a real robot.
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import os
+import secrets
+import shutil
+import tempfile
+import threading
+
+from robots.spot.fake_spot.certs import TestPKI, make_test_pki
+from robots.spot.sdk_backend import PASSWORD_ENV, USERNAME_ENV, SdkBackendConfig, SdkSpotBackend
+
+TEST_USER = "helios-test"
+TEST_PASSWORD = "pw-" + secrets.token_urlsafe(12)
+
+_PKI: TestPKI | None = None
+_PKI_LOCK = threading.Lock()
+
+
+def session_pki() -> TestPKI:
+    """The test CA + server certificate of this process (made on first use, removed at exit)."""
+    global _PKI
+    with _PKI_LOCK:
+        if _PKI is None:
+            folder = tempfile.mkdtemp(prefix="helios-test-pki-")
+            atexit.register(shutil.rmtree, folder, True)
+            _PKI = make_test_pki(folder)
+        return _PKI
+
+
+@contextlib.contextmanager
+def credentials_env(user: str | None = TEST_USER, password: str | None = TEST_PASSWORD):
+    """Temporarily set (or, with None, remove) the Spot credential variables."""
+    saved = {k: os.environ.get(k) for k in (USERNAME_ENV, PASSWORD_ENV)}
+    try:
+        for key, value in ((USERNAME_ENV, user), (PASSWORD_ENV, password)):
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+def start_fake(seed: int = 0, **kwargs):
+    """A fake Spot in the demo scene, serving the session PKI, accepting the test credentials."""
+    from robots.spot.fake_spot.launch import start_demo_fake
+
+    return start_demo_fake(session_pki(), TEST_USER, TEST_PASSWORD, seed=seed, **kwargs)
+
+
+def fast_config(port: int, **overrides) -> SdkBackendConfig:
+    """Backend settings for loopback tests: short timeouts so every fault surfaces well within 2 s."""
+    base = dict(hostname="127.0.0.1", port=port, cert_path=str(session_pki().ca_cert), estop_mode="endpoint",
+                rpc_timeout=1.0, image_rpc_timeout=2.0, connect_timeout=3.0, command_margin=0.6,
+                arm_move_timeout=3.0, grasp_timeout=8.0, feedback_period=0.02, stand_timeout=3.0,
+                power_on_timeout=3.0)
+    base.update(overrides)
+    return SdkBackendConfig(**base)
+
+
+def connect(demo, stop_fake_on_close: bool = True, **overrides) -> SdkSpotBackend:
+    """An SDK backend connected to ``demo``'s fake Spot (closing it stops the fake too)."""
+    with credentials_env():
+        backend = SdkSpotBackend(fast_config(demo.port, **overrides))
+    if stop_fake_on_close:
+        backend.add_close_callback(demo.stop)
+    return backend
+
+
+def sdk_backend_factory():
+    """For the shared HAL contract suite: (SDK backend -> fake Spot -> PyBullet, scene facts)."""
+    demo = start_fake(seed=0)
+    try:
+        backend = connect(demo)
+    except BaseException:
+        demo.stop()
+        raise
+    facts = {"mug_position": demo.facts["mug_position"], "place_table": demo.facts["place_table"]["centre"],
+             "table_height": demo.facts["table_height"]}
+    return backend, facts

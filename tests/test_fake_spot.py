@@ -1,0 +1,206 @@
+"""The fake Spot speaks the real protocol: the unmodified bosdyn client connects to it over TLS on
+127.0.0.1 with a test CA and drives it as it drives a robot; it refuses what a robot refuses."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("bosdyn.client")
+
+import bosdyn.client  # noqa: E402
+from bosdyn.api import basic_command_pb2, image_pb2, manipulation_api_pb2  # noqa: E402
+from bosdyn.client import frame_helpers  # noqa: E402
+from bosdyn.client.auth import InvalidLoginError  # noqa: E402
+from bosdyn.client.estop import EstopClient, EstopEndpoint, EstopKeepAlive  # noqa: E402
+from bosdyn.client.exceptions import InvalidRequestError, RpcError  # noqa: E402
+from bosdyn.client.image import ImageClient, build_image_request  # noqa: E402
+from bosdyn.client.lease import LeaseClient, LeaseKeepAlive  # noqa: E402
+from bosdyn.client.manipulation_api_client import ManipulationApiClient  # noqa: E402
+from bosdyn.client.robot_command import (  # noqa: E402
+    RobotCommandBuilder,
+    RobotCommandClient,
+    UnknownFrameError,
+    blocking_stand,
+)
+from bosdyn.client.robot_state import RobotStateClient  # noqa: E402
+
+from robots.spot import sdk_conversions as cv  # noqa: E402
+from robots.spot.fake_spot.certs import make_test_pki  # noqa: E402
+from robots.spot.fake_spot.server import FAULTS  # noqa: E402
+from spot_fake_fixtures import TEST_PASSWORD, TEST_USER, session_pki, start_fake  # noqa: E402
+
+pytestmark = pytest.mark.timeout(60)
+
+
+@pytest.fixture
+def demo():
+    d = start_fake(seed=0)
+    yield d
+    d.stop()
+
+
+def _robot(demo, ca=None, name="test"):
+    sdk = bosdyn.client.create_standard_sdk(name, cert_resource_glob=str(ca or session_pki().ca_cert))
+    robot = sdk.create_robot("127.0.0.1")
+    robot.update_secure_channel_port(demo.port)
+    return sdk, robot
+
+
+def _teardown(sdk, robot, *keepalives):
+    for k in keepalives:
+        k.shutdown()
+    sdk.clear_robots()                      # stops the time-sync and token threads
+    robot.shutdown()
+
+
+def test_unmodified_bosdyn_robot_drives_the_fake_over_tls(demo):
+    sdk, robot = _robot(demo)
+    robot.authenticate(TEST_USER, TEST_PASSWORD, timeout=3)
+    robot.time_sync.wait_for_sync(timeout_sec=3)
+    # Time sync found the robot's clock skew.
+    skew = robot.time_sync.get_robot_clock_skew()
+    assert abs(skew.seconds + skew.nanos * 1e-9 - demo.fake.clock_skew) < 0.05
+    assert robot.get_id().serial_number == "FAKE-SPOT-0001"
+    assert {"robot-command", "manipulation", "image", "estop"} <= {s.name for s in robot.list_services()}
+
+    endpoint = EstopEndpoint(robot.ensure_client(EstopClient.default_service_name), "pytest-estop", 9.0)
+    endpoint.force_simple_setup()
+    estop_keepalive = EstopKeepAlive(endpoint)
+    assert not robot.is_estopped()
+    lease_keepalive = LeaseKeepAlive(robot.ensure_client(LeaseClient.default_service_name), must_acquire=True,
+                                     return_at_exit=True)
+    try:
+        robot.power_on(timeout_sec=3, update_frequency=50)
+        assert robot.is_powered_on()
+        command = robot.ensure_client(RobotCommandClient.default_service_name)
+        blocking_stand(command, timeout_sec=3, update_frequency=50)
+
+        # An SE2 trajectory command in odom with an end time (converted to robot time by the client).
+        goal = RobotCommandBuilder.synchro_se2_trajectory_point_command(0.4, 0.1, 0.3, frame_helpers.ODOM_FRAME_NAME)
+        cmd_id = command.robot_command(goal, end_time_secs=time.time() + 5.0)
+        for _ in range(200):
+            fb = command.robot_command_feedback(cmd_id).feedback.synchronized_feedback.mobility_command_feedback
+            if fb.se2_trajectory_feedback.status == basic_command_pb2.SE2TrajectoryCommand.Feedback.STATUS_AT_GOAL:
+                break
+            time.sleep(0.01)
+        state = robot.ensure_client(RobotStateClient.default_service_name).get_robot_state()
+        odom_body = frame_helpers.get_a_tform_b(state.kinematic_state.transforms_snapshot,
+                                                frame_helpers.ODOM_FRAME_NAME, frame_helpers.BODY_FRAME_NAME)
+        assert math.hypot(odom_body.x - 0.4, odom_body.y - 0.1) < 1e-6
+        assert abs(odom_body.rot.to_yaw() - 0.3) < 1e-6
+        with demo.fake.sim_lock:
+            np.testing.assert_allclose(demo.fake.sim.spot.T_world_body()[:2, 3], [0.4, 0.1], atol=1e-9)
+
+        # Colour + registered depth, decoded the way Spot documents them.
+        images = robot.ensure_client(ImageClient.default_service_name).get_image([
+            build_image_request(cv.HAND_COLOR_SOURCE, image_format=image_pb2.Image.FORMAT_RAW,
+                                pixel_format=image_pb2.Image.PIXEL_FORMAT_RGB_U8),
+            build_image_request(cv.HAND_DEPTH_SOURCE, pixel_format=image_pb2.Image.PIXEL_FORMAT_DEPTH_U16)])
+        color, depth = images
+        assert depth.source.depth_scale == pytest.approx(999.0)
+        raw = np.frombuffer(depth.shot.image.data, dtype=np.uint16)
+        assert raw.size == depth.source.rows * depth.source.cols and raw.max() > 0
+        assert color.shot.frame_name_image_sensor in color.shot.transforms_snapshot.child_to_parent_edge_map
+
+        # Pick-in-image with the image's own snapshot and camera model; feedback reaches a final state.
+        manip = robot.ensure_client(ManipulationApiClient.default_service_name)
+        pick = manipulation_api_pb2.PickObjectInImage(
+            pixel_xy=cv.geometry_pb2.Vec2(x=10, y=10), transforms_snapshot_for_camera=color.shot.transforms_snapshot,
+            frame_name_image_sensor=color.shot.frame_name_image_sensor, camera_model=color.source.pinhole)
+        resp = manip.manipulation_api_command(
+            manipulation_api_request=manipulation_api_pb2.ManipulationApiRequest(pick_object_in_image=pick))
+        final = {manipulation_api_pb2.MANIP_STATE_GRASP_SUCCEEDED, manipulation_api_pb2.MANIP_STATE_GRASP_FAILED,
+                 manipulation_api_pb2.MANIP_STATE_GRASP_PLANNING_NO_SOLUTION,
+                 manipulation_api_pb2.MANIP_STATE_GRASP_FAILED_TO_RAYCAST_INTO_MAP}
+        for _ in range(500):
+            fb = manip.manipulation_api_feedback_command(
+                manipulation_api_feedback_request=manipulation_api_pb2.ManipulationApiFeedbackRequest(
+                    manipulation_cmd_id=resp.manipulation_cmd_id))
+            if fb.current_state in final:
+                break
+            time.sleep(0.01)
+        assert fb.current_state in final
+        robot.power_off(cut_immediately=False, timeout_sec=3, update_frequency=50)
+        assert not robot.is_powered_on()
+    finally:
+        _teardown(sdk, robot, lease_keepalive, estop_keepalive)
+    assert demo.fake.lease_owner is None          # returned at exit
+
+
+def test_wrong_password_and_missing_token_are_refused(demo):
+    sdk, robot = _robot(demo)
+    try:
+        with pytest.raises(InvalidLoginError):
+            robot.authenticate(TEST_USER, "not-the-password", timeout=3)
+        # Without a token every service but auth / robot-id is refused.
+        with pytest.raises(RpcError):
+            robot.ensure_client(RobotStateClient.default_service_name)
+    finally:
+        _teardown(sdk, robot)
+    assert not demo.fake.issued_tokens
+
+
+@pytest.mark.parametrize("which", ["bd_root_ca", "other_ca", "wrong_names"])
+def test_the_client_refuses_a_server_it_cannot_verify(tmp_path, which):
+    """TLS verification is on: the default BD CA, an unrelated CA, or a certificate for other names
+    (not *.spot.robot) all fail the handshake."""
+    from robots.spot.fake_spot.launch import start_demo_fake
+
+    if which == "wrong_names":
+        pki = make_test_pki(tmp_path, dns_names=("robot.example.com",))
+    else:
+        pki = session_pki()
+    demo = start_demo_fake(pki, TEST_USER, TEST_PASSWORD)
+    try:
+        ca = {"bd_root_ca": None, "other_ca": make_test_pki(tmp_path / "other").ca_cert,
+              "wrong_names": pki.ca_cert}[which]
+        sdk = bosdyn.client.create_standard_sdk("t", cert_resource_glob=str(ca) if ca else None)
+        robot = sdk.create_robot("127.0.0.1")
+        robot.update_secure_channel_port(demo.port)
+        t0 = time.monotonic()
+        with pytest.raises(RpcError):
+            robot.authenticate(TEST_USER, TEST_PASSWORD, timeout=3)
+        assert time.monotonic() - t0 < 3.0
+        sdk.clear_robots()
+        robot.shutdown()
+    finally:
+        demo.stop()
+    assert not demo.fake.issued_tokens
+
+
+def test_the_fake_refuses_what_a_robot_refuses(demo):
+    sdk, robot = _robot(demo)
+    robot.authenticate(TEST_USER, TEST_PASSWORD, timeout=3)
+    robot.time_sync.wait_for_sync(timeout_sec=3)
+    lease_keepalive = LeaseKeepAlive(robot.ensure_client(LeaseClient.default_service_name), must_acquire=True,
+                                     return_at_exit=True)
+    try:
+        robot.power_on(timeout_sec=3, update_frequency=50)
+        command = robot.ensure_client(RobotCommandClient.default_service_name)
+        goal = RobotCommandBuilder.synchro_se2_trajectory_point_command(0.4, 0.1, 0.3, frame_helpers.ODOM_FRAME_NAME)
+        with pytest.raises(InvalidRequestError):      # trajectory without an end time
+            command.robot_command(goal)
+        in_body = RobotCommandBuilder.synchro_se2_trajectory_point_command(0.4, 0.1, 0.3, "gripper_tip")
+        with pytest.raises(UnknownFrameError):
+            command.robot_command(in_body, end_time_secs=time.time() + 5)
+        too_long = RobotCommandBuilder.arm_joint_move_helper([[0.0, -1.2, 1.9, 0.0, -0.7, 0.0]] * 251,
+                                                             [0.01 * (i + 1) for i in range(251)])
+        with pytest.raises(InvalidRequestError):
+            command.robot_command(too_long)
+        assert not any(c.kind in ("se2", "arm_joint") for c in demo.fake.commands.values())
+    finally:
+        _teardown(sdk, robot, lease_keepalive)
+
+
+def test_fault_switchboard_names():
+    assert set(FAULTS) == {"estop", "lease_revoked", "connection_drop", "command_timeout", "grasp_failure",
+                           "time_sync_loss", "slow"}
+
+
+def test_unknown_fault_is_a_clear_error(demo):
+    with pytest.raises(ValueError, match="unknown fault 'meteor'; known: estop, lease_revoked"):
+        demo.fake.inject("meteor")

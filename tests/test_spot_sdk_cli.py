@@ -1,0 +1,197 @@
+"""`python -m tools spot`: the dry run against the fake Spot succeeds end to end; bad input (wrong
+hostname, untrusted certificate, certificate for other names, nothing listening, missing
+credentials, bad arguments) gives one clear error line and exit status 2, never a traceback; and no
+credential or token ever reaches a log, the terminal or the run folder."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("bosdyn.client")
+
+from robots.spot.fake_spot.certs import make_test_pki  # noqa: E402
+from robots.spot.fake_spot.server import FakeSpot  # noqa: E402
+from robots.spot.sdk_backend import PASSWORD_ENV, USERNAME_ENV  # noqa: E402
+from spot_fake_fixtures import TEST_PASSWORD, TEST_USER, connect, session_pki, start_fake  # noqa: E402
+from tools.cli import main  # noqa: E402
+
+pytestmark = pytest.mark.timeout(120)
+TASK = "Move the mug from the stool to the table"
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _cli(args: list[str], env_extra: dict | None = None, drop_credentials: bool = False, timeout: float = 60):
+    env = dict(os.environ)
+    env.pop(USERNAME_ENV, None)
+    env.pop(PASSWORD_ENV, None)
+    if not drop_credentials:
+        env[USERNAME_ENV], env[PASSWORD_ENV] = TEST_USER, TEST_PASSWORD
+    env.update(env_extra or {})
+    return subprocess.run([sys.executable, "-m", "tools", "spot", *args], capture_output=True, text=True,
+                          timeout=timeout, cwd=ROOT, env=env)
+
+
+def _one_clear_error(proc, *fragments: str) -> str:
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), proc.stderr
+    for f in fragments:
+        assert f in lines[0], lines[0]
+    return lines[0]
+
+
+# ----------------------------------------------------------------------------- the dry run
+def test_fake_dry_run_succeeds_end_to_end(tmp_path):
+    proc = _cli(["--fake", "--task", TASK, "--out", str(tmp_path), "--name", "dry"])
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    out = proc.stdout
+    for text in ("fake Spot (demo scene, seed 0)", "connected to helios-fake-spot", "grasp at pixel",
+                 "release 10 cm above the table", "shutting down", "result                     SUCCESS",
+                 "mug resting on             table_place"):
+        assert text in out, out
+    run = tmp_path / "dry"
+    outcome = json.loads((run / "outcome.json").read_text())
+    assert outcome["success"] and outcome["physical"]["resting_on"] == "table_place"
+    assert "port:" in (run / "config.yaml").read_text()
+    log = (run / "session.log").read_text()
+    assert "body lease acquired" in log and "powering off" in log
+    everything = out + proc.stderr + "".join(p.read_text() for p in run.iterdir())
+    assert TEST_PASSWORD not in everything
+
+
+# ----------------------------------------------------------------------------- security
+def _secrets_absent(texts: list[str], secrets_: list[str]) -> None:
+    blob = "\n".join(texts)
+    for s in secrets_:
+        assert s and s not in blob, "a credential or token leaked into the logs/output"
+
+
+def test_no_credential_or_token_in_logs_of_a_session(caplog, capfd):
+    caplog.set_level(logging.DEBUG)           # everything, including bosdyn's request/response dumps
+    demo = start_fake(seed=0)
+    backend = connect(demo, stop_fake_on_close=False)
+    try:
+        backend.observe()
+        backend.navigate_to((0.3, 0.0, 0.0))
+        backend.move_arm_joints((0.0, -1.2, 1.9, 0.0, -0.7, 0.0))
+    finally:
+        backend.close()
+        demo.stop()
+    tokens = demo.fake.issued_tokens
+    assert tokens
+    out, err = capfd.readouterr()
+    texts = [caplog.text, out, err] + [str(r.__dict__) for r in caplog.records]
+    assert "blocking request" in caplog.text      # bosdyn's DEBUG request logging was on
+    _secrets_absent(texts, [TEST_PASSWORD] + tokens)
+
+
+def test_no_credential_or_token_in_the_run_folder_or_terminal(tmp_path, caplog, capfd, monkeypatch):
+    caplog.set_level(logging.DEBUG)
+    issued: list[str] = []
+    original = FakeSpot.issue_token
+
+    def recording(self):
+        token = original(self)
+        issued.append(token)
+        return token
+
+    monkeypatch.setattr(FakeSpot, "issue_token", recording)
+    monkeypatch.setenv(USERNAME_ENV, TEST_USER)
+    monkeypatch.setenv(PASSWORD_ENV, TEST_PASSWORD)
+    assert main(["spot", "--fake", "--task", TASK, "--out", str(tmp_path), "--name", "sec"]) == 0
+    out, err = capfd.readouterr()
+    files = [p.read_text(errors="replace") for p in (tmp_path / "sec").rglob("*") if p.is_file()]
+    assert len(files) == 3 and issued
+    _secrets_absent([caplog.text, out, err, *files], [TEST_PASSWORD] + issued)
+
+
+def test_tls_verification_is_never_disabled_in_the_backend():
+    source = (ROOT / "robots" / "spot" / "sdk_backend.py").read_text().lower()
+    for forbidden in ("insecure", "cert_none", "check_hostname = false", "verify_mode", "channel="):
+        assert forbidden not in source, forbidden
+
+
+# ----------------------------------------------------------------------------- bad input
+def test_missing_credentials():
+    proc = _cli(["127.0.0.1", "--port", "1", "--cert", str(session_pki().ca_cert), "--task", TASK],
+                drop_credentials=True)
+    _one_clear_error(proc, "credentials missing", USERNAME_ENV, PASSWORD_ENV)
+
+
+def test_wrong_certificate_default_bd_root_ca():
+    demo = start_fake(seed=0)
+    try:
+        proc = _cli(["127.0.0.1", "--port", str(demo.port), "--task", TASK])   # no --cert: BD's root CA
+    finally:
+        demo.stop()
+    _one_clear_error(proc, "TLS verification", "Boston Dynamics root CA", "--cert")
+    assert not demo.fake.issued_tokens
+
+
+def test_certificate_for_other_names(tmp_path):
+    from robots.spot.fake_spot.launch import start_demo_fake
+
+    pki = make_test_pki(tmp_path, dns_names=("robot.example.com",))
+    demo = start_demo_fake(pki, TEST_USER, TEST_PASSWORD)
+    try:
+        proc = _cli(["127.0.0.1", "--port", str(demo.port), "--cert", str(pki.ca_cert), "--task", TASK])
+    finally:
+        demo.stop()
+    _one_clear_error(proc, "TLS verification", "mismatch")
+    assert not demo.fake.issued_tokens
+
+
+def test_wrong_hostname(capsys, monkeypatch):
+    real = socket.getaddrinfo
+
+    def no_dns(host, *args, **kwargs):        # loopback only: no query leaves the machine
+        if host == "spot-does-not-exist.invalid":
+            raise socket.gaierror(socket.EAI_NONAME, "Name or service not known")
+        return real(host, *args, **kwargs)
+
+    monkeypatch.setattr(socket, "getaddrinfo", no_dns)
+    monkeypatch.setenv(USERNAME_ENV, TEST_USER)
+    monkeypatch.setenv(PASSWORD_ENV, TEST_PASSWORD)
+    assert main(["spot", "spot-does-not-exist.invalid", "--task", TASK]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == "error: cannot resolve robot hostname 'spot-does-not-exist.invalid': Name or service not known"
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["127.0.0.1", "--task", "   "], "--task must not be empty"),
+    (["127.0.0.1", "--task", TASK, "--agent", "helios-v9"], "unknown agent 'helios-v9'; available: scripted-demo"),
+    (["--task", TASK], "HOSTNAME is required"),
+    (["127.0.0.1", "--fake", "--task", TASK], "leave out the hostname"),
+    (["127.0.0.1", "--task", TASK, "--cert", "/nonexistent/ca.pem"], "certificate file '/nonexistent/ca.pem' does not exist"),
+    (["127.0.0.1", "--task", TASK, "--set", "rpc_timeout=-1"], "rpc_timeout must be a positive number"),
+    (["127.0.0.1", "--task", TASK, "--set", "password=hunter2"], "unknown config key 'password'"),
+    (["spot..local", "--task", TASK], "cannot resolve robot hostname 'spot..local'"),
+])
+def test_bad_arguments_are_one_clear_error(args, fragment, capsys, monkeypatch, tmp_path):
+    monkeypatch.setenv(USERNAME_ENV, TEST_USER)
+    monkeypatch.setenv(PASSWORD_ENV, TEST_PASSWORD)
+    monkeypatch.chdir(tmp_path)
+    assert main(["spot", *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "\n" not in err and fragment in err, err
+
+
+def test_nothing_listening(capsys, monkeypatch, tmp_path):
+    with socket.socket() as s:            # a port that was free a moment ago: connection refused
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    monkeypatch.setenv(USERNAME_ENV, TEST_USER)
+    monkeypatch.setenv(PASSWORD_ENV, TEST_PASSWORD)
+    monkeypatch.chdir(tmp_path)
+    assert main(["spot", "127.0.0.1", "--port", str(port), "--cert", str(session_pki().ca_cert), "--task", TASK]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"error: cannot connect to 127.0.0.1:{port}") and "refused" in err, err
