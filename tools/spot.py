@@ -237,24 +237,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 class _RunLog(logging.Handler):
-    """Session log of the run folder: our loggers at INFO, everything else at WARNING."""
+    """Session log of the run folder: our loggers at INFO, everything else at WARNING. Lines are
+    buffered until the folder exists (it is made only once the robot is connected, so a typo in
+    the hostname leaves no empty run behind)."""
 
-    def __init__(self, path: Path):
+    def __init__(self):
         super().__init__(logging.INFO)
-        self._fh = open(path, "a", encoding="utf-8")
+        self._fh = None
+        self._buffer: list[str] = []
         self.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+
+    def open(self, path: Path) -> None:
+        self._fh = open(path, "a", encoding="utf-8")
+        self._fh.writelines(line + "\n" for line in self._buffer)
+        self._fh.flush()
+        self._buffer = []
 
     def emit(self, record: logging.LogRecord) -> None:
         if record.levelno < logging.WARNING and not record.name.startswith("helios"):
             return
         try:
-            self._fh.write(self.format(record) + "\n")
-            self._fh.flush()
+            line = self.format(record)
+            if self._fh is None:
+                self._buffer.append(line)
+            else:
+                self._fh.write(line + "\n")
+                self._fh.flush()
         except Exception:  # noqa: BLE001 - logging must not break the run
             self.handleError(record)
 
     def close(self) -> None:
-        self._fh.close()
+        if self._fh is not None:
+            self._fh.close()
         super().close()
 
 
@@ -290,8 +304,7 @@ def run(args: argparse.Namespace) -> int:
     config = with_overrides(SdkBackendConfig(hostname=args.hostname or "127.0.0.1", **base), list(args.overrides))
 
     run_dir = Path(args.out) / (args.name or time.strftime("%Y%m%d-%H%M%S"))
-    run_dir.mkdir(parents=True, exist_ok=True)
-    handler = _RunLog(run_dir / "session.log")
+    handler = _RunLog()
     root = logging.getLogger()
     root.addHandler(handler)
     old_level = root.level
@@ -301,12 +314,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.fake:
             demo, config, saved_env = _start_fake(args, config, USERNAME_ENV, PASSWORD_ENV)
-        (run_dir / "config.yaml").write_text(dump_yaml(config))
         hints = None
         print(f"[spot] connecting to {config.hostname}:{config.port}" + (" (fake Spot, dry run)" if demo else ""))
         backend = SdkSpotBackend(config)
         outcome, physical = None, None
         try:
+            run_dir.mkdir(parents=True, exist_ok=True)
+            (run_dir / "config.yaml").write_text(dump_yaml(config))
+            handler.open(run_dir / "session.log")
             rid = backend.robot_id
             print(f"[spot] connected to {rid.nickname or 'robot'} (serial {rid.serial_number}); "
                   f"e-stop {config.estop_mode}, lease held, standing")
