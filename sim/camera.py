@@ -87,7 +87,7 @@ def linearize_depth(zbuf: np.ndarray, near: float, far: float) -> np.ndarray:
     return far * near / (far - (far - near) * zbuf)
 
 
-FLOOR_RGB = (158, 153, 143)
+FLOOR_RGB = (150, 126, 100)   # light oak, distinct from the off-white walls
 
 
 def camera_request(intr: CameraIntrinsics, T_world_cam: np.ndarray, config: CameraConfig,

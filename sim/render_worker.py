@@ -24,10 +24,13 @@ from sim.camera import CameraConfig, RenderedFrame, decode, raw_render
 
 
 def _worker_main(conn) -> None:
-    import pybullet
-    from pybullet_utils.bullet_client import BulletClient
+    from sim.world import quiet_native_stdout
 
-    client = BulletClient(connection_mode=pybullet.DIRECT)
+    with quiet_native_stdout():
+        import pybullet
+        from pybullet_utils.bullet_client import BulletClient
+
+        client = BulletClient(connection_mode=pybullet.DIRECT)
     conn.send(("ready",))
     try:
         while True:

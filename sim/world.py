@@ -11,7 +11,10 @@ is kinematic and only advances the clock (``advance``), with collision queries a
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+import sys
 from dataclasses import dataclass, field
 from typing import Iterable
 
@@ -87,17 +90,41 @@ class BodyInfo:
     extra: dict = field(default_factory=dict)
 
 
+@contextlib.contextmanager
+def quiet_native_stdout():
+    """Silence C-level prints on file descriptors 1 and 2 (PyBullet writes a build banner on import
+    and "argv[0]=" on every connect, which would flood the logs of long trial batches)."""
+    fds = []
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+            fds.append(stream.fileno())
+        except (AttributeError, OSError, ValueError):   # not a real file (e.g. captured): leave it
+            pass
+    saved = [os.dup(fd) for fd in fds]
+    try:
+        with open(os.devnull, "wb") as devnull:
+            for fd in fds:
+                os.dup2(devnull.fileno(), fd)
+            yield
+    finally:
+        for fd, copy in zip(fds, saved):
+            os.dup2(copy, fd)
+            os.close(copy)
+
+
 class World:
     """A PyBullet physics client with deterministic settings and a body registry."""
 
     def __init__(self, config: WorldConfig = WorldConfig()):
-        import pybullet
-        from pybullet_utils.bullet_client import BulletClient
+        with quiet_native_stdout():
+            import pybullet
+            from pybullet_utils.bullet_client import BulletClient
 
+            self._raw_client = BulletClient(connection_mode=pybullet.DIRECT)
         self.config = config
         self.pb = pybullet
         self.visual_log: list[tuple[str, tuple, dict]] = []
-        self._raw_client = BulletClient(connection_mode=pybullet.DIRECT)
         self.client = _LoggedClient(self._raw_client, self.visual_log)
         self.time = 0.0
         self.steps = 0

@@ -13,6 +13,8 @@ from tools.cli import CliError
 # suite name -> module exposing ``add_arguments(parser)`` (optional) and ``run(args) -> str``
 SUITES: dict[str, str] = {
     "sim": "tools.bench_sim",
+    "maps": "tools.bench_maps",
+    "scenes": "tools.bench_scenes",
 }
 
 

@@ -16,6 +16,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("tools.demo", "scripted Spot pick-and-place in a small scene; prints the outcome, writes a .rrd"),
     "bench": ("tools.bench", "performance benchmarks printed as tables (sim, ...)"),
     "spot": ("tools.spot", "run an agent on a real Spot via the Spot SDK (--fake: dry run against a simulated Spot)"),
+    "trials": ("tools.trials", "run an agent over episodes in simulation; resumable results and a metrics table"),
+    "episodes": ("tools.episodes", "generate an episode split from a seed, or check an episode file"),
+    "tsdf": ("tools.tsdf", "TSDF-reconstruct what an episode saw; report true-surface coverage, write the mesh"),
 }
 
 
@@ -24,10 +27,15 @@ def user_error_types() -> tuple[type[BaseException], ...]:
     from helios.configuration import ConfigError
     from robots.hal import HalError
     from robots.spot.urdf import UrdfError
+    from tasks.episodes import DatasetError
+    from tasks.registry import UnknownAgentError
+    from tasks.spec import TaskSpecError
+    from tasks.trials import RunFolderError
 
     # HalError covers the Spot SDK backend's errors too (robots.spot.sdk_backend: CredentialsError,
     # SpotConnectError, SpotSdkMissingError and the HAL's RobotFault subclasses).
-    return (ConfigError, HalError, UrdfError, CliError, FileNotFoundError)
+    return (ConfigError, HalError, UrdfError, CliError, FileNotFoundError, DatasetError, TaskSpecError,
+            UnknownAgentError, RunFolderError)
 
 
 class CliError(Exception):

@@ -36,7 +36,7 @@ from sim.camera import CameraConfig
 from sim.grasping import GraspConfig
 from sim.render_worker import RenderWorker, moving_state
 from sim.spot import SpotBody
-from sim.world import OBJECT, World, WorldConfig
+from sim.world import FURNITURE, OBJECT, STRUCTURE, World, WorldConfig
 
 
 @dataclass(frozen=True)
@@ -49,9 +49,12 @@ class SimBackendConfig:
     # "process": streamed frames render in a worker process, overlapping physics (needs a spare
     # core); "inline": render in this process (use when several simulations share the cores).
     stream_renderer: Literal["process", "inline"] = "process"
-    gaze_hand_position: tuple[float, float, float] = (0.65, 0.0, 0.35)   # body frame, m
+    # Body frame, m: high and close to the body, so the hand stays above furniture and inside the
+    # footprint the base was checked with while it turns the camera.
+    gaze_hand_position: tuple[float, float, float] = (0.45, 0.0, 0.50)
     carry_hand_position: tuple[float, float, float] = (0.55, 0.0, 0.50)  # body frame, m (object held in front)
-    arm_tolerance: float = 0.03            # rad, per joint, for an arm move to count as arrived
+    arm_tolerance: float = 0.03            # rad, per joint, for an arm move to count as arrived ...
+    hand_tolerance: float = 0.015          # ... or m of hand position error (a loaded arm sags a little)
     arm_settle_time: float = 0.6           # s allowed after a trajectory ends to reach the tolerance
     contact_check_every: int = 4           # physics steps between arm contact checks
     # Free-space arm moves (nothing held, no intended gripper contact) replay the ruckig trajectory
@@ -90,6 +93,9 @@ class SimSpotBackend:
         self.intrinsics = CameraIntrinsics(native.width, native.height, native.fx, native.fy, native.cx,
                                            native.cy).scaled(config.camera.width, config.camera.height)
         self.collision_events: list[CollisionEvent] = []
+        # Sim-only record of the last release (object body, its world position when the claw opened),
+        # for the metrics judge.
+        self.last_release: tuple[int, np.ndarray] | None = None
         self._active_contacts: set[int] = set()
         self._held: _Held | None = None
         self._frame_id = 0
@@ -228,7 +234,7 @@ class SimSpotBackend:
         axis = R_hand_cam[:, 2]
         tilt = math.atan2(axis[2], axis[0])  # the camera looks ~9 degrees above the hand's x axis
         base = np.array(self.config.gaze_hand_position)
-        for dz, dx in ((0.0, 0.0), (0.15, 0.0), (-0.15, 0.0), (0.0, -0.2), (0.25, -0.15)):
+        for dz, dx in ((0.0, 0.0), (-0.15, 0.1), (0.1, -0.1), (-0.3, 0.15), (0.0, -0.2)):
             hand_p = base + np.array([dx, 0.0, dz])
             if np.linalg.norm(p_body - hand_p) < 0.15:
                 continue
@@ -243,24 +249,64 @@ class SimSpotBackend:
         return None
 
     def stow_arm(self) -> CommandResult:
-        """Stow; with an object in the claw, go to the carry pose instead (Spot refuses to stow it)."""
-        self._check_open()
-        if self._held is not None:
-            q = self._carry_solution()
-            if q is None:
-                return CommandResult(False, Reason.IK_FAILED, "carry pose unreachable")
-            return self._move_arm(q, phase="carry")
-        return self._move_arm(np.array(model.ARM_STOW), phase="stow")
+        """Stow; with an object in the claw, go to the carry pose instead (Spot refuses to stow it).
 
-    def _carry_solution(self) -> np.ndarray | None:
-        """Hand at the carry position, facing forward, keeping the roll it grasped with."""
+        From an extended arm the hand first retracts along a straight line: back towards the body
+        at its current height, then up to the carry/gaze height, so neither the hand nor a held
+        object is dragged through the furniture it was just working on.
+        """
+        self._check_open()
+        t0 = self.world.time
+        holding = self._held is not None
         T_cur = kinematics.hand_pose(self.spot.arm_q())
         x = T_cur[:3, 0]
-        R = rot_z(-math.atan2(x[1], x[0])) @ T_cur[:3, :3]
-        T = np.eye(4)
-        T[:3, :3] = R
-        T[:3, 3] = self.config.carry_hand_position
-        return kinematics.inverse_kinematics(T, self.spot.arm_q())
+        R_fwd = rot_z(-math.atan2(x[1], x[0])) @ T_cur[:3, :3]   # same pitch/roll, facing forward
+        tuck = np.array(self.config.carry_hand_position if holding else self.config.gaze_hand_position)
+        waypoints = []
+        if T_cur[0, 3] > tuck[0] + 0.05 or T_cur[2, 3] < tuck[2] - 0.15:
+            back = T_cur.copy()
+            back[:3, 3] = [tuck[0], T_cur[1, 3] * 0.5, max(T_cur[2, 3], tuck[2] - 0.3)]
+            waypoints.append(back)
+            up = np.eye(4)
+            up[:3, :3] = R_fwd if holding else kinematics.look_at_hand_pose(tuck, tuck + [1.0, 0.0, -0.3])[:3, :3]
+            up[:3, 3] = tuck
+            waypoints.append(up)
+        phase = "carry" if holding else "stow"
+        res = self._move_hand_linear(waypoints, phase)
+        if not res:
+            return res
+        if holding:
+            T = np.eye(4)
+            T[:3, :3] = R_fwd
+            T[:3, 3] = tuck
+            q = kinematics.inverse_kinematics(T, self.spot.arm_q())
+            if q is None:
+                return CommandResult(False, Reason.IK_FAILED, "carry pose unreachable", duration=self.world.time - t0)
+        else:
+            q = np.array(model.ARM_STOW)
+        res = self._move_arm(q, phase=phase)
+        return CommandResult(res.success, res.reason, res.message, duration=self.world.time - t0)
+
+    def _move_hand_linear(self, waypoints, phase: str, steps_per_metre: float = 12.0,
+                          allow_gripper_contact: bool = False) -> CommandResult:
+        """Move the hand through body-frame poses along (approximately) straight lines: each leg
+        is cut into short joint-space moves between IK solutions of interpolated poses."""
+        t0 = self.world.time
+        T_prev = kinematics.hand_pose(self.spot.arm_q())
+        for T_next in waypoints:
+            n = max(1, int(math.ceil(np.linalg.norm(T_next[:3, 3] - T_prev[:3, 3]) * steps_per_metre)))
+            for k in range(1, n + 1):
+                T = T_prev.copy()
+                T[:3, 3] = T_prev[:3, 3] + (T_next[:3, 3] - T_prev[:3, 3]) * k / n
+                T[:3, :3] = T_prev[:3, :3] if k < n else T_next[:3, :3]
+                q = kinematics.inverse_kinematics(T, self.spot.arm_q())
+                if q is None:
+                    continue   # skip an unreachable intermediate pose; the next one may be fine
+                res = self._move_arm(q, phase, allow_gripper_contact)
+                if not res:
+                    return CommandResult(False, res.reason, res.message, duration=self.world.time - t0)
+            T_prev = T_next
+        return CommandResult(True, Reason.OK, duration=self.world.time - t0)
 
     def _move_arm(self, q_goal: np.ndarray, phase: str, allow_gripper_contact: bool = False) -> CommandResult:
         t0 = self.world.time
@@ -294,10 +340,12 @@ class SimSpotBackend:
                 break
             self._step(1)
         self._check_slip()
-        err = float(np.max(np.abs(self.spot.arm_q() - q_goal)))
-        if err >= self.config.arm_tolerance:
-            return CommandResult(False, Reason.TIMEOUT, f"arm stopped {err:.3f} rad short of the target",
-                                 duration=self.world.time - t0)
+        q_now = self.spot.arm_q()
+        err = float(np.max(np.abs(q_now - q_goal)))
+        hand_err = float(np.linalg.norm(kinematics.hand_pose(q_now)[:3, 3] - kinematics.hand_pose(q_goal)[:3, 3]))
+        if err >= self.config.arm_tolerance and hand_err >= self.config.hand_tolerance:
+            return CommandResult(False, Reason.TIMEOUT, f"arm stopped {err:.3f} rad ({100 * hand_err:.1f} cm) short "
+                                                        f"of the target", duration=self.world.time - t0)
         return CommandResult(True, Reason.OK, duration=self.world.time - t0)
 
     def _follow_arm_kinematically(self, traj, q_goal: np.ndarray, phase: str, t0: float) -> CommandResult | None:
@@ -335,6 +383,15 @@ class SimSpotBackend:
                 continue
             current.add((self.spot.link_name.get(link, str(link)), body))
         self._record_contacts(sorted(current), phase)
+        if held is not None and not allow_gripper_contact:
+            # Outside grasping and placing, the held object is part of what the arm moves: jammed
+            # against furniture or a wall it stops the arm and counts as a collision.
+            for pt in self.world.contacts(held):
+                other = pt[2]
+                if other != self.spot.id and self.world.bodies.get(other) is not None and \
+                        self.world.bodies[other].kind in (FURNITURE, STRUCTURE):
+                    self._record_contacts(sorted(current) + [("held object", other)], phase)
+                    return ("held object", other)
         if not current:
             return None
         # Only contacts with the static scene stop the arm; nudging a small object is allowed.
@@ -397,11 +454,7 @@ class SimSpotBackend:
         cid = grasping.attach(self.world, self.spot.id, fixed_link, body, cfg.hold_force)
         T_wrist_obj = invert_transform(self.spot.link_pose("arm0.link_wr1")) @ self.world.pose(body)
         self._held = _Held(body, cid, T_wrist_obj)
-        T_lift = kinematics.hand_pose(self.spot.arm_q())
-        T_lift[:3, 3] += cfg.lift_height * (T_body_world[:3, :3] @ np.array([0.0, 0.0, 1.0]))
-        q_lift = kinematics.inverse_kinematics(T_lift, self.spot.arm_q())
-        if q_lift is not None:
-            self._move_arm(q_lift, "grasp", allow_gripper_contact=True)
+        self._lift(T_body_world[:3, :3] @ np.array([0.0, 0.0, 1.0]))
         self._check_slip()
         if self._held is None:
             self._retreat_after_failed_grasp()
@@ -409,6 +462,20 @@ class SimSpotBackend:
                                target_world=tgt, duration=self.world.time - t0)
         return GraspResult(True, Reason.OK, f"holding {self.world.bodies[body].name}", holding=True,
                            target_world=tgt, duration=self.world.time - t0)
+
+    def _lift(self, up_body: np.ndarray) -> None:
+        """Raise the grasped object clear of its support: straight up by ``lift_height`` if the arm
+        reaches, otherwise up and back towards the body (an arm at full stretch cannot go straight up)."""
+        cfg = self.config.grasp
+        T0 = kinematics.hand_pose(self.spot.arm_q())
+        back = -np.array([T0[0, 0], T0[1, 0], 0.0])
+        back /= max(np.linalg.norm(back), 1e-9)
+        for up, away in ((1.0, 0.0), (0.8, 0.5), (0.6, 0.9), (0.4, 1.2)):
+            T = T0.copy()
+            T[:3, 3] += cfg.lift_height * (up * up_body + away * back)
+            if kinematics.inverse_kinematics(T, self.spot.arm_q()) is not None:
+                self._move_hand_linear([T], "grasp", allow_gripper_contact=True)
+                return
 
     def _retreat_after_failed_grasp(self) -> None:
         """Open, back the hand out along its approach axis, close again."""
@@ -469,8 +536,9 @@ class SimSpotBackend:
             return PlaceResult(False, Reason.OUT_OF_REACH, "the release point cannot be reached from here; move closer",
                                duration=self.world.time - t0)
         res = self._move_arm(q, "place", allow_gripper_contact=True)
-        if res.reason == Reason.COLLISION:
-            return PlaceResult(False, Reason.COLLISION, res.message, duration=self.world.time - t0)
+        if not res.success:   # never let go somewhere it was not meant to
+            return PlaceResult(False, res.reason, f"did not reach the release pose: {res.message}",
+                               duration=self.world.time - t0)
         release = tuple(float(v) for v in self.spot.T_world_hand()[:3, 3])
         self._release()
         T_back = kinematics.hand_pose(self.spot.arm_q())
@@ -487,6 +555,7 @@ class SimSpotBackend:
     def _release(self) -> None:
         if self._held is None:
             return
+        self.last_release = (self._held.body_id, self.world.position(self._held.body_id))
         grasping.detach(self.world, self._held.constraint_id, self.spot.id, self._held.body_id)
         self._held = None
         self._gripper_to(self.config.grasp.open_angle, self.config.grasp.close_force, 4.0, 0.25)

@@ -1,0 +1,172 @@
+"""Metrics judged from ground truth, on constructed situations in a hand-built kitchen: success, a
+held object, an object on the wrong receptacle, one that falls off, a collision, a wrong pick, a
+timeout and never looking."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from robots.hal import SE2Pose
+from robots.spot.sim_backend import SimSpotBackend
+from sim.scenes.catalog import make_object, make_receptacle
+from sim.scenes.home import build_home
+from sim.scenes.layout import HomeLayout, PlacedObject, PlacedReceptacle, Room, Wall
+from sim.spot import SpotBody
+from sim.world import World
+from tasks.episodes import Episode, SceneRef
+from tasks.metrics import FAILURE_REASONS, EpisodeJudge
+from tasks.oracle import OracleAgent
+from tasks.runner import RunnerConfig, SimEpisode, run_episode
+from tasks.trials import summarize
+
+
+def _kitchen() -> HomeLayout:
+    rng = np.random.default_rng(0)
+    table, desk, stool = make_receptacle("table", rng), make_receptacle("desk", rng), make_receptacle("stool", rng)
+    mug, cup = make_object("mug", rng), make_object("cup", rng)
+    d_hy = desk.half_footprint[1]
+    recs = [PlacedReceptacle("table_1", table, 2.0, 2.5, 0.0, "kitchen"),
+            PlacedReceptacle("desk_1", desk, 5.0, 6.0 - 0.09 - d_hy, 0.0, "kitchen"),
+            PlacedReceptacle("stool_1", stool, 5.5, 1.2, 0.0, "kitchen")]
+    objs = [PlacedObject("mug_1", mug, "table_1", 0, 1.85, 2.45, table.surfaces[0].centre[2], 0.3),
+            PlacedObject("cup_1", cup, "stool_1", 0, 5.5, 1.2, stool.surfaces[0].centre[2], 0.0)]
+    walls = [Wall(0, 0, 7, 0), Wall(7, 0, 7, 6), Wall(7, 6, 0, 6), Wall(0, 6, 0, 0)]
+    return HomeLayout(0, 7.0, 6.0, [Room("kitchen", 0, 0, 7, 6)], walls, [], recs, objs, (3.6, 3.6, math.pi))
+
+
+def _episode(goal="desk") -> Episode:
+    return Episode(episode_id="test-00000", split="test", scene=SceneRef(0), task=f"Move the mug from the table to the {goal}",
+                   object_category="mug", start_receptacle_category="table", goal_receptacle_category=goal,
+                   target_object="mug_1", start_receptacle="table_1", goal_receptacles=(f"{goal}_1",),
+                   robot_start=(3.6, 3.6, math.pi))
+
+
+def _sim(goal="desk") -> SimEpisode:
+    world = World()
+    scene = build_home(world, _kitchen())
+    ep = _episode(goal)
+    backend = SimSpotBackend(world, SpotBody(world, ep.start_pose))
+    return SimEpisode(ep, world, scene, backend, EpisodeJudge(backend, scene, ep))
+
+
+def _run(agent_factory, goal="desk", config=RunnerConfig()):
+    sim = _sim(goal)
+    try:
+        agent = agent_factory(sim)
+        result = run_episode(agent, sim.backend, sim.episode, config, sim.judge, start_time=sim.world.time)
+        return result, sim.judge, agent
+    finally:
+        sim.close()
+
+
+class _Bump(OracleAgent):
+    """Walks into the wall first, then does the task."""
+
+    def act(self, robot):
+        if self._phase == "fetch":
+            robot.navigate_to(SE2Pose(6.9, 3.6, 0.0))
+        return super().act(robot)
+
+
+class _WrongPick(OracleAgent):
+    """Picks the cup on the stool (a look-alike) instead of the mug."""
+
+    def __init__(self, sim):
+        super().__init__(sim)
+        self._targets = [sim.scene.object_ids["cup_1"]]
+        self._support = {self._targets[0]: "stool_1"}
+
+
+class _HoldOn(OracleAgent):
+    """Grasps, walks to the desk and looks at it, then declares itself done without placing."""
+
+    def act(self, robot):
+        super().act(robot)
+        if self._phase == "deliver":
+            centre = self._scene.surface_points("desk_1")[0]
+            here = robot.observe().body_pose
+            pose = self._scene.nav.approach_poses(centre + [0, 0, 0.25], (here.x, here.y), self._scene.front("desk_1"))[0]
+            self._walk(robot, pose)
+            robot.gaze_at(centre)
+            robot.observe()
+        return True
+
+
+class _Idle:
+    name = "idle"
+
+    def reset(self, task, rng):
+        pass
+
+    def act(self, robot):
+        robot.observe()
+        return True
+
+
+def test_oracle_success_latches_every_phase():
+    result, judge, agent = _run(OracleAgent)
+    m = result.metrics
+    assert (m.find_obj, m.pick, m.find_rec, m.place, m.success) == (True, True, True, True, True), agent.log
+    assert m.failure_reason is None and m.collisions == 0 and m.pick_attempts == 1
+
+
+def test_object_put_on_the_wrong_receptacle_is_misidentified():
+    def factory(sim):
+        agent = OracleAgent(sim)
+        agent._goals = ["stool_1"]
+        return agent
+
+    result, _, agent = _run(factory)
+    m = result.metrics
+    assert m.pick and not m.place and not m.success
+    assert m.released_on == "stool_1" and m.failure_reason == "misidentified"
+
+
+def test_object_released_at_the_edge_falls_off():
+    def factory(sim):
+        return OracleAgent(sim, edge_inset=-0.04)   # release 4 cm beyond the near edge
+
+    result, _, agent = _run(factory)
+    m = result.metrics
+    assert m.find_rec and not m.place and m.failure_reason == "fell_off", agent.log
+    assert m.released_on in ("ground", "floor")
+
+
+def test_a_collision_turns_a_placed_object_into_a_failure():
+    result, _, agent = _run(_Bump)
+    m = result.metrics
+    assert m.place and m.collisions >= 1 and not m.success and m.failure_reason == "collision", agent.log
+
+
+def test_grasping_a_lookalike_is_misidentified_and_pick_stays_false():
+    result, _, agent = _run(_WrongPick)
+    m = result.metrics
+    assert m.picked_wrong_object and not m.pick and m.failure_reason == "misidentified", agent.log
+
+
+def test_holding_at_the_end_is_a_failed_place_or_a_timeout():
+    result, _, _ = _run(_HoldOn)
+    assert result.metrics.pick and not result.metrics.place and result.metrics.failure_reason == "place_failed"
+    result, _, _ = _run(OracleAgent, config=RunnerConfig(max_sim_time=45.0))   # out of time while carrying
+    assert result.limit_hit and result.metrics.pick and result.metrics.failure_reason == "timeout"
+
+
+def test_never_finding_the_object():
+    result, _, _ = _run(lambda sim: _Idle())
+    m = result.metrics
+    assert not m.find_obj and m.failure_reason == "not_found"
+    assert result.commands == 1
+
+
+def test_summary_rates_and_standard_errors():
+    recs = [{"metrics": {"find_obj": True, "pick": i < 3, "find_rec": i < 2, "place": i < 1, "success": i < 1,
+                         "failure_reason": None if i < 1 else "pick_failed", "collisions": 0},
+             "sim_time": 10.0, "wall_time": 1.0, "error": None} for i in range(4)]
+    s = summarize(recs)
+    assert s["FindObj"]["percent"] == 100.0 and s["FindObj"]["se"] == 0.0
+    assert s["Pick"]["percent"] == 75.0 and s["Pick"]["se"] == pytest.approx(100 * math.sqrt(0.75 * 0.25 / 4))
+    assert s["SR"]["count"] == 1 and s["failure_reasons"]["pick_failed"] == 3
+    assert set(s["failure_reasons"]) == set(FAILURE_REASONS)

@@ -1,0 +1,136 @@
+"""Runner limits and error handling; trial batch files (append + fsync, resume, torn lines);
+the oracle end to end on smoke episodes; the trials/episodes command lines."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from tasks.episodes import load_split
+from tasks.registry import UnknownAgentError, make_agent
+from tasks.runner import RunnerConfig, run_sim_episode
+from tasks.trials import TrialConfig, episode_seed, prepare_run_folder, read_results, run_batch, RunFolderError
+
+
+class _Looper:
+    name = "looper"
+
+    def reset(self, task, rng):
+        self.rng = rng
+
+    def act(self, robot):
+        robot.observe()
+        return False
+
+
+class _Crasher:
+    name = "crasher"
+
+    def reset(self, task, rng):
+        pass
+
+    def act(self, robot):
+        raise ZeroDivisionError("agent bug")
+
+
+def test_command_budget_stops_an_endless_agent():
+    ep = load_split("smoke")[0]
+    result = run_sim_episode(lambda sim: _Looper(), ep, RunnerConfig(max_commands=5))
+    assert result.limit_hit and result.commands == 5
+    assert result.metrics.failure_reason in ("timeout", "not_found")
+
+
+def test_an_agent_exception_is_recorded_not_raised():
+    ep = load_split("smoke")[0]
+    result = run_sim_episode(lambda sim: _Crasher(), ep)
+    assert result.error.startswith("ZeroDivisionError: agent bug")
+    assert result.metrics is not None and not result.success
+
+
+def test_unknown_agent_lists_valid_ones():
+    with pytest.raises(UnknownAgentError, match="unknown agent 'helio'; valid agents: oracle"):
+        make_agent("helio", None)
+
+
+def test_episode_seeds_are_stable_and_distinct():
+    assert episode_seed(0, "val-00001") == episode_seed(0, "val-00001")
+    assert len({episode_seed(0, f"val-{i:05d}") for i in range(200)}) == 200
+    assert episode_seed(1, "val-00001") != episode_seed(0, "val-00001")
+
+
+def test_oracle_completes_smoke_episodes_and_batches_resume(tmp_path):
+    episodes = load_split("smoke")[:2]
+    cfg = TrialConfig(agent="oracle", split="smoke", episodes=2)
+    out = tmp_path / "run"
+    first = run_batch(cfg, episodes[:1], out)
+    assert len(first) == 1 and first[0]["metrics"]["success"], first[0]
+    lines = (out / "episodes.jsonl").read_text().splitlines()
+    # a kill in the middle of writing the second line leaves a torn line: resume repairs and continues
+    with (out / "episodes.jsonl").open("a") as fh:
+        fh.write('{"episode_id": "smoke-00001", "trunc')
+    records = run_batch(cfg, episodes, out)
+    final = (out / "episodes.jsonl").read_text().splitlines()
+    assert final[0] == lines[0] and len(final) == 2
+    assert [json.loads(l)["episode_id"] for l in final] == [e.episode_id for e in episodes]
+    assert all(r["metrics"]["success"] for r in records)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["episodes"] == 2 and summary["SR"]["percent"] == 100.0
+    # re-running a finished batch runs nothing and changes nothing
+    run_batch(cfg, episodes, out)
+    assert (out / "episodes.jsonl").read_text().splitlines() == final
+
+
+def test_a_run_folder_refuses_a_different_config(tmp_path):
+    prepare_run_folder(tmp_path, TrialConfig(seed=0))
+    with pytest.raises(RunFolderError, match="different configuration .*seed"):
+        prepare_run_folder(tmp_path, TrialConfig(seed=1))
+    assert read_results(tmp_path / "episodes.jsonl") == {}
+
+
+@pytest.mark.slow
+def test_oracle_reaches_90_percent_on_the_smoke_split(tmp_path):
+    records = run_batch(TrialConfig(agent="oracle", split="smoke", episodes=20), load_split("smoke"), tmp_path)
+    sr = sum(r["metrics"]["success"] for r in records) / len(records)
+    assert sr >= 0.9
+    for r in records:   # failures are physical, each with a reason
+        assert r["error"] is None
+        assert r["metrics"]["success"] or r["metrics"]["failure_reason"] in ("collision", "fell_off", "pick_failed",
+                                                                              "place_failed")
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "tools", *args], capture_output=True, text=True, timeout=600)
+
+
+@pytest.mark.parametrize("args,message", [
+    (["trials", "--agent", "helio"], "error: unknown agent 'helio'; valid agents: oracle"),
+    (["trials", "--split", "vall"], "error: unknown split 'vall'; valid splits: smoke, val, train"),
+    (["trials", "--episodes", "21"], "error: split 'smoke' has 20 episodes, fewer than the 21 requested"),
+    (["trials", "runner.max_sim_tme=3"], "error: unknown config key 'runner.max_sim_tme'"),
+    (["trials", "--episodes-file", "nope.jsonl"], "error: episode file 'nope.jsonl' does not exist"),
+    (["episodes", "generate", "--name", "x", "--seed", "1", "--count", "0", "--out", "/tmp/x.jsonl"],
+     "error: --count must be positive, got 0"),
+    (["tsdf", "smoke-99999"], "error: no episode 'smoke-99999'"),
+])
+def test_cli_bad_input_is_one_clear_line(args, message):
+    proc = _cli(*args)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith(message)
+    assert "Traceback" not in proc.stderr
+
+
+def test_cli_trials_and_episodes_commands(tmp_path):
+    proc = _cli("trials", "--agent", "oracle", "--split", "smoke", "--episodes", "1", "--out", str(tmp_path / "r"))
+    assert proc.returncode == 0, proc.stderr
+    assert "| run | FindObj | Pick | FindRec | Place | SR |" in proc.stdout
+    assert "1/1 smoke-00000 success" in proc.stdout
+    assert (tmp_path / "r" / "config.yaml").read_text().startswith("helios_version:")
+    out = tmp_path / "mine.jsonl"
+    proc = _cli("episodes", "generate", "--name", "mine", "--seed", "3", "--count", "2", "--difficulty", "easy",
+                "--out", str(out))
+    assert proc.returncode == 0 and len(out.read_text().splitlines()) == 2
+    proc = _cli("episodes", "check", str(out))
+    assert "2 valid episodes" in proc.stdout
