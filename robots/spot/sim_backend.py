@@ -96,6 +96,7 @@ class SimSpotBackend:
         # Sim-only record of the last release (object body, its world position when the claw opened),
         # for the metrics judge.
         self.last_release: tuple[int, np.ndarray] | None = None
+        self.last_grasp_hand_pose: np.ndarray | None = None   # T_world_hand when the jaws started closing
         self._active_contacts: set[int] = set()
         self._held: _Held | None = None
         self._frame_id = 0
@@ -157,13 +158,19 @@ class SimSpotBackend:
         self._check_open()
         goal = _as_se2(goal, "goal")
         via = [_as_se2(v, f"via[{i}]") for i, v in enumerate(via)]
-        start = self.spot.base_pose()
-        traj = plan_base(start, [*via, goal], self.config.motion.base)
-        t0, travelled, prev = self.world.time, 0.0, start
-        times = traj.sample_times(self.config.motion.control_dt)
+        return self.follow_base_path(plan_base(self.spot.base_pose(), [*via, goal], self.config.motion.base))
+
+    def follow_base_path(self, path) -> NavigateResult:
+        """Walk the body along a timed SE2 path (anything with ``sample_times(dt)`` and
+        ``pose_at(t)``: our ruckig trajectories, or an SE2 trajectory command a robot was sent),
+        checking for contact every control step and stopping at the last free pose on contact."""
+        self._check_open()
+        t0, travelled = self.world.time, 0.0
+        prev = self.spot.base_pose()
+        times = path.sample_times(self.config.motion.control_dt)
         dynamic = self._physics_needed()
         for t_prev, t in zip(times[:-1], times[1:]):
-            pose = traj.pose_at(t)
+            pose = path.pose_at(t)
             self.spot.set_base_pose(pose)
             hits = self._new_base_hits()
             if hits:
@@ -495,6 +502,7 @@ class SimSpotBackend:
         pushing the object out past the jaw tips.
         """
         cfg = self.config.grasp
+        self.last_grasp_hand_pose = self.spot.T_world_hand()
         self.spot.command_gripper(0.0, cfg.close_force, cfg.close_speed)
         for _ in range(max(1, int(cfg.close_time / self.world.timestep))):
             self._step(1)
@@ -570,6 +578,41 @@ class SimSpotBackend:
         if np.linalg.norm(expected[:3, 3] - actual[:3, 3]) > self.config.grasp.slip_distance:
             grasping.detach(self.world, self._held.constraint_id, self.spot.id, self._held.body_id)
             self._held = None
+
+    # ================================================================== robot-level primitives
+    # What a real Spot executes that the HAL does not name; the fake Spot server uses them to
+    # execute SDK commands on this simulation.
+    def set_claw(self, angle: float) -> None:
+        """Drive the claw joint to ``angle`` (0 closed, -pi/2 open). Opening while holding lets go."""
+        self._check_open()
+        cfg = self.config.grasp
+        angle = float(min(max(angle, model.GRIPPER_LIMITS[0]), model.GRIPPER_LIMITS[1]))
+        if self._held is not None and angle < -0.05:
+            self._release()
+            return
+        self._gripper_to(angle, cfg.close_force, 4.0, 0.25 if angle < -0.05 else 0.2)
+
+    def settle_loose_objects(self, max_time: float = 2.0) -> None:
+        """Let objects still moving (e.g. just dropped) come to rest: real time runs on between a
+        robot's commands, while the simulation only runs while asked to."""
+        if self._held is not None:
+            return
+        moving = [b.body_id for b in self.world.bodies_of_kind(OBJECT) if not self.world.is_at_rest(b.body_id)]
+        if moving:
+            self.world.settle(moving, max_time=max_time)
+
+    def render_at(self, T_world_cam: np.ndarray) -> Observation:
+        """A hand-camera frame rendered from an arbitrary camera pose."""
+        T = np.asarray(T_world_cam, dtype=float)
+        frame = sim_camera.render(self.world, self.intrinsics, T, self.config.camera)
+        return self._make_observation(self._capture_state(T), frame)
+
+    @property
+    def gripper_angle(self) -> float:
+        return self.spot.gripper_q()
+
+    def arm_is_stowed(self, tol: float = 0.05) -> bool:
+        return bool(np.max(np.abs(self.spot.arm_q() - np.array(model.ARM_STOW))) < tol)
 
     # ================================================================== misc
     def stand(self) -> CommandResult:

@@ -457,7 +457,7 @@ def _execute_on_sim(fake: FakeSpot, cmd: _Command) -> tuple[bool, str, dict]:
     sim = fake.sim
     req = cmd.request
     if cmd.kind == "se2":
-        res = sim.follow_se2_path(cmd.extra["path"])
+        res = sim.follow_base_path(cmd.extra["path"])
         return res.success, res.message, {"blocked": res.reason is Reason.COLLISION}
     if cmd.kind == "arm_joint":
         res = sim.move_arm_joints(cmd.extra["goal"])
