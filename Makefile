@@ -13,11 +13,14 @@ $(STAMP): setup.cfg pyproject.toml tools/setup_env.sh
 	bash tools/setup_env.sh $(VENV)
 	touch $(STAMP)
 
-# The main job: a short scripted pick-and-place in simulation, printed outcome + rerun recording.
+# The main job: a short batch of simulated pick-and-place trials (20 smoke episodes), printing the
+# metrics table and writing runs/smoke/{config.yaml,episodes.jsonl,summary.json}.
 run: setup
-	$(PY) -m tools demo --out runs/demo $(ARGS)
+	$(PY) -m tools trials --agent oracle --split smoke --episodes 20 --seed 0 --out runs/smoke $(ARGS)
 
-demo: run
+# Scripted single pick-and-place in a two-table scene with a rerun recording.
+demo: setup
+	$(PY) -m tools demo --out runs/demo $(ARGS)
 
 # Fast test suite (what CI runs): headless, deterministic, under 5 minutes on 2 cores.
 test: setup
@@ -31,4 +34,4 @@ bench: setup
 	$(PY) -m tools bench $(or $(ARGS),sim)
 
 clean:
-	rm -rf $(VENV) build *.egg-info runs/demo
+	rm -rf $(VENV) build *.egg-info runs/demo runs/smoke

@@ -101,6 +101,7 @@ class SimSpotBackend:
         self._held: _Held | None = None
         self._frame_id = 0
         self._segmentations: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._recent: OrderedDict[int, Observation] = OrderedDict()
         self._listeners: list[Callable[[Observation], None]] = []
         self._next_stream = world.time
         self._render_worker: RenderWorker | None = None
@@ -121,10 +122,21 @@ class SimSpotBackend:
                 "holding": self.holding, "joint_positions": self.spot.joint_positions(), "frame_id": self._frame_id}
 
     def _make_observation(self, state: dict, frame) -> Observation:
+        obs = Observation(rgb=frame.rgb, depth=frame.depth, intrinsics=self.intrinsics, **state)
         self._segmentations[state["frame_id"]] = frame.segmentation
+        self._recent[state["frame_id"]] = obs
         while len(self._segmentations) > 16:
             self._segmentations.popitem(last=False)
-        return Observation(rgb=frame.rgb, depth=frame.depth, intrinsics=self.intrinsics, **state)
+            self._recent.popitem(last=False)
+        return obs
+
+    def frame_for(self, rgb: np.ndarray) -> tuple[Observation, np.ndarray]:
+        """Sim-only: the recent observation whose ``rgb`` array this is, and its ground-truth
+        segmentation. Lets simulated perception keep the image-only Detector protocol."""
+        for obs in reversed(self._recent.values()):
+            if obs.rgb is rgb:
+                return obs, self._segmentations[obs.frame_id]
+        raise KeyError("this image is not one of the last 16 frames this simulated robot captured")
 
     def segmentation_for(self, obs: Observation) -> np.ndarray:
         """Ground-truth instance segmentation of a recent observation (sim only; for the simulated
