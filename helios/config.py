@@ -1,0 +1,308 @@
+"""Every HELIOS hyper-parameter as one frozen dataclass tree (the YAML schema of the method).
+
+Values marked *paper* come from the paper's "Hyperparameters" table; the rest are choices the
+paper leaves open, each documented with its unit and the reason for the default. Build a config
+with ``HeliosConfig()`` or ``helios.configuration.load_config(HeliosConfig, path, overrides)``;
+sections are added here as later parts of the method need them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+
+def _require(condition: bool, message: str) -> None:
+    if not condition:
+        raise ValueError(message)
+
+
+@dataclass(frozen=True)
+class OccupancyConfig:
+    """2D bird's-eye-view occupancy grid built by ground-projecting depth."""
+
+    cell_size: float = 0.025
+    """Cell edge in metres (paper: 2.5 cm, twice the OVMM baseline's resolution)."""
+    grid_size: int = 2000
+    """Cells per side (paper: 2000 x 2000, i.e. 50 m x 50 m at 2.5 cm)."""
+    origin_xy: tuple[float, float] | None = None
+    """World (x, y) of the grid's lower-left corner in metres; None centres the grid on the
+    odometry origin, where the robot starts."""
+    obstacle_min_height: float = 0.10
+    """Points above this height (m, floor at z = 0) count as obstacles; below it they are floor.
+    10 cm is home-robot's ``min_obs_height_cm``: high enough to ignore floor noise and rugs."""
+    obstacle_max_height: float = 1.50
+    """Points above this height (m) are ignored as obstacles (ceilings, lamps, overhangs the
+    body passes under). 1.5 m is VLFM's real-robot value and clears Spot with its arm stowed."""
+    obstacle_min_hits: int = 1
+    """Accumulated obstacle points a cell needs to be an obstacle. 1 suits clean simulated depth;
+    noisy stereo depth wants 2-3 (the paper's hardware failure analysis names speckle obstacles)."""
+    min_depth: float = 0.20
+    """Returns closer than this (m) are dropped: the gripper and a held object fill the near field
+    of Spot's hand camera and must not become obstacles."""
+    max_depth: float = 5.0
+    """Returns farther than this (m) add no obstacles and reveal free space only up to this range
+    (depth noise grows with distance; VLFM uses 5 m for the hand camera)."""
+    depth_stride: int = 2
+    """Pixel stride used when ground-projecting depth. At 320 x 240 a stride of 2 samples about
+    2 cm on the floor at 3 m, finer than a cell, at a quarter of the cost."""
+    visibility_bin_deg: float = 0.5
+    """Bearing bin (degrees) of the polar visibility test: a cell is seen when it lies no farther
+    than the farthest return in its bearing bin. 0.5 deg is ~4 cm at 5 m, under two cells. Bins
+    are widened to 1.5 sampled pixel columns when the image is coarser than that."""
+
+    def __post_init__(self) -> None:
+        _require(math.isfinite(self.cell_size) and self.cell_size > 0, f"cell_size must be > 0, got {self.cell_size}")
+        _require(self.grid_size >= 8, f"grid_size must be >= 8 cells, got {self.grid_size}")
+        _require(0 <= self.obstacle_min_height < self.obstacle_max_height,
+                 "need 0 <= obstacle_min_height < obstacle_max_height")
+        _require(self.obstacle_min_hits >= 1, "obstacle_min_hits must be >= 1")
+        _require(0 <= self.min_depth < self.max_depth, "need 0 <= min_depth < max_depth")
+        _require(self.depth_stride >= 1, "depth_stride must be >= 1")
+        _require(0 < self.visibility_bin_deg <= 10, "visibility_bin_deg must be in (0, 10]")
+
+
+@dataclass(frozen=True)
+class FrontierConfig:
+    """Frontiers: centre points of boundaries between explored free space and unexplored space."""
+
+    min_size: float = 0.5
+    """Minimum frontier length in metres (cells x cell size). 0.5 m is about Spot's body width;
+    shorter gaps are occlusion slivers that rarely lead anywhere."""
+    obstacle_clearance: float = 0.05
+    """Frontier cells closer than this (m) to an obstacle cell are dropped. The per-bearing-bin
+    visibility test 'sees' a thin sliver of cells just behind obliquely viewed surfaces, which
+    would otherwise line every wall with frontiers; a frontier hugging an obstacle is no use to
+    the planner anyway. 5 cm = 2 cells costs a doorway 10 cm of frontier."""
+    fill_holes_area: float = 0.25
+    """Unexplored pockets smaller than this (m^2) inside explored space are treated as explored,
+    as VLFM does, so sensor holes do not become frontiers."""
+    value_radius: float = 0.5
+    """Radius (m) around a frontier centre whose value-map cells give its value (VLFM: 0.5 m)."""
+
+    def __post_init__(self) -> None:
+        _require(self.min_size >= 0, "min_size must be >= 0")
+        _require(self.obstacle_clearance >= 0, "obstacle_clearance must be >= 0")
+        _require(self.fill_holes_area >= 0, "fill_holes_area must be >= 0")
+        _require(self.value_radius > 0, "value_radius must be > 0")
+
+
+@dataclass(frozen=True)
+class ValueMapConfig:
+    """VLFM-style semantic value map: one image-text score per frame spread over the view cone."""
+
+    min_confidence: float = 0.25
+    """Confidence at the edge of the field of view (VLFM ``_min_confidence``); 1 on the axis."""
+    decision_threshold: float = 0.35
+    """New confidences below this that are also below the stored one are dropped (VLFM 0.35),
+    so glancing views do not dilute values seen head-on."""
+    fusion: Literal["weighted", "max_confidence"] = "weighted"
+    """``weighted``: confidence-weighted average (VLFM config default, used in sim and reality);
+    ``max_confidence``: keep the value seen with the highest confidence."""
+
+    def __post_init__(self) -> None:
+        _require(0 <= self.min_confidence <= 1, "min_confidence must be in [0, 1]")
+        _require(0 <= self.decision_threshold <= 1, "decision_threshold must be in [0, 1]")
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """The vectorised pair-list Gaussian rasteriser (CPU torch by default)."""
+
+    near: float = 0.05
+    """Gaussians closer than this to the camera (m, optical z) are not rendered."""
+    alpha_min: float = 1.0 / 255.0
+    """Splat opacities below this are ignored (3DGS / gsplat cut-off)."""
+    alpha_max: float = 0.99
+    """Splat opacities are clamped to this (3DGS), so one Gaussian never hides all behind it."""
+    transmittance_min: float = 1e-4
+    """Front-to-back compositing stops once transmittance falls below this (gsplat)."""
+    blur_px2: float = 0.3
+    """Screen-space low-pass added to every 2D covariance (pixels^2, 3DGS ``eps2d``); keeps
+    sub-pixel Gaussians visible."""
+    max_radius_px: int = 48
+    """Screen-space footprints are truncated to this radius (pixels) to bound the pair count when
+    the camera is very close to a Gaussian."""
+
+    def __post_init__(self) -> None:
+        _require(self.near > 0, "near must be > 0")
+        _require(0 < self.alpha_min < self.alpha_max < 1, "need 0 < alpha_min < alpha_max < 1")
+        _require(0 < self.transmittance_min < 1, "transmittance_min must be in (0, 1)")
+        _require(self.blur_px2 >= 0, "blur_px2 must be >= 0")
+        _require(self.max_radius_px >= 1, "max_radius_px must be >= 1")
+
+
+@dataclass(frozen=True)
+class GaussianConfig:
+    """Sparse object-centric 3D Gaussians with Dirichlet class distributions."""
+
+    alpha_cpa: float = 3.0
+    """*paper* Concentration update scaling: each observation counts as if repeated 3 times."""
+    prior_concentration: float = 1.0
+    """Initial Dirichlet concentration of every class of a new Gaussian (paper: not stated).
+    1 is the flat Dirichlet: the largest-entropy prior, under which optimistic evidence never
+    raises entropy; priors below 1 make small updates *increase* entropy (negative IG)."""
+    update_max_width: int = 160
+    """The Gaussian layer works on images subsampled by the smallest integer factor that brings
+    the width to at most this many pixels (320 x 240 input -> 160 x 120). Render cost scales with
+    covered pixels, so this is the main speed knob; geometry stays exact (intrinsics rescaled)."""
+    creation_stride: int = 1
+    """Gaussians are created on this pixel grid of the working image (1 = one per pixel, as in
+    HELIOS). Larger strides make fewer, wider Gaussians."""
+    scale_factor: float = 1.0
+    """Isotropic Gaussian std-dev = scale_factor * creation_stride * depth / focal (SplaTAM's
+    'one pixel radius'): neighbouring Gaussians overlap enough for a silhouette near 1."""
+    initial_opacity: float = 0.5
+    """Opacity of a new Gaussian (SplaTAM's logit 0)."""
+    normalise_evidence_by_stride: bool = True
+    """Divide each pixel's evidence by creation_stride^2, so one view adds about alpha_cpa units to
+    each Gaussian whatever the stride (at stride 1 this is exactly the paper's update)."""
+    creation_erosion_px: int = 3
+    """Square erosion kernel (pixels, working image) applied to detection masks before creation:
+    mask edges mix object and background depth (paper: 'an erosion operation', size not given)."""
+    creation_silhouette: float = 0.5
+    """A masked pixel whose rendered silhouette is below this is 'not yet modelled' and gets a
+    Gaussian (SplaTAM's silhouette threshold). Reading of the paper's 'over 0.001 m': rendered
+    accumulated depth is ~0 where nothing is mapped."""
+    creation_depth_error: float = 0.10
+    """A masked pixel whose measured surface lies more than this (m) in front of the rendered depth
+    shows new surface and gets a Gaussian. The paper's literal '1 m' would never create an object
+    standing on an already mapped receptacle (a cup is ~0.1 m in front of the table behind it).
+    Surfaces *behind* the rendered one create nothing (as in SplaTAM's densification): Gaussians
+    there would be hidden by those in front and never updated, and at grazing angles the
+    front-to-back blend biases rendered depth towards the camera, which re-created the floor
+    every frame in full-scene mode."""
+    reobservation_depth_error: float = 0.5
+    """*paper* Pixels whose measured depth is within 0.5 m of the rendered depth re-observe the map
+    and update it (detected or not: non-detections are negative evidence)."""
+    reobservation_closing_px: int = 5
+    """Square kernel (pixels, working image) of the morphological closing of the re-observation
+    mask (paper: 'close small holes', size not given); 5 px fills depth dropouts on objects."""
+    min_silhouette_for_depth: float = 1e-3
+    """Rendered expected depth (sum w z / sum w) is defined only where the silhouette exceeds this."""
+    full_scene: bool = False
+    """Efficiency baseline only: create Gaussians for every valid depth pixel, not just detected
+    objects of interest (paper's 'model full scene with 3DGS' comparison)."""
+    render: RenderConfig = field(default_factory=RenderConfig)
+
+    def __post_init__(self) -> None:
+        _require(self.alpha_cpa > 0, "alpha_cpa must be > 0")
+        _require(self.prior_concentration > 0, "prior_concentration must be > 0 (digamma(0) = -inf)")
+        _require(self.update_max_width >= 8, "update_max_width must be >= 8 pixels")
+        _require(self.creation_stride >= 1, "creation_stride must be >= 1")
+        _require(self.scale_factor > 0, "scale_factor must be > 0")
+        _require(0 < self.initial_opacity < 1, "initial_opacity must be in (0, 1)")
+        _require(self.creation_erosion_px >= 1, "creation_erosion_px must be >= 1 (1 = no erosion)")
+        _require(0 < self.creation_silhouette <= 1, "creation_silhouette must be in (0, 1]")
+        _require(self.creation_depth_error > 0, "creation_depth_error must be > 0")
+        _require(self.reobservation_depth_error > 0, "reobservation_depth_error must be > 0")
+        _require(self.reobservation_closing_px >= 1, "reobservation_closing_px must be >= 1 (1 = none)")
+        _require(0 < self.min_silhouette_for_depth < 1, "min_silhouette_for_depth must be in (0, 1)")
+
+
+@dataclass(frozen=True)
+class InstanceConfig:
+    """Instances: 26-connected voxel clusters of Gaussians sharing their most likely class."""
+
+    voxel_size: float = 0.5
+    """*paper* Voxel edge (m) of the clustering grid, aligned with the odometry frame."""
+
+    def __post_init__(self) -> None:
+        _require(self.voxel_size > 0, "voxel_size must be > 0")
+
+
+@dataclass(frozen=True)
+class ScoringConfig:
+    """Uncertainty-weighted object score Psi_c = S_c - alpha_cs * U_c."""
+
+    alpha_cs: float = 1.0
+    """*paper* Weight of the uncertainty in Psi (Psi is the alpha_cs-sigma lower bound)."""
+
+    def __post_init__(self) -> None:
+        _require(self.alpha_cs >= 0, "alpha_cs must be >= 0")
+
+
+@dataclass(frozen=True)
+class DetectionConfig:
+    """Per-role open-vocabulary detector confidence thresholds, applied by the detector's caller."""
+
+    od_start_receptacle: float = 0.35
+    """*paper* od_a: threshold for the start (pick) receptacle class."""
+    od_object: float = 0.25
+    """*paper* od_g: threshold for the target object class (low: HELIOS filters false positives)."""
+    od_goal_receptacle: float = 0.45
+    """*paper* od_b: threshold for the goal (place) receptacle class."""
+
+    def __post_init__(self) -> None:
+        for name in ("od_start_receptacle", "od_object", "od_goal_receptacle"):
+            value = getattr(self, name)
+            _require(0 <= value <= 1, f"{name} must be in [0, 1], got {value}")
+
+    def thresholds_for(self, object_class: str, start_receptacle: str, goal_receptacle: str) -> dict[str, float]:
+        """Per-class thresholds of an episode; a class filling two roles gets the lower one
+        (HELIOS filters false positives itself but cannot recover missed detections)."""
+        out: dict[str, float] = {}
+        for name, value in ((object_class, self.od_object), (start_receptacle, self.od_start_receptacle),
+                            (goal_receptacle, self.od_goal_receptacle)):
+            out[name] = min(value, out.get(name, value))
+        return out
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """Global search objective (frontiers versus candidate pick locations)."""
+
+    alpha_d: float = 0.001
+    """*paper* Weight of the distance term of the global objective (per metre)."""
+    cs_start_receptacle: float = 0.3
+    """*paper* cs_a: class score for an object to be a candidate start receptacle."""
+
+    def __post_init__(self) -> None:
+        _require(self.alpha_d >= 0, "alpha_d must be >= 0")
+        _require(0 <= self.cs_start_receptacle <= 1, "cs_start_receptacle must be in [0, 1]")
+
+
+@dataclass(frozen=True)
+class DecisionConfig:
+    """When to pick, place, or collect more views of a candidate."""
+
+    tau_object: float = 0.5
+    """*paper* tau_g: Psi threshold to pick up a target object."""
+    tau_goal_receptacle: float = 0.5
+    """*paper* tau_b: Psi threshold to place on a goal receptacle."""
+    tau_increase: float = 0.05
+    """*paper* tau_inc: minimum predicted Psi increase that justifies another view."""
+    cs_object: float = 0.3
+    """*paper* cs_g: class score for an object to be a candidate target object."""
+    cs_goal_receptacle: float = 0.3
+    """*paper* cs_b: class score for an object to be a candidate goal receptacle."""
+
+    def __post_init__(self) -> None:
+        for name in ("tau_object", "tau_goal_receptacle", "cs_object", "cs_goal_receptacle"):
+            value = getattr(self, name)
+            _require(0 <= value <= 1, f"{name} must be in [0, 1], got {value}")
+        _require(self.tau_increase >= 0, "tau_increase must be >= 0")
+
+
+@dataclass(frozen=True)
+class HeliosConfig:
+    """The whole method: map layers, scoring and decision thresholds."""
+
+    device: Literal["cpu", "cuda", "auto"] = "cpu"
+    """Torch device of the Gaussian layer: ``cpu`` (default, reproducible), ``cuda``, or ``auto``
+    (CUDA when available)."""
+    background_class: str = "other"
+    """Name of the extra class for everything that is not one of the task's classes."""
+    occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
+    frontiers: FrontierConfig = field(default_factory=FrontierConfig)
+    value_map: ValueMapConfig = field(default_factory=ValueMapConfig)
+    gaussians: GaussianConfig = field(default_factory=GaussianConfig)
+    instances: InstanceConfig = field(default_factory=InstanceConfig)
+    scoring: ScoringConfig = field(default_factory=ScoringConfig)
+    detection: DetectionConfig = field(default_factory=DetectionConfig)
+    search: SearchConfig = field(default_factory=SearchConfig)
+    decision: DecisionConfig = field(default_factory=DecisionConfig)
+
+    def __post_init__(self) -> None:
+        _require(bool(self.background_class.strip()), "background_class must be a non-empty name")

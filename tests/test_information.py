@@ -1,0 +1,97 @@
+"""Information gain and predicted object score of hypothetical views of an instance."""
+
+import numpy as np
+import pytest
+import torch
+from scipy import stats
+
+from helios.config import HeliosConfig
+from helios.maps import ClassSet, GaussianMap, GridGeometry, MapInputError, UnknownClassError
+from helios.search import (dirichlet_entropy, fifty_fifty_information_gain, information_gain,
+                           optimistic_evidence, optimistic_information_gain, predicted_object_score)
+from tools.bench_maps import look_at, pinhole
+
+CAM = pinhole(160, 120)
+POSE = look_at([0.0, 0.0, 1.0], [2.0, 0.0, 1.0])
+
+
+def blob_map(concentration) -> tuple[GaussianMap, int]:
+    """A 5 x 5 sheet of Gaussians 2 m ahead of POSE, all one instance with ``concentration``."""
+    cfg = HeliosConfig()
+    classes = ClassSet.from_task(["cup", "table"])
+    gmap = GaussianMap(classes, cfg.gaussians, cfg.instances, cfg.scoring, GridGeometry(0.025, 400, -5, -5))
+    ys, zs = np.meshgrid(np.linspace(-0.05, 0.05, 5), np.linspace(0.95, 1.05, 5))
+    means = np.stack([np.full(25, 2.0), ys.ravel(), zs.ravel()], axis=1)
+    gmap.add_gaussians(means, 0.02, 0.5, concentrations=np.tile(concentration, (25, 1)))
+    gmap.instance_ids[:] = 4
+    return gmap, 4
+
+
+def test_information_gain_is_float64_exact_at_large_counts():
+    before = np.array([[1e4, 1.0, 1.0, 1.0]])
+    after = before.copy()
+    after[0, 0] += 0.3
+    ig = information_gain(before, after)
+    reference = stats.dirichlet.entropy(before[0]) - stats.dirichlet.entropy(after[0])
+    assert ig == pytest.approx(reference, rel=1e-6)
+    assert ig > 5e-5                 # float32 entropies would cancel to exactly 0 here
+    assert ig == pytest.approx(float(dirichlet_entropy(before)[0] - dirichlet_entropy(after)[0]), rel=1e-12)
+
+
+def test_optimistic_ig_positive_for_uncertain_and_near_zero_for_saturated():
+    uncertain, iid = blob_map([1.0, 1.0, 1.0])
+    saturated, _ = blob_map([1e7, 1.0, 1.0])
+    ig_u = optimistic_information_gain(uncertain, iid, "cup", CAM, POSE)
+    ig_s = optimistic_information_gain(saturated, iid, "cup", CAM, POSE)
+    assert ig_u > 1.0
+    assert abs(ig_s) < 1e-4 * ig_u
+
+
+def test_optimistic_evidence_is_alpha_cpa_times_silhouette_weighted_kappa():
+    gmap, iid = blob_map([1.0, 1.0, 1.0])
+    idx, delta = optimistic_evidence(gmap, iid, CAM, POSE)
+    cam, _ = gmap.working_intrinsics(CAM)
+    r = gmap.render(cam, POSE, indices=idx)
+    manual = torch.zeros(idx.size, dtype=torch.float64)
+    manual.index_add_(0, r.gaussian_index, r.weight.double() * r.silhouette.reshape(-1)[r.pixel_index].double())
+    np.testing.assert_allclose(delta.numpy(), 3.0 * manual.numpy(), rtol=1e-12)
+    assert float(delta.min()) > 0
+
+
+def test_more_views_give_more_information_and_fifty_fifty_gives_less_than_optimistic():
+    gmap, iid = blob_map([1.0, 1.0, 1.0])
+    one = optimistic_information_gain(gmap, iid, "cup", CAM, POSE, views=1)
+    three = optimistic_information_gain(gmap, iid, "cup", CAM, POSE, views=3)
+    half = fifty_fifty_information_gain(gmap, iid, "cup", CAM, POSE)
+    assert three > one > 0
+    assert 0 < half <= one + 1e-12   # symmetric prior: both outcomes gain the same here
+    believer, _ = blob_map([6.0, 1.0, 1.0])
+    assert fifty_fifty_information_gain(believer, iid, "cup", CAM, POSE) < \
+        optimistic_information_gain(believer, iid, "cup", CAM, POSE)
+
+
+def test_predicted_psi_rises_with_views_and_matches_moments():
+    gmap, iid = blob_map([2.0, 1.0, 1.0])
+    now = predicted_object_score(gmap, iid, "cup", CAM, POSE, views=0)
+    assert now.predicted_psi == pytest.approx(now.psi)
+    assert now.class_score == pytest.approx(0.5)
+    assert now.uncertainty == pytest.approx(np.sqrt(0.5 * 0.5 / 5.0))
+    one = predicted_object_score(gmap, iid, "cup", CAM, POSE, views=1)
+    four = predicted_object_score(gmap, iid, "cup", CAM, POSE, views=4)
+    assert four.predicted_psi > one.predicted_psi > one.psi
+    assert four.predicted_uncertainty < one.predicted_uncertainty < one.uncertainty
+    assert one.psi_increase == pytest.approx(one.predicted_psi - one.psi)
+
+
+def test_ig_of_an_instance_out_of_view_is_zero():
+    gmap, iid = blob_map([1.0, 1.0, 1.0])
+    behind = look_at([0.0, 0.0, 1.0], [-2.0, 0.0, 1.0])
+    assert optimistic_information_gain(gmap, iid, "cup", CAM, behind) == 0.0
+
+
+def test_unknown_class_and_instance_are_clear_errors():
+    gmap, iid = blob_map([1.0, 1.0, 1.0])
+    with pytest.raises(UnknownClassError, match="'knife'.*'cup', 'table', 'other'"):
+        optimistic_information_gain(gmap, iid, "knife", CAM, POSE)
+    with pytest.raises(MapInputError, match="no instance with id 99"):
+        optimistic_information_gain(gmap, 99, "cup", CAM, POSE)
