@@ -22,6 +22,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("suites", nargs="+", metavar="SUITE", help=f"one or more of: {', '.join(SUITES)}")
     parser.add_argument("--quick", action="store_true", help="fewer repetitions (smoke-test the benchmark)")
     parser.add_argument("--seed", type=int, default=0, help="seed for scenes and trajectories")
+    for module in SUITES.values():   # suite-specific options (e.g. --maps-recording)
+        suite = importlib.import_module(module)
+        if hasattr(suite, "add_arguments"):
+            suite.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:

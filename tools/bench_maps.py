@@ -10,9 +10,9 @@ process peak RSS above the level after loading the trajectory.
 Frame source. Anything that yields ``(Observation, list[Detection], scores)`` tuples can be
 benchmarked (:func:`benchmark_frames`); the command reads a recorded ``.npz`` trajectory given by
 ``--maps-recording PATH`` (``python -m tools.bench_maps``) or the ``HELIOS_MAPS_RECORDING``
-environment variable. Without one it generates, once, a synthetic 300-frame trajectory through a
-furnished two-room flat of boxes (:func:`synthetic_frames`, :func:`two_room_flat`), written under
-``runs/bench_maps/``.
+environment variable. Without one it records, once, 300 frames of the simulated Spot doing a val
+episode (:func:`sim_frames`, cached under ``runs/bench_maps/``); ``--maps-synthetic`` uses a
+synthetic furnished two-room flat of boxes instead (:func:`synthetic_frames`).
 
 Recorded trajectory format (``.npz``, written by :func:`save_trajectory`; N frames, M detections):
 
@@ -466,9 +466,12 @@ def run(args: argparse.Namespace) -> str:
         path, source = Path(recording), f"recording {recording}"
         if not path.is_file():
             raise FileNotFoundError(f"maps recording {recording!r} does not exist")
-    else:
+    elif getattr(args, "maps_synthetic", False):
         path = synthetic_trajectory_file(DEFAULT_FRAMES, getattr(args, "seed", 0))
         source = f"synthetic two-room flat ({path})"
+    else:
+        path = sim_trajectory_file(DEFAULT_FRAMES)
+        source = f"simulator recording: oracle on val episode 0 ({path})"
     obj = _in_fresh_process(str(path), False, threads, limit)
     full = _in_fresh_process(str(path), True, threads, limit)
     return format_report(obj, full, source, threads)

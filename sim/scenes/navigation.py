@@ -168,13 +168,16 @@ class NavGrid:
         return bool(np.all(self.poses_free(np.stack([np.full(n, x), np.full(n, y), yaws], axis=1))))
 
     def translation_free(self, a, b, yaw: float, include_start: bool = True) -> bool:
-        """Walking straight from a to b at a fixed heading sweeps only free space (``include_start``
-        False: the start may be tight, e.g. stepping away from a wall the robot stopped against)."""
+        """Walking straight from a to b at a fixed heading sweeps only free space. With
+        ``include_start`` False the walk may begin inside the planning margin (e.g. stepping away
+        from a wall the robot stopped against): once clear, it must stay clear."""
         n = max(2, int(math.dist(a, b) / (self.config.resolution / 2)) + 1)
         pts = np.linspace(np.asarray(a, dtype=float), np.asarray(b, dtype=float), n)
-        if not include_start:
-            pts = pts[2:] if len(pts) > 2 else pts[-1:]
-        return bool(np.all(self.poses_free(np.column_stack([pts, np.full(len(pts), yaw)]))))
+        free = self.poses_free(np.column_stack([pts, np.full(len(pts), yaw)]))
+        if include_start:
+            return bool(np.all(free))
+        first = int(np.argmax(free)) if free.any() else len(free)
+        return bool(first < len(free) and np.all(free[first:]))
 
     def plan_walk(self, start: SE2Pose, goal: SE2Pose) -> list[SE2Pose] | None:
         """Like :meth:`plan_walk_from`, but when Spot is boxed in (e.g. right after working at a
