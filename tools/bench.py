@@ -15,6 +15,7 @@ SUITES: dict[str, str] = {
     "sim": "tools.bench_sim",
     "maps": "tools.bench_maps",
     "scenes": "tools.bench_scenes",
+    "perception": "tools.bench_perception",
 }
 
 

@@ -19,12 +19,15 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "trials": ("tools.trials", "run an agent over episodes in simulation; resumable results and a metrics table"),
     "episodes": ("tools.episodes", "generate an episode split from a seed, or check an episode file"),
     "tsdf": ("tools.tsdf", "TSDF-reconstruct what an episode saw; report true-surface coverage, write the mesh"),
+    "calibrate-perception": ("tools.calibrate_perception",
+                             "measure the simulated detector: per-class precision/recall, 5-view majority; plot"),
 }
 
 
 def user_error_types() -> tuple[type[BaseException], ...]:
     """Exception classes that mean 'bad input', reported without a traceback."""
     from helios.configuration import ConfigError
+    from helios.perception.errors import PerceptionError
     from robots.hal import HalError
     from robots.spot.urdf import UrdfError
     from tasks.episodes import DatasetError
@@ -35,7 +38,7 @@ def user_error_types() -> tuple[type[BaseException], ...]:
     # HalError covers the Spot SDK backend's errors too (robots.spot.sdk_backend: CredentialsError,
     # SpotConnectError, SpotSdkMissingError and the HAL's RobotFault subclasses).
     return (ConfigError, HalError, UrdfError, CliError, FileNotFoundError, DatasetError, TaskSpecError,
-            UnknownAgentError, RunFolderError)
+            UnknownAgentError, RunFolderError, PerceptionError)
 
 
 class CliError(Exception):

@@ -1,0 +1,109 @@
+"""Perception contracts: the value prompt, per-role thresholds, configs and input checks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from helios.configuration import ConfigError, dump_yaml, from_dict, load_config, to_dict, with_overrides
+from helios.perception import (
+    Detection,
+    DetectionThresholds,
+    PerceptionConfig,
+    apply_thresholds,
+    parse_value_prompt,
+    role_thresholds,
+    value_prompt,
+)
+from helios.perception.errors import ImageInputError, PromptError, UnknownCategoryError
+from helios.perception.inputs import check_class_names, check_rgb_depth
+from helios.perception.prompts import check_prompts
+from sim.perception.config import SimPerceptionConfig
+from sim.perception.confusion import ConfusionTable
+from sim.scenes.catalog import ALL_CATEGORIES, LOOKALIKES
+
+
+def test_the_paper_prompt_round_trips_for_every_category():
+    assert value_prompt("counter") == "Seems like there is a counter ahead"
+    for c in ALL_CATEGORIES:
+        assert parse_value_prompt(value_prompt(c)) == c
+    assert parse_value_prompt("seems like there is an (Apple) ahead.") == "apple"
+    assert parse_value_prompt("Seems like there is a filing_cabinet ahead") == "filing cabinet"
+    for bad in ("counter", "Seems like there is ahead", "There is a mug ahead", ""):
+        with pytest.raises(PromptError, match="cannot interpret prompt"):
+            parse_value_prompt(bad)
+    with pytest.raises(PromptError, match="empty"):
+        check_prompts([])
+    with pytest.raises(PromptError, match="single string"):
+        check_prompts("Seems like there is a mug ahead")
+
+
+def test_per_role_thresholds_are_the_papers_and_a_shared_class_gets_the_lower_one():
+    t = DetectionThresholds()
+    assert (t.od_start_receptacle, t.od_object, t.od_goal_receptacle) == (0.35, 0.25, 0.45)
+    assert role_thresholds(t, "mug", "table", "counter") == {"mug": 0.25, "table": 0.35, "counter": 0.45}
+    assert role_thresholds(t, "mug", "table", "table") == {"mug": 0.25, "table": 0.35}
+    m = np.ones((4, 4), dtype=bool)
+    dets = [Detection(m, "mug", 0.3), Detection(m, "table", 0.3), Detection(m, "counter", 0.5), Detection(m, "bed", 0.9)]
+    kept = apply_thresholds(dets, role_thresholds(t, "mug", "table", "counter"))
+    assert [(d.class_name, d.score) for d in kept] == [("mug", 0.3), ("counter", 0.5)]
+    assert len(apply_thresholds(dets, {"mug": 0.25}, default=0.0)) == 4
+    with pytest.raises(ValueError, match="od_object must be in"):
+        DetectionThresholds(od_object=1.5)
+
+
+def test_helios_config_detection_section_works_with_role_thresholds():
+    from helios.config import HeliosConfig
+
+    cfg = HeliosConfig().detection
+    assert role_thresholds(cfg, "mug", "table", "counter") == role_thresholds(DetectionThresholds(), "mug", "table",
+                                                                                "counter")
+
+
+def test_configs_load_from_yaml_and_overrides_with_clear_errors(tmp_path):
+    cfg = with_overrides(SimPerceptionConfig(), ["mode=gt", "bad_view_object=0.3", "category_difficulty={glass: 2.0}"])
+    assert cfg.mode == "gt" and cfg.bad_view_object == 0.3 and cfg.category_difficulty["glass"] == 2.0
+    assert cfg.category_difficulty["phone"] == SimPerceptionConfig().category_difficulty["phone"]   # merged
+    assert from_dict(SimPerceptionConfig, to_dict(cfg)) == cfg
+    path = tmp_path / "p.yaml"
+    path.write_text(dump_yaml(PerceptionConfig()))
+    assert load_config(PerceptionConfig, path) == PerceptionConfig()
+    with pytest.raises(ConfigError, match="mode"):
+        with_overrides(SimPerceptionConfig(), ["mode=perfect"])
+    with pytest.raises(ConfigError, match="bad_view_object must be in"):
+        with_overrides(SimPerceptionConfig(), ["bad_view_object=1.5"])
+    with pytest.raises(ConfigError, match="bad_view_distance_scale needs 3 values"):
+        with_overrides(SimPerceptionConfig(), ["bad_view_distance_scale=[1.0, 2.0]"])
+    with pytest.raises(ConfigError, match="unknown config key"):
+        with_overrides(SimPerceptionConfig(), ["bad_veiw_object=0.2"])
+    with pytest.raises(ConfigError, match="value_prompt needs exactly one"):
+        with_overrides(PerceptionConfig(), ["value_prompt=Seems like there is something ahead"])
+
+
+def test_confusion_table_extends_the_catalogue_families_symmetrically():
+    table = ConfusionTable(0.5)
+    for fam in LOOKALIKES:
+        for a in fam:
+            assert all(table.weights(a).get(b) == 1.0 for b in fam if b != a)
+    assert table.weights("banana") == {"toy": 0.5, "remote": 0.5}     # no catalogue family: extras only
+    for a in ALL_CATEGORIES:
+        assert a not in table.weights(a)
+        assert all(table.weights(b)[a] == w for b, w in table.weights(a).items())
+    assert table.could_be_labelled("cup", frozenset({"mug"})) and not table.could_be_labelled("bed", frozenset({"mug"}))
+    assert "toy" not in ConfusionTable(0.0).weights("banana")
+
+
+def test_input_checks_name_the_problem():
+    rgb = np.zeros((240, 320, 3), np.uint8)
+    assert check_rgb_depth(rgb, np.zeros((240, 320), np.float32)) == (240, 320)
+    with pytest.raises(ImageInputError, match=r"rgb is 320x240 \(W x H\), depth is 320x200"):
+        check_rgb_depth(rgb, np.zeros((200, 320), np.float32))
+    with pytest.raises(ImageInputError, match="depth must be an"):
+        check_rgb_depth(rgb, np.zeros((240, 320), np.uint16))
+    with pytest.raises(ImageInputError, match="uint8"):
+        check_rgb_depth(rgb.astype(np.float32), np.zeros((240, 320), np.float32))
+    assert check_class_names(["anything goes"]) == ["anything goes"]      # open vocabulary without a catalogue
+    with pytest.raises(UnknownCategoryError, match="more than once"):
+        check_class_names(["mug", "mug"])
+    with pytest.raises(UnknownCategoryError, match=r"unknown class names 'spoon', 'fork'; valid: a, b"):
+        check_class_names(["spoon", "fork"], ["a", "b"])

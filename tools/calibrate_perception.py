@@ -1,0 +1,146 @@
+"""Measure the simulated detector on random views of val scenes: per-class precision/recall at the
+paper's thresholds, recall against distance, and how often one view's top label is wrong while
+the majority over 5 views is right. Prints tables, writes calibration.json and calibration.png.
+
+    python -m tools calibrate-perception                      # 1500 views of 8 val scenes (~1 min)
+    python -m tools calibrate-perception --views 200 --out runs/pc bad_view_object=0.2
+
+Trailing ``key=value`` arguments override ``sim.perception.config.SimPerceptionConfig`` fields.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+from tools.cli import CliError
+from tools.tables import format_table
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--views", type=int, default=1500, help="views rendered in all (default 1500)")
+    parser.add_argument("--group", type=int, default=5, help="views per target for the majority vote (default 5)")
+    parser.add_argument("--scenes", type=int, default=8, help="distinct scenes of the split to use (default 8)")
+    parser.add_argument("--split", default="val", help="episode split whose scenes are viewed (default val)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the view sampling (default 0)")
+    parser.add_argument("--min-pixels", type=int, default=50,
+                        help="an instance counts for recall when at least this many pixels show (default 50)")
+    parser.add_argument("--out", default="runs/perception_calibration", help="output folder for the JSON and the plot")
+    parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="SimPerceptionConfig overrides")
+
+
+def _pct(v) -> str:
+    return "-" if v is None else f"{100 * v:.1f}"
+
+
+def tables(result: dict) -> str:
+    from sim.scenes.catalog import OBJECT_CATEGORIES
+
+    thr = result["thresholds"]
+    rows = []
+    for cat, r in result["per_class"].items():
+        group = "object" if cat in OBJECT_CATEGORIES else "receptacle"
+        t = thr["od_object"] if group == "object" else thr["od_start_receptacle"]
+        rows.append((cat, group, t, _pct(r["precision"]), _pct(r["recall"]), r["tp"], r["fp"], r["instances"]))
+    for name, r in result["pooled"].items():
+        rows.append((f"ALL {name}", "", "", _pct(r["precision"]), _pct(r["recall"]), r["tp"], r["fp"], r["instances"]))
+    out = [format_table(["class", "group", "threshold", "precision %", "recall %", "TP", "FP", "instances"], rows,
+                        title=f"Single-view detection, full-vocabulary query ({result['views']} views)")]
+    rows = [(role, _pct(r["precision"]), _pct(r["recall"]), r["tp"], r["fp"], r["instances"])
+            for role, r in result["task_query"].items()]
+    out.append(format_table(["role", "precision %", "recall %", "TP", "FP", "instances"], rows,
+                            title="Task-like queries (3 classes; od_g=%.2f od_a=%.2f od_b=%.2f)" % (
+                                thr["od_object"], thr["od_start_receptacle"], thr["od_goal_receptacle"])))
+    rd = result["recall_by_distance"]
+    edges = [0.0] + rd["edges_m"] + [math.inf]
+    rows = [(f"{edges[i]:.1f}-{edges[i + 1]:.1f}", _pct(f / n if n else None), n)
+            for i, (f, n) in enumerate(zip(rd["found"], rd["instances"]))]
+    out.append(format_table(["distance m", "recall %", "instances"], rows, title="Small-object recall by distance"))
+    rows = []
+    for name, c in result["consistency"].items():
+        rows.append((name, c["targets"], c["views_with_detection"], _pct(c["single_view_label_accuracy"]),
+                     _pct(c["majority_label_accuracy"]), _pct(c["single_wrong_majority_right"])))
+    g = result["settings"]["group"]
+    out.append(format_table(["targets", "n", "views with a detection", "single-view label right %",
+                             f"{g}-view majority right %", "single wrong but majority right %"], rows,
+                            title=f"Multi-view consistency (top label of the target per view, majority over {g} views)"))
+    return "\n\n".join(out)
+
+
+def plot(result: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from sim.scenes.catalog import OBJECT_CATEGORIES
+
+    fig, axes = plt.subplots(1, 3, figsize=(17, 5.2), gridspec_kw={"width_ratios": [3.2, 1.2, 1.2]})
+    cats = [c for c, r in result["per_class"].items() if r["instances"] or r["tp"] + r["fp"]]
+    x = range(len(cats))
+    prec = [result["per_class"][c]["precision"] or 0 for c in cats]
+    rec = [result["per_class"][c]["recall"] or 0 for c in cats]
+    ax = axes[0]
+    ax.bar([i - 0.2 for i in x], prec, 0.4, label="precision", color="#3b75af")
+    ax.bar([i + 0.2 for i in x], rec, 0.4, label="recall", color="#ef8636")
+    ax.set_xticks(list(x))
+    ax.set_xticklabels(cats, rotation=70, fontsize=8)
+    for i, c in enumerate(cats):
+        if c not in OBJECT_CATEGORIES:
+            ax.axvspan(i - 0.5, i + 0.5, color="0.92", zorder=0)
+    ax.set_ylim(0, 1.05)
+    ax.set_title("Single view, per class (grey: furniture)")
+    ax.legend(loc="lower left")
+    rd = result["recall_by_distance"]
+    edges = [0.0] + rd["edges_m"] + [rd["edges_m"][-1] + 2.0]
+    mids = [(a + b) / 2 for a, b in zip(edges[:-1], edges[1:])]
+    vals = [f / n if n else float("nan") for f, n in zip(rd["found"], rd["instances"])]
+    axes[1].plot(mids, vals, "o-", color="#3b75af")
+    axes[1].set_xlabel("camera distance (m)")
+    axes[1].set_ylim(0, 1.05)
+    axes[1].set_title("Small-object recall vs distance")
+    cons = result["consistency"]
+    names = [n for n in ("small objects", "receptacles") if cons[n]["targets"]]
+    single = [cons[n]["single_view_label_accuracy"] or 0 for n in names]
+    maj = [cons[n]["majority_label_accuracy"] or 0 for n in names]
+    xi = range(len(names))
+    axes[2].bar([i - 0.2 for i in xi], single, 0.4, label="single view", color="#999999")
+    axes[2].bar([i + 0.2 for i in xi], maj, 0.4, label=f"{result['settings']['group']}-view majority", color="#2a9d55")
+    axes[2].set_xticks(list(xi))
+    axes[2].set_xticklabels(names)
+    axes[2].set_ylim(0, 1.05)
+    axes[2].set_title("Label accuracy of the target")
+    axes[2].legend(loc="lower right")
+    fig.suptitle(f"Simulated detector calibration: {result['views']} views of {result['settings']['scenes']} "
+                 f"{result['settings']['split']} scenes")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run(args: argparse.Namespace) -> int:
+    from helios.configuration import with_overrides
+    from sim.perception.calibration import CalibrationSettings, calibrate
+    from sim.perception.config import SimPerceptionConfig
+
+    if args.views < args.group or args.group < 1:
+        raise CliError(f"--views ({args.views}) must be at least --group ({args.group}), and --group >= 1")
+    if args.scenes < 1:
+        raise CliError("--scenes must be >= 1")
+    config = with_overrides(SimPerceptionConfig(), args.overrides)
+    if config.mode != "noisy":
+        raise CliError("calibration measures the noisy simulated detector; mode=gt is perfect by construction")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    settings = CalibrationSettings(split=args.split, views=args.views, group=args.group, scenes=args.scenes,
+                                   seed=args.seed, min_pixels=args.min_pixels)
+    print(f"calibrating the simulated detector on {args.views} views of {args.scenes} {args.split} scenes ...", flush=True)
+    result = calibrate(settings, config, progress=lambda line: print(line, flush=True))
+    print()
+    print(tables(result))
+    (out / "calibration.json").write_text(json.dumps(result, indent=1, default=str))
+    plot(result, out / "calibration.png")
+    print(f"\nwrote {out / 'calibration.json'} and {out / 'calibration.png'} ({result['seconds']:.0f} s)")
+    return 0
