@@ -17,7 +17,9 @@ def test_calibrate_perception_writes_a_table_json_and_plot(tmp_path, capsys):
     assert result["views"] == 12
     assert set(result["pooled"]) == {"small objects", "receptacles"}
     assert (out / "calibration.png").stat().st_size > 10_000
-    assert result["config"]["bad_view_object"] == 0.16
+    from sim.perception.config import SimPerceptionConfig
+
+    assert result["config"]["bad_view_object"] == SimPerceptionConfig().bad_view_object   # the config is recorded
 
 
 def test_calibrate_perception_bad_input_is_one_line(tmp_path, capsys):
