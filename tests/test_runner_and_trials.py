@@ -51,7 +51,7 @@ def test_an_agent_exception_is_recorded_not_raised():
 
 
 def test_unknown_agent_lists_valid_ones():
-    with pytest.raises(UnknownAgentError, match="unknown agent 'helio'; valid agents: oracle"):
+    with pytest.raises(UnknownAgentError, match=r"unknown agent 'helio'; valid agents: (\S+, )*oracle\b"):
         make_agent("helio", None)
 
 
@@ -106,7 +106,7 @@ def _cli(*args):
 
 
 @pytest.mark.parametrize("args,message", [
-    (["trials", "--agent", "helio"], "error: unknown agent 'helio'; valid agents: oracle"),
+    (["trials", "--agent", "helio"], "error: unknown agent 'helio'; valid agents: "),
     (["trials", "--split", "vall"], "error: unknown split 'vall'; valid splits: smoke, val, train"),
     (["trials", "--episodes", "21"], "error: split 'smoke' has 20 episodes, fewer than the 21 requested"),
     (["trials", "runner.max_sim_tme=3"], "error: unknown config key 'runner.max_sim_tme'"),

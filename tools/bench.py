@@ -16,6 +16,7 @@ SUITES: dict[str, str] = {
     "maps": "tools.bench_maps",
     "scenes": "tools.bench_scenes",
     "perception": "tools.bench_perception",
+    "trials": "tools.bench_trials",
 }
 
 

@@ -17,6 +17,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("tools.bench", "performance benchmarks printed as tables (sim, ...)"),
     "spot": ("tools.spot", "run an agent on a real Spot via the Spot SDK (--fake: dry run against a simulated Spot)"),
     "trials": ("tools.trials", "run an agent over episodes in simulation; resumable results and a metrics table"),
+    "report": ("tools.report", "compare run folders: the paper-style table (text, Markdown) and PNG/HTML plots"),
+    "view": ("tools.view", "open a rerun recording (.rrd) in the viewer, or say how to view it elsewhere"),
     "episodes": ("tools.episodes", "generate an episode split from a seed, or check an episode file"),
     "tsdf": ("tools.tsdf", "TSDF-reconstruct what an episode saw; report true-surface coverage, write the mesh"),
     "calibrate-perception": ("tools.calibrate_perception",
@@ -31,6 +33,7 @@ def user_error_types() -> tuple[type[BaseException], ...]:
     from robots.hal import HalError
     from robots.spot.urdf import UrdfError
     from tasks.episodes import DatasetError
+    from tasks.executors import ExecutorError
     from tasks.registry import UnknownAgentError
     from tasks.spec import TaskSpecError
     from tasks.trials import RunFolderError
@@ -38,7 +41,7 @@ def user_error_types() -> tuple[type[BaseException], ...]:
     # HalError covers the Spot SDK backend's errors too (robots.spot.sdk_backend: CredentialsError,
     # SpotConnectError, SpotSdkMissingError and the HAL's RobotFault subclasses).
     return (ConfigError, HalError, UrdfError, CliError, FileNotFoundError, DatasetError, TaskSpecError,
-            UnknownAgentError, RunFolderError, PerceptionError)
+            UnknownAgentError, RunFolderError, PerceptionError, ExecutorError)
 
 
 class CliError(Exception):

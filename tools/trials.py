@@ -2,22 +2,27 @@
 results, a printed OVMM-style table and ``summary.json``.
 
     python -m tools trials --agent oracle --split smoke --episodes 20 --seed 0 --out runs/NAME
+    python -m tools trials --agent oracle --split val --episodes 200 --workers 2 --out runs/val200
     python -m tools trials --agent oracle --episodes-file my_eval.jsonl --out runs/mine runner.max_sim_time=300
+    python -m tools trials ... --executor ray --address local|auto|HOST:PORT   (pip install -e '.[ray]')
+    python -m tools trials ... --record 3      (rerun recordings of the first 3 episodes)
 
-Re-running the same command continues an interrupted batch (finished episodes are skipped).
+Re-running the same command continues an interrupted batch (finished episodes are skipped); the
+number of workers, the executor and recording may change between runs without changing a number.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from tasks.episodes import SPLITS
+    from tasks.executors import EXECUTORS
     from tasks.registry import agent_names
+    from tools.progress import MODES
 
     parser.add_argument("--agent", default="oracle", help=f"agent: {', '.join(agent_names())}")
     parser.add_argument("--split", default="smoke", help=f"episode split: {', '.join(SPLITS)}")
@@ -25,6 +30,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--episodes", type=int, default=20, help="number of episodes (from the start of the split)")
     parser.add_argument("--seed", type=int, default=0, help="master seed (per-episode seeds derive from it)")
     parser.add_argument("--out", default="", help="run folder (default: runs/<agent>_<split>_s<seed>)")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="episodes in parallel: local worker processes, or Ray CPUs with --address local")
+    parser.add_argument("--executor", default="local", choices=EXECUTORS,
+                        help="local processes (default) or a Ray cluster (optional extra: pip install -e '.[ray]')")
+    parser.add_argument("--address", default="local",
+                        help="Ray cluster: 'local' (a private loopback-only instance), 'auto', or HOST:PORT")
+    parser.add_argument("--record", type=int, default=0, metavar="N",
+                        help="write rerun recordings of the first N episodes to OUT/recordings/")
+    parser.add_argument("--progress", default="auto", choices=MODES,
+                        help="bar on a terminal, one line per episode otherwise (auto)")
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
                         help="config overrides, e.g. runner.max_sim_time=300 sim.camera.width=640")
 
@@ -50,42 +65,84 @@ def select_episodes(config):
     return episodes[:config.episodes]
 
 
+def default_out(config) -> Path:
+    source = Path(config.episodes_file).stem if config.episodes_file else config.split
+    return Path(f"runs/{config.agent}_{source}_s{config.seed}")
+
+
 def run(args: argparse.Namespace) -> int:
     from tasks.registry import agent_names
-    from tasks.trials import METRIC_NAMES, metrics_table_rows, run_batch, summarize
+    from tasks.trials import (METRIC_NAMES, BatchReport, EpisodeSetupError, metrics_table_rows, read_results,
+                              run_batch, summarize)
     from tools.cli import CliError
+    from tools.progress import Progress, format_duration
     from tools.tables import format_markdown, format_table
 
     config = resolve_config(args)
     if config.agent not in agent_names():
         raise CliError(f"unknown agent {config.agent!r}; valid agents: {', '.join(agent_names())}")
+    if args.workers < 1:
+        raise CliError(f"--workers must be >= 1, got {args.workers}")
+    if args.record < 0:
+        raise CliError(f"--record must be >= 0, got {args.record}")
+    if args.executor == "local" and args.address != "local":
+        raise CliError("--address only applies to --executor ray")
     episodes = select_episodes(config)
-    out = Path(args.out or f"runs/{config.agent}_{Path(config.episodes_file).stem if config.episodes_file else config.split}_s{config.seed}")
-    t0 = time.perf_counter()
+    out = Path(args.out) if args.out else default_out(config)
+    where = "" if args.executor == "local" else f" on Ray ({args.address})"
     print(f"[trials] {config.agent} on {len(episodes)} episode(s) "
-          f"({config.episodes_file or 'split ' + config.split}), seed {config.seed}, results in {out}/", flush=True)
+          f"({config.episodes_file or 'split ' + config.split}), seed {config.seed}, "
+          f"{args.workers} worker(s){where}; results in {out}/", flush=True)
 
-    def progress(record: dict, done: int, total: int) -> None:
-        m = record["metrics"] or {}
-        status = "success" if m.get("success") else f"failed: {m.get('failure_reason')}"
-        elapsed = time.perf_counter() - t0
-        print(f"[trials] {done}/{total} {record['episode_id']} {status}  "
-              f"(sim {record['sim_time']:.0f} s, wall {record['wall_time']:.1f} s; elapsed {elapsed:.0f} s)",
-              flush=True)
-
-    records = run_batch(config, episodes, out, on_episode=progress)
+    ids = {e.episode_id for e in episodes}
+    before = {k: v for k, v in read_results(out / "episodes.jsonl").items() if k in ids}
+    if before:
+        print(f"[trials] resuming: {len(before)} of {len(episodes)} episode(s) already finished", flush=True)
+    progress = Progress(len(episodes), done=len(before), successes=sum(bool(r.get("success")) for r in before.values()),
+                        workers=args.workers, mode=args.progress)
+    report = BatchReport([])
+    try:
+        records = run_batch(config, episodes, out, on_episode=lambda r, d, t: progress.update(r),
+                            workers=args.workers, executor=args.executor, address=args.address,
+                            record=args.record, on_tick=progress.tick, report=report)
+    except EpisodeSetupError as exc:
+        progress.close()
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        progress.close()
+        print(f"interrupted; finished episodes are saved in {out}/episodes.jsonl: re-run the same command "
+              f"to continue", file=sys.stderr)
+        return 130
+    progress.close()
+    if report.commit_changed:
+        print(f"warning: this run folder was started at commit {report.commit_changed[:10]}; episodes from "
+              f"different code versions are mixed", file=sys.stderr)
     summary = summarize(records)
     headers = ["run"] + list(METRIC_NAMES.values())
     rows = [metrics_table_rows(out.name, summary)]
     print()
     print(format_table(headers, rows, title=f"{len(records)} episodes, percent ± standard error"))
     reasons = ", ".join(f"{k} {v}" for k, v in summary["failure_reasons"].items() if v) or "none"
+    mem = summary["memory"]["peak_rss_mb"]
     print(f"failure reasons: {reasons}; collisions per episode {summary['collisions_per_episode']:.2f}; "
-          f"{summary['sim_seconds_per_episode']:.0f} s simulated, {summary['wall_seconds_per_episode']:.1f} s wall per episode")
+          f"{summary['sim_seconds_per_episode']:.0f} s simulated, {summary['wall_seconds_per_episode']:.1f} s wall "
+          f"per episode" + (f"; peak RSS {mem['max']:.0f} MB" if mem else ""))
+    if report.ran:
+        rate = 3600.0 * report.ran / report.wall_seconds if report.wall_seconds > 0 else 0.0
+        print(f"this run: {report.ran} episode(s) in {format_duration(report.wall_seconds)} "
+              f"({rate:.0f} episodes/hour with {args.workers} worker(s)); {report.skipped} already done")
     print()
     print(format_markdown(headers, rows))
     print(f"\nsummary: {out / 'summary.json'}   episodes: {out / 'episodes.jsonl'}")
+    if args.record:
+        print(f"recordings: {out / 'recordings'}/   (view: python -m tools view FILE.rrd)")
     if summary["errors"]:
         print(f"warning: {summary['errors']} episode(s) ended on an exception; see 'error' in episodes.jsonl",
               file=sys.stderr)
+    if report.crashed:
+        listed = "; ".join(f"{k}: {v}" for k, v in sorted(report.crashed.items()))
+        print(f"error: {len(report.crashed)} episode(s) were not recorded because their worker process died "
+              f"({listed}); re-run the same command to retry them", file=sys.stderr)
+        return 1
     return 0

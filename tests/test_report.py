@@ -1,0 +1,75 @@
+"""`tools report`: the paper-style table from run folders, the PNG plots and the HTML page."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tasks.trials import TrialConfig, append_result, prepare_run_folder
+from tools.report import FIGURES, make_report
+
+
+def _record(i: int, phases: int, reason: str | None, gpu: bool, collisions: int = 0) -> dict:
+    """A synthetic episode record reaching the first ``phases`` of the five phases."""
+    flags = [k < phases for k in range(5)]
+    t = np.linspace(0, 60 + 10 * i, 12)
+    series = {"t": t.round(2).tolist(), "rss_mb": (400 + 2 * t).round(2).tolist(),
+              "map_mb": (5 + 0.1 * t).round(3).tolist()}
+    if gpu:
+        series["gpu_allocated_mb"] = (900 + 20 * t).round(2).tolist()
+        series["gpu_reserved_mb"] = (1500 + 30 * t).round(2).tolist()
+    return {"episode_id": f"val-{i:05d}", "agent": "x", "task": "Move the mug from the stool to the table",
+            "seed": i, "success": flags[4], "error": None, "commands": 50, "limit_hit": False, "extra": {},
+            "collision_events": [], "sim_time": float(t[-1]), "wall_time": 3.0,
+            "metrics": {"find_obj": flags[0], "pick": flags[1], "find_rec": flags[2], "place": flags[3],
+                        "success": flags[4], "collisions": collisions, "failure_reason": reason},
+            "memory": {"peak_rss_mb": float(series["rss_mb"][-1]), "map_mb_peak": float(series["map_mb"][-1]),
+                       "gpu_allocated_mb_peak": 2000.0 if gpu else None,
+                       "gpu_reserved_mb_peak": 3000.0 if gpu else None, "series": series}}
+
+
+def _make_run(path, outcomes, gpu=False):
+    prepare_run_folder(path, TrialConfig(agent="oracle", split="val", episodes=len(outcomes)))
+    for i, (phases, reason) in enumerate(outcomes):
+        append_result(path / "episodes.jsonl", _record(i, phases, reason, gpu))
+    return path
+
+
+def test_report_on_two_runs_writes_the_table_pngs_and_html(tmp_path):
+    from matplotlib.image import imread
+
+    a = _make_run(tmp_path / "helios", [(5, None)] * 6 + [(4, "collision"), (2, "receptacle_not_found"),
+                                                       (1, "pick_failed"), (0, "not_found")], gpu=True)
+    b = _make_run(tmp_path / "trusting", [(5, None)] * 3 + [(3, "place_failed")] * 2 + [(0, "not_found")] * 5)
+    result = make_report([a, b], tmp_path / "report")
+    text, md = result["text"], result["markdown"]
+    # FindObj 9/10, Pick 8/10, FindRec 7/10, Place 7/10, SR 6/10 for HELIOS
+    assert "helios    90.0 ± 9.5   80.0 ± 12.6  70.0 ± 14.5  70.0 ± 14.5  60.0 ± 15.5" in text
+    assert "| trusting | 50.0 ± 15.8 | 50.0 ± 15.8 | 50.0 ± 15.8 | 30.0 ± 14.5 | 30.0 ± 14.5 |" in md
+    assert "| run | FindObj | Pick | FindRec | Place | SR |" in md
+    assert (tmp_path / "report" / "table.md").read_text().strip() == md.strip()
+    for name in FIGURES:
+        png = tmp_path / "report" / name
+        assert png.stat().st_size > 15_000, name
+        img = imread(png)
+        assert img.shape[0] > 200 and img.shape[1] > 400 and img[..., :3].std() > 0.05, name   # not blank
+    html = result["html"].read_text()
+    assert html.count("data:image/png;base64,") == 3 and "<td>helios</td>" in html and "<td>trusting</td>" in html
+    assert "GPU alloc MB" in text and "2000.0" in text
+
+
+def test_report_on_real_runs_from_the_cli(tmp_path, capsys):
+    """End to end on one real (short) oracle episode, twice under different names."""
+    from helios.configuration import with_overrides
+    from tasks.episodes import load_split
+    from tasks.trials import run_batch
+    from tools.cli import main
+
+    run = tmp_path / "oracle"
+    run_batch(with_overrides(TrialConfig(episodes=1), ["runner.max_sim_time=20"]), load_split("smoke")[:1], run)
+    assert main(["report", str(run), str(run), "--names", "a,b", "--out", str(tmp_path / "rep")]) == 0
+    out = capsys.readouterr().out
+    assert "| a |" in out and "| b |" in out and f"report: {tmp_path / 'rep' / 'index.html'}" in out
+    assert all((tmp_path / "rep" / f).stat().st_size > 10_000 for f in FIGURES)
+    with pytest.raises(Exception, match="--names has 1 name"):
+        make_report([run, run], tmp_path / "rep2", names=["only"])

@@ -1,0 +1,194 @@
+"""Trial batches at scale: identical numbers for the same seed whatever the workers, the executor
+(in-process, local processes, Ray), resumption after SIGKILL at random moments, or recording."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+import pytest
+
+from helios.configuration import with_overrides
+from tasks.episodes import load_split
+from tasks.trials import (NONDETERMINISTIC_FIELDS, TrialConfig, deterministic_view, read_results, run_batch,
+                          run_one)
+
+# Short episodes: smoke-00000 succeeds within the limit, smoke-00002 runs out of time (mixed outcomes).
+SHORT = ["runner.max_sim_time=45"]
+N = 3
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _config(seed: int = 0) -> TrialConfig:
+    return with_overrides(TrialConfig(agent="oracle", split="smoke", episodes=N, seed=seed), SHORT)
+
+
+def _views(records) -> dict[str, dict]:
+    return {r["episode_id"]: deterministic_view(r) for r in (records.values() if isinstance(records, dict) else records)}
+
+
+def _file_views(out: Path) -> list[dict]:
+    lines = (out / "episodes.jsonl").read_text().splitlines()
+    return [deterministic_view(json.loads(line)) for line in lines]
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    """An uninterrupted in-process batch (the numbers every other way of running must reproduce)."""
+    out = tmp_path_factory.mktemp("reference") / "run"
+    run_batch(_config(), load_split("smoke")[:N], out)
+    return out
+
+
+def test_reference_batch_has_mixed_outcomes_and_complete_records(reference):
+    records = read_results(reference / "episodes.jsonl")
+    assert list(records) == [f"smoke-0000{i}" for i in range(N)]
+    outcomes = [r["success"] for r in records.values()]
+    assert True in outcomes and False in outcomes, outcomes
+    for r in records.values():
+        mem = r["memory"]
+        assert 50 < mem["peak_rss_mb"] < 8000
+        series = mem["series"]
+        assert len(series["t"]) == len(series["rss_mb"]) <= 64 and series["t"] == sorted(series["t"])
+        assert max(series["rss_mb"]) <= mem["peak_rss_mb"] + 0.01
+        assert mem["map_mb_peak"] is None          # the oracle keeps no map
+    summary = json.loads((reference / "summary.json").read_text())
+    assert summary["complete"] and summary["episodes"] == N
+    assert summary["memory"]["peak_rss_mb"]["max"] > 50
+    assert set(NONDETERMINISTIC_FIELDS) == {"wall_time", "memory", "recording"}
+
+
+def test_same_seed_same_numbers_and_the_seed_matters():
+    ep = load_split("smoke")[1]
+    a, b = run_one(_config(), ep), run_one(_config(), ep)
+    assert deterministic_view(a) == deterministic_view(b)
+    assert a["metrics"]["object_final"] == b["metrics"]["object_final"]     # bit-identical physics
+    c = run_one(_config(seed=1), ep)
+    assert c["seed"] != a["seed"]
+
+
+def _children(pid: int) -> list[int]:
+    """Child processes, without multiprocessing's resource tracker (it lives as long as its parent)."""
+    out = []
+    try:
+        for p in psutil.Process(pid).children(recursive=True):
+            try:
+                if "resource_tracker" not in " ".join(p.cmdline()):
+                    out.append(p.pid)
+            except psutil.Error:
+                pass
+    except psutil.NoSuchProcess:
+        pass
+    return out
+
+
+def _gone(pids, timeout: float = 5.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if not any(psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE for p in pids):
+            return True
+        time.sleep(0.1)
+    return False
+
+
+def test_two_workers_give_the_same_records_as_one_and_leave_no_process(reference, tmp_path):
+    out = tmp_path / "w2"
+    records = run_batch(_config(), load_split("smoke")[:N], out, workers=2, record=1)
+    assert _views(records) == _views(read_results(reference / "episodes.jsonl"))
+    assert sorted(v["episode_id"] for v in _file_views(out)) == [f"smoke-0000{i}" for i in range(N)]
+    # the recording of the first episode came back from its worker into the run folder
+    rec = read_results(out / "episodes.jsonl")["smoke-00000"]["recording"]
+    assert rec == {"path": "recordings/smoke-00000.rrd", "errors": []}
+    assert (out / rec["path"]).stat().st_size > 100_000
+    assert not list((out / "recordings").glob("*.tmp"))
+    assert _gone(_children(os.getpid())), "trial workers outlived their batch"
+
+
+def test_ray_local_instance_gives_the_same_records(reference, tmp_path):
+    pytest.importorskip("ray")
+    out = tmp_path / "ray"
+    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
+    proc = subprocess.run([sys.executable, "-m", "tools", "trials", "--episodes", str(N), "--workers", "2",
+                           "--executor", "ray", "--address", "local", "--out", str(out), *SHORT],
+                          capture_output=True, text=True, timeout=300, cwd=ROOT, env=env)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert "on Ray (local)" in proc.stdout
+    assert _views(read_results(out / "episodes.jsonl")) == _views(read_results(reference / "episodes.jsonl"))
+    inv = [json.loads(l) for l in (out / "invocations.jsonl").read_text().splitlines()]
+    assert inv[-1]["executor"] == "ray" and inv[-1]["workers"] == 2
+
+
+def _trials_cmd(out: Path, workers: int, n: int = N) -> list[str]:
+    return [sys.executable, "-m", "tools", "trials", "--episodes", str(n), "--workers", str(workers),
+            "--out", str(out), "--progress", "lines", *SHORT]
+
+
+def _kill_and_resume(out: Path, workers: int, kills: int, seed: int, n: int = N) -> list[tuple[float, int]]:
+    """Start the CLI, SIGKILL it at a random moment (only the parent: its workers must follow), several
+    times; then run it to the end. Returns (kill time, finished episodes at the kill)."""
+    rng = np.random.default_rng(seed)
+    log = []
+    for _ in range(kills):
+        proc = subprocess.Popen(_trials_cmd(out, workers, n), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                cwd=ROOT)
+        delay = float(rng.uniform(0.3, 4.5))
+        t0 = time.monotonic()
+        children: set[int] = set()
+        while time.monotonic() - t0 < delay and proc.poll() is None:
+            children.update(_children(proc.pid))
+            time.sleep(0.05)
+        if proc.poll() is None:
+            children.update(_children(proc.pid))
+            os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+        proc.stderr.close()
+        assert _gone(children), f"worker processes outlived their killed parent: {children}"
+        log.append((round(delay, 2), len(read_results(out / "episodes.jsonl"))))
+    proc = subprocess.run(_trials_cmd(out, workers, n), capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return log
+
+
+def test_sigkill_at_random_moments_then_resume_matches_an_uninterrupted_run(reference, tmp_path):
+    out = tmp_path / "killed"
+    log = _kill_and_resume(out, workers=2, kills=3, seed=7)
+    lines = (out / "episodes.jsonl").read_text().splitlines()
+    ids = [json.loads(l)["episode_id"] for l in lines]
+    assert sorted(ids) == [f"smoke-0000{i}" for i in range(N)], (ids, log)     # nothing lost, nothing twice
+    assert _views(read_results(out / "episodes.jsonl")) == _views(read_results(reference / "episodes.jsonl")), log
+    assert json.loads((out / "summary.json").read_text())["complete"]
+
+
+@pytest.mark.slow
+def test_many_sigkills_with_one_worker_give_the_same_file_line_by_line(tmp_path):
+    n = 4
+    config = with_overrides(TrialConfig(agent="oracle", split="smoke", episodes=n), SHORT)
+    ref = tmp_path / "ref"
+    run_batch(config, load_split("smoke")[:n], ref)
+    out = tmp_path / "killed"
+    log = _kill_and_resume(out, workers=1, kills=6, seed=11, n=n)
+    assert _file_views(out) == _file_views(ref), log       # one worker: same lines in the same order
+
+
+def test_a_second_batch_on_the_same_folder_is_refused_while_the_first_runs(tmp_path):
+    out = tmp_path / "busy"
+    proc = subprocess.Popen(_trials_cmd(out, 1, 1), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)
+    try:
+        deadline = time.monotonic() + 30
+        while not (out / ".lock").exists() or not (out / ".lock").read_text():
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.05)
+        from tasks.trials import RunFolderError
+
+        with pytest.raises(RunFolderError, match=r"is in use by pid \d+"):
+            run_batch(with_overrides(TrialConfig(episodes=1), SHORT), load_split("smoke")[:1], out)
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)

@@ -1,0 +1,68 @@
+"""Trial throughput: episodes per hour with 1 and 2 local workers on the same episodes, side by side.
+
+Each configuration runs the same episodes into a fresh temporary run folder, timed from the call to
+``run_batch`` to its return (worker start-up included), and the two runs must give identical
+numbers. The load average before and after is printed: on a shared 2-core machine other work
+steals cores and lowers the scaling ratio.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from pathlib import Path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--trials-episodes", type=int, default=8, help="trials suite: episodes per configuration")
+    parser.add_argument("--trials-agent", default="oracle", help="trials suite: agent")
+    parser.add_argument("--trials-split", default="smoke", help="trials suite: split")
+    parser.add_argument("--trials-workers", default="1,2", help="trials suite: worker counts to compare")
+
+
+def _load() -> str:
+    try:
+        return "/".join(f"{x:.2f}" for x in os.getloadavg())
+    except OSError:
+        return "n/a"
+
+
+def run(args: argparse.Namespace) -> str:
+    from tasks.episodes import load_split
+    from tasks.trials import TrialConfig, deterministic_view, run_batch
+    from tools.cli import CliError
+    from tools.tables import format_table
+
+    n = 3 if args.quick else args.trials_episodes
+    episodes = load_split(args.trials_split)
+    if n < 1 or n > len(episodes):
+        raise CliError(f"--trials-episodes must be in 1..{len(episodes)}, got {n}")
+    try:
+        counts = [int(w) for w in args.trials_workers.split(",")]
+    except ValueError:
+        raise CliError(f"--trials-workers must be comma-separated integers, got {args.trials_workers!r}") from None
+    episodes = episodes[:n]
+    config = TrialConfig(agent=args.trials_agent, split=args.trials_split, episodes=n, seed=args.seed)
+    rows, results = [], {}
+    load_before = _load()
+    for workers in counts:
+        with tempfile.TemporaryDirectory(prefix="bench-trials-") as tmp:
+            t0 = time.perf_counter()
+            records = run_batch(config, episodes, Path(tmp) / "run", workers=workers)
+            wall = time.perf_counter() - t0
+        results[workers] = [deterministic_view(r) for r in records]
+        per_hour = 3600.0 * n / wall
+        sr = 100.0 * sum(r["success"] for r in records) / n
+        rows.append([workers, n, round(wall, 1), round(per_hour), f"{sr:.0f}%",
+                     f"{sum(r['wall_time'] for r in records) / n:.2f}"])
+    base = rows[0][3]
+    for row in rows:
+        row.append(f"{row[3] / base:.2f}x")
+    same = all(results[w] == results[counts[0]] for w in counts)
+    title = (f"Trial throughput: {args.trials_agent} on {n} {args.trials_split} episodes, seed {args.seed}, "
+             f"{os.cpu_count()} cores; load average before {load_before}, after {_load()}")
+    table = format_table(["workers", "episodes", "wall s", "episodes/hour", "SR", "wall s/episode", "scaling"],
+                         rows, title=title)
+    return table + f"\nidentical records across worker counts: {'yes' if same else 'NO'}"

@@ -1,0 +1,327 @@
+"""Compare trial runs: the paper-style table (rows = runs; FindObj, Pick, FindRec, Place, SR in
+percent ± standard error) as text and Markdown, PNG plots (subtask success as the paper's stacked
+bars, failure modes, memory over episode time) and one self-contained HTML page with all of it.
+
+    python -m tools report runs/helios runs/trusting --out runs/report
+
+Numbers are recomputed from each run's ``episodes.jsonl`` (so a run that is still going or was
+interrupted is reported as it stands; its row says how many episodes it has).
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import html
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+PHASES = ("FindObj", "Pick", "FindRec", "Place", "SR")
+PHASE_COLORS = ("#c6dbef", "#9ecae1", "#6baed6", "#3182bd", "#08519c")
+MEMORY_SERIES = (("rss_mb", "resident memory (RSS)"), ("map_mb", "agent map"),
+                 ("gpu_allocated_mb", "GPU allocated"), ("gpu_reserved_mb", "GPU reserved"))
+FIGURES = ("subtasks.png", "failures.png", "memory.png")
+
+
+@dataclass
+class Run:
+    name: str
+    path: Path
+    records: list[dict]
+    summary: dict
+    config: dict
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("runs", nargs="+", metavar="RUN", help="run folders (from `python -m tools trials --out`)")
+    parser.add_argument("--out", default="runs/report", help="folder for the table, PNGs and index.html")
+    parser.add_argument("--names", default="", help="comma-separated row names (default: the folder names)")
+
+
+def load_run(path: str | Path, name: str | None = None) -> Run:
+    """A run folder's finished episodes and summary; CliError when it is missing or empty."""
+    import yaml
+
+    from tasks.trials import read_results, summarize
+    from tools.cli import CliError
+
+    p = Path(path)
+    if not p.is_dir():
+        raise CliError(f"run folder {str(p)!r} does not exist")
+    records = list(read_results(p / "episodes.jsonl").values())
+    if not records:
+        raise CliError(f"run folder {str(p)!r} has no finished episodes (episodes.jsonl missing or empty); "
+                       f"run `python -m tools trials --out {p}` first")
+    records.sort(key=lambda r: r["episode_id"])
+    config = {}
+    if (p / "config.yaml").is_file():
+        try:
+            config = yaml.safe_load((p / "config.yaml").read_text()) or {}
+        except yaml.YAMLError:
+            config = {}
+    return Run(name or p.resolve().name, p, records, summarize(records), config)
+
+
+# ------------------------------------------------------------------------------------------------
+# Tables
+# ------------------------------------------------------------------------------------------------
+def metrics_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
+    from tasks.trials import metrics_table_rows
+
+    headers = ["run"] + list(PHASES)
+    return headers, [metrics_table_rows(r.name, r.summary) for r in runs]
+
+
+def detail_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
+    headers = ["run", "agent", "episodes", "collisions/ep", "errors", "sim s/ep", "wall s/ep", "peak RSS MB",
+               "map MB", "GPU alloc MB", "GPU reserved MB"]
+    rows = []
+    for r in runs:
+        s, mem = r.summary, r.summary["memory"]
+
+        def peak(key: str) -> str:
+            return f"{mem[key]['max']:.1f}" if mem.get(key) else "-"
+
+        rows.append([r.name, r.config.get("agent", r.records[0].get("agent", "?")), s["episodes"],
+                     f"{s['collisions_per_episode']:.2f}", s["errors"], f"{s['sim_seconds_per_episode']:.0f}",
+                     f"{s['wall_seconds_per_episode']:.1f}", peak("peak_rss_mb"), peak("map_mb_peak"),
+                     peak("gpu_allocated_mb_peak"), peak("gpu_reserved_mb_peak")])
+    return headers, rows
+
+
+def failure_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
+    from tasks.metrics import FAILURE_REASONS
+
+    used = [k for k in FAILURE_REASONS if any(r.summary["failure_reasons"][k] for r in runs)]
+    headers = ["run", "success"] + used
+    rows = [[r.name, r.summary["SR"]["count"]] + [r.summary["failure_reasons"][k] for k in used] for r in runs]
+    return headers, rows
+
+
+# ------------------------------------------------------------------------------------------------
+# Plots
+# ------------------------------------------------------------------------------------------------
+def _pyplot():
+    try:
+        import matplotlib
+    except ImportError:
+        return None
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_subtasks(runs: list[Run], path: Path, plt) -> None:
+    """The paper's hardware-results style: per run one column of overlaid bars, FindObj (tallest,
+    lightest) down to SR (lowest, darkest), each labelled with its percentage ± SE."""
+    fig, ax = plt.subplots(figsize=(max(5.0, 2.2 * len(runs) + 2.0), 4.2))
+    x = np.arange(len(runs))
+    for phase, color in zip(PHASES, PHASE_COLORS):
+        vals = [r.summary[phase]["percent"] for r in runs]
+        ax.bar(x, vals, width=0.6, color=color, edgecolor="white", linewidth=0.6, label=phase)
+    for i, r in enumerate(runs):
+        groups: list[tuple[float, list[str], float]] = []       # equal levels share one label
+        for phase in PHASES:
+            v, se = r.summary[phase]["percent"], r.summary[phase]["se"]
+            if groups and abs(groups[-1][0] - v) < 1e-9:
+                groups[-1][1].append(phase)
+            else:
+                groups.append((v, [phase], se))
+        y_prev = -10.0
+        for v, names, se in sorted(groups, key=lambda g: g[0]):
+            y = max(v, y_prev + 4.5)                            # keep close labels apart
+            ax.text(i + 0.32, y, f"{'='.join(names)} {v:.0f}±{se:.0f}", va="center", ha="left", fontsize=7)
+            y_prev = y
+    ax.set_xticks(x, [f"{r.name}\n(n={r.summary['episodes']})" for r in runs], fontsize=8)
+    ax.set_xlim(-0.6, len(runs) - 0.4 + 0.9)
+    ax.set_ylim(0, 105)
+    ax.set_ylabel("episodes (%)")
+    ax.set_title("Subtask success (each bar: episodes reaching that phase)")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False)
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_failures(runs: list[Run], path: Path, plt) -> None:
+    """How episodes ended, per run: success and each failure reason, as shares of the scored episodes."""
+    from tasks.metrics import FAILURE_REASONS
+
+    cmap = plt.get_cmap("tab10")
+    fig, ax = plt.subplots(figsize=(8.0, max(2.2, 0.55 * len(runs) + 1.4)))
+    y = np.arange(len(runs))
+    left = np.zeros(len(runs))
+    parts = [("success", "#2ca02c", [r.summary["SR"]["count"] for r in runs])]
+    for i, k in enumerate(FAILURE_REASONS):
+        parts.append((k, cmap((i + 3) % 10), [r.summary["failure_reasons"][k] for r in runs]))
+    crashed = [r.summary["episodes"] - r.summary["scored"] for r in runs]
+    if any(crashed):
+        parts.append(("unscored", "#7f7f7f", crashed))
+    for label, color, counts in parts:
+        share = np.array([100.0 * c / max(1, r.summary["episodes"]) for c, r in zip(counts, runs)])
+        if not share.any():
+            continue
+        ax.barh(y, share, left=left, color=color, label=label, edgecolor="white", linewidth=0.6)
+        for yi, (l0, w) in enumerate(zip(left, share)):
+            if w >= 6:
+                ax.text(l0 + w / 2, yi, f"{w:.0f}", ha="center", va="center", fontsize=7, color="white")
+        left += share
+    ax.set_yticks(y, [r.name for r in runs], fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlim(0, 100)
+    ax.set_xlabel("episodes (%)")
+    ax.set_title("How episodes ended")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def memory_curve(records: list[dict], key: str, bins: int = 30) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Mean and max over episodes of ``key`` against episode time (each episode holds its last sample
+    until it ends; episodes that have ended drop out)."""
+    series = [r["memory"]["series"] for r in records
+              if r.get("memory") and key in (r["memory"].get("series") or {})]
+    series = [(np.asarray(s["t"], dtype=float), np.array([np.nan if v is None else v for v in s[key]], dtype=float))
+              for s in series if s.get("t")]
+    if not series:
+        return None
+    t_end = max(t[-1] for t, _ in series)
+    grid = np.linspace(0.0, max(t_end, 1e-6), bins)
+    vals = np.full((len(series), bins), np.nan)
+    for i, (t, v) in enumerate(series):
+        idx = np.searchsorted(t, grid, side="right") - 1
+        ok = (grid <= t[-1])
+        vals[i, ok] = v[np.clip(idx[ok], 0, len(v) - 1)]
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return grid, np.nanmean(vals, axis=0), np.nanmax(vals, axis=0)
+
+
+def plot_memory(runs: list[Run], path: Path, plt) -> None:
+    """Memory against episode time (simulated s), averaged over each run's episodes (solid) with the
+    maximum (dashed): RSS, the agent's map, and GPU allocated/reserved where recorded."""
+    panels = [(k, label) for k, label in MEMORY_SERIES if any(memory_curve(r.records, k) for r in runs)]
+    if not panels:
+        panels = [MEMORY_SERIES[0]]
+    cols = min(2, len(panels))
+    nrows = (len(panels) + cols - 1) // cols
+    fig, axes = plt.subplots(nrows, cols, figsize=(5.0 * cols + 2.2, 3.2 * nrows + 0.4), squeeze=False)
+    cmap = plt.get_cmap("tab10")
+    legend: dict[str, object] = {}
+    for ax, (key, label) in zip(axes.flat, panels):
+        for i, r in enumerate(runs):
+            curve = memory_curve(r.records, key)
+            if curve is None:
+                continue
+            t, mean, mx = curve
+            legend[f"{r.name} mean"], = ax.plot(t, mean, color=cmap(i % 10))
+            legend[f"{r.name} max"], = ax.plot(t, mx, color=cmap(i % 10), linestyle="--", linewidth=0.8)
+        ax.set_title(label, fontsize=9)
+        ax.set_xlabel("episode time (simulated s)", fontsize=8)
+        ax.set_ylabel("MB", fontsize=8)
+        ax.grid(alpha=0.3)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.set_visible(False)
+    fig.legend(list(legend.values()), list(legend), fontsize=7, loc="upper right", frameon=False)
+    fig.suptitle("Memory over episode time (mean over episodes; dashed: max)", fontsize=10, x=0.02, ha="left")
+    fig.tight_layout(rect=(0, 0, 1.0 - 1.6 / (5.0 * cols + 2.2), 1))
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------------------------
+# Output
+# ------------------------------------------------------------------------------------------------
+def _html_table(headers, rows) -> str:
+    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in headers)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in row) + "</tr>" for row in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def write_html(path: Path, runs: list[Run], tables: list[tuple[str, list, list]], figures: list[Path]) -> None:
+    parts = ["<!doctype html><html><head><meta charset='utf-8'><title>HELIOS trial report</title><style>",
+             "body{font-family:sans-serif;margin:2em;max-width:1100px}table{border-collapse:collapse;margin:1em 0}"
+             "td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}td:first-child,th:first-child{text-align:left}"
+             "img{max-width:100%;margin:1em 0}code{background:#f4f4f4}",
+             "</style></head><body><h1>HELIOS trial report</h1>"]
+    for r in runs:
+        cfg = r.config
+        parts.append(f"<p><b>{html.escape(r.name)}</b>: <code>{html.escape(str(r.path))}</code>, agent "
+                     f"{html.escape(str(cfg.get('agent', '?')))}, {html.escape(str(cfg.get('episodes_file') or 'split ' + str(cfg.get('split', '?'))))}, "
+                     f"seed {html.escape(str(cfg.get('seed', '?')))}, commit {html.escape(str(cfg.get('git_commit', '?'))[:10])}</p>")
+    for title, headers, rows in tables:
+        parts.append(f"<h2>{html.escape(title)}</h2>" + _html_table(headers, rows))
+    for fig in figures:
+        data = base64.b64encode(fig.read_bytes()).decode()
+        parts.append(f"<h2>{html.escape(fig.stem)}</h2><img alt='{html.escape(fig.stem)}' src='data:image/png;base64,{data}'>")
+    parts.append("</body></html>")
+    path.write_text("\n".join(parts))
+
+
+def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] | None = None) -> dict:
+    """Load the runs, write table.txt, table.md, the PNGs and index.html to ``out``; return what was
+    written (``text``, ``markdown``, ``figures``, ``html``, ``warnings``)."""
+    from tools.cli import CliError
+    from tools.tables import format_markdown, format_table
+
+    if names and len(names) != len(run_paths):
+        raise CliError(f"--names has {len(names)} name(s) for {len(run_paths)} run(s)")
+    runs = [load_run(p, names[i] if names else None) for i, p in enumerate(run_paths)]
+    seen: dict[str, int] = {}
+    for r in runs:                                   # two folders with the same name: keep rows apart
+        seen[r.name] = seen.get(r.name, 0) + 1
+        if seen[r.name] > 1:
+            r.name = f"{r.name} ({seen[r.name]})"
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    headers, rows = metrics_rows(runs)
+    d_headers, d_rows = detail_rows(runs)
+    f_headers, f_rows = failure_rows(runs)
+    text = "\n\n".join([format_table(headers, rows, title="Percent of episodes ± standard error"),
+                        format_table(d_headers, d_rows, title="Runs"),
+                        format_table(f_headers, f_rows, title="How episodes ended (counts)")])
+    markdown = "\n\n".join([format_markdown(headers, rows), format_markdown(d_headers, d_rows),
+                            format_markdown(f_headers, f_rows)])
+    (out / "table.txt").write_text(text + "\n")
+    (out / "table.md").write_text(markdown + "\n")
+    warnings = []
+    figures: list[Path] = []
+    plt = _pyplot()
+    if plt is None:
+        warnings.append("plots need matplotlib (pip install -e '.[viz]'); wrote the tables only")
+    else:
+        for fname, fn in zip(FIGURES, (plot_subtasks, plot_failures, plot_memory)):
+            fn(runs, out / fname, plt)
+            figures.append(out / fname)
+    tables = [("Percent of episodes ± standard error", headers, rows), ("Runs", d_headers, d_rows),
+              ("How episodes ended (counts)", f_headers, f_rows)]
+    write_html(out / "index.html", runs, tables, figures)
+    (out / "report.json").write_text(json.dumps({r.name: {"path": str(r.path), "summary": r.summary} for r in runs},
+                                                indent=2, sort_keys=True))
+    return {"text": text, "markdown": markdown, "figures": figures, "html": out / "index.html", "warnings": warnings}
+
+
+def run(args: argparse.Namespace) -> int:
+    import sys
+
+    names = [n.strip() for n in args.names.split(",")] if args.names else None
+    result = make_report(args.runs, args.out, names)
+    print(result["text"])
+    print()
+    print(result["markdown"])
+    print()
+    for w in result["warnings"]:
+        print(f"warning: {w}", file=sys.stderr)
+    for f in result["figures"]:
+        print(f"plot: {f}")
+    print(f"report: {result['html']}")
+    return 0
