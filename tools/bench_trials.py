@@ -24,6 +24,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trials-workers", default="1,2", help="trials suite: worker counts to compare")
 
 
+def spin(n: int) -> float:
+    """A pure-Python CPU loop (no memory traffic); returns its duration."""
+    t = time.perf_counter()
+    s = 0
+    for i in range(n):
+        s += i * i
+    return time.perf_counter() - t
+
+
+def cpu_scaling(workers: int = 2, n: int = 4_000_000) -> float:
+    """What this machine gives right now: throughput of ``workers`` processes spinning at once
+    relative to one (2.0 on two idle cores; less when other work shares them)."""
+    from tasks.executors import ProcessExecutor
+
+    ex = ProcessExecutor(workers)
+    try:
+        list(ex.map_unordered(spin, [1000] * workers))          # start the workers
+        single = spin(n)
+        t0 = time.perf_counter()
+        list(ex.map_unordered(spin, [n] * workers))
+        return workers * single / (time.perf_counter() - t0)
+    finally:
+        ex.close()
+
+
 def _load() -> str:
     try:
         return "/".join(f"{x:.2f}" for x in os.getloadavg())
@@ -49,6 +74,7 @@ def run(args: argparse.Namespace) -> str:
     config = TrialConfig(agent=args.trials_agent, split=args.trials_split, episodes=n, seed=args.seed)
     rows, results = [], {}
     load_before = _load()
+    cpu_before = cpu_scaling(max(counts)) if max(counts) > 1 else 1.0
     for workers in counts:
         marks: list[float] = []
         with tempfile.TemporaryDirectory(prefix="bench-trials-") as tmp:
@@ -70,4 +96,7 @@ def run(args: argparse.Namespace) -> str:
              f"{os.cpu_count()} cores; load average before {load_before}, after {_load()}")
     table = format_table(["workers", "episodes", "wall s", "episodes/hour", "steady episodes/hour", "SR",
                           "wall s/episode", "scaling", "steady scaling"], rows, title=title)
-    return table + f"\nidentical records across worker counts: {'yes' if same else 'NO'}"
+    cpu_after = cpu_scaling(max(counts)) if max(counts) > 1 else 1.0
+    return (table + f"\nidentical records across worker counts: {'yes' if same else 'NO'}"
+            + f"\nmachine control (pure-Python spin, {max(counts)} processes vs 1): {cpu_before:.2f}x before, "
+              f"{cpu_after:.2f}x after (the most any {max(counts)}-worker scaling can reach right now)")
