@@ -9,7 +9,10 @@ recorded episode gives the same numbers as a bare one. Agents may offer two opti
     after every robot command. Mappings are summed; the last breakdown is kept.
 ``agent.record(recorder: tools.recording.EpisodeRecorder) -> None``
     Called after every ``act`` when the episode is recorded; log what the agent knows, e.g.
-    ``recorder.log_map(self.map)`` and ``recorder.log_path("plan", waypoints)``.
+    ``recorder.log_map(self.map)`` (occupancy/value images, Gaussians, instances, frontiers),
+    ``recorder.log_detections(dets, class_names)`` and ``recorder.log_path("plan", waypoints)``.
+    The recorder's clock is already set to the simulation time; exceptions are caught, reported
+    once on stderr and in the record's ``recording.errors``, and never change the episode.
 
 Memory per episode: peak resident set size (Linux: the kernel's high-water mark, reset at the
 episode start; elsewhere the peak of the samples), map bytes, and CUDA memory allocated/reserved

@@ -65,8 +65,13 @@ class MappingOracle:
         return self.map.memory_bytes()
 
     def record(self, recorder):
+        from helios.perception.detection import Detection
+
         self.record_calls += 1
         recorder.log_map(self.map)
+        mask = np.zeros((240, 320), dtype=bool)
+        mask[100:140, 150:200] = True
+        recorder.log_detections([Detection(mask, "mug", 0.8)], ["mug", "table"])
         recorder.log_path("plan", [(0.0, 0.0, 0.1), (1.0, 1.0, 0.1)])
 
 
@@ -97,6 +102,7 @@ def test_a_recorded_episode_holds_robot_camera_map_plans_and_metrics(mapping_age
     assert verify.returncode == 0, verify.stderr
     stats = _entities(path)
     for entity in ("/world/hand_camera/rgb", "/world/hand_camera/depth", "/transforms",       # robot + camera
+                   "/world/hand_camera/detections/boxes", "/world/hand_camera/detections/masks",
                    "/maps/occupancy", "/maps/value/counter", "/maps/value/cabinet",          # map layers as images
                    "/world/map/gaussians", "/world/map/obstacles", "/world/map/frontiers",    # map in 3D
                    "/world/plans/navigate_to", "/world/plans/plan",                          # planned paths

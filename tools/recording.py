@@ -237,6 +237,37 @@ class EpisodeRecorder:
                  for i, n in enumerate(names)]
         self.rec.log("world/map", self.rr.AnnotationContext(infos), static=True)
 
+    def log_detections(self, detections: Sequence[Any], class_names: Sequence[str] | None = None) -> None:
+        """Detections on the hand-camera image (``helios.perception.detection.Detection``: mask,
+        class_name, score; duck-typed): a 2D box and label per detection, and the masks as one
+        segmentation image (class index + 1; 0 = none). Log after ``log_observation`` of that frame."""
+        path = "world/hand_camera/detections"
+        if not detections:
+            self.rec.log(path, self.rr.Clear(recursive=True))
+            return
+        names = list(class_names) if class_names else sorted({d.class_name for d in detections})
+        boxes, labels, ids = [], [], []
+        seg = np.zeros(np.asarray(detections[0].mask).shape, dtype=np.uint16)
+        for d in sorted(detections, key=lambda d: d.score):          # best on top
+            mask = np.asarray(d.mask, dtype=bool)
+            vs, us = np.nonzero(mask)
+            if len(us) == 0:
+                continue
+            cid = names.index(d.class_name) if d.class_name in names else len(names)
+            seg[mask] = cid + 1
+            boxes.append((us.min(), vs.min(), us.max() - us.min() + 1, vs.max() - vs.min() + 1))
+            labels.append(f"{d.class_name} {d.score:.2f}")
+            ids.append(cid)
+        colors = [tuple(int(c) for c in PALETTE[i % len(PALETTE)]) for i in ids]
+        self.rec.log(f"{path}/boxes", self.rr.Boxes2D(array=np.asarray(boxes, dtype=np.float32).reshape(-1, 4),
+                                                      array_format=self.rr.Box2DFormat.XYWH, labels=labels,
+                                                      colors=colors))
+        infos = [self.rr.AnnotationInfo(id=0, label="none", color=(0, 0, 0, 0))] + [
+            self.rr.AnnotationInfo(id=i + 1, label=n, color=tuple(int(c) for c in PALETTE[i % len(PALETTE)]))
+            for i, n in enumerate(names)]
+        self.rec.log(f"{path}/masks", self.rr.AnnotationContext(infos))
+        self.rec.log(f"{path}/masks", self.rr.SegmentationImage(seg, opacity=0.5))
+
     def log_command(self, name: str, result: Any) -> None:
         """A HAL command and its result (success, reason, message) on the text log."""
         ok = bool(result)
