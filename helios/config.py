@@ -254,13 +254,28 @@ class SearchConfig:
     """Global search objective (frontiers versus candidate pick locations)."""
 
     alpha_d: float = 0.001
-    """*paper* Weight of the distance term of the global objective (per metre)."""
+    """*paper* Weight of the distance term of the global objective (per ``distance_unit``)."""
     cs_start_receptacle: float = 0.3
     """*paper* cs_a: class score for an object to be a candidate start receptacle."""
+    distance_unit: Literal["cells", "metres"] = "cells"
+    """Unit of dist() in the objective. The paper gives alpha_d = 0.001 without a unit; its
+    planner works on 2.5 cm cells (as home-robot's does), and only per-cell distances give the
+    term any weight against IG summed over hundreds of Gaussians. See helios.search.objective."""
+    initial_frontier_ratio: float = 1.0
+    """F0 used before any frontier has been chosen (nothing to calibrate it with yet)."""
+    min_frontier_value: float = 1e-3
+    """Chosen frontiers whose value-map score was below this are left out of the F0 average."""
+    information_gain: Literal["optimistic", "fifty_fifty"] = "optimistic"
+    """*paper* Measurement assumption of IG: every hypothetical view labels the candidate as the
+    searched class (HELIOS), or 50 % that class / 50 % background (the ablation)."""
 
     def __post_init__(self) -> None:
         _require(self.alpha_d >= 0, "alpha_d must be >= 0")
         _require(0 <= self.cs_start_receptacle <= 1, "cs_start_receptacle must be in [0, 1]")
+        _require(self.distance_unit in ("cells", "metres"), "distance_unit must be 'cells' or 'metres'")
+        _require(self.initial_frontier_ratio > 0, "initial_frontier_ratio must be > 0")
+        _require(self.information_gain in ("optimistic", "fifty_fifty"),
+                 "information_gain must be 'optimistic' or 'fifty_fifty'")
 
 
 @dataclass(frozen=True)

@@ -132,3 +132,20 @@ def is_valid_transform(T, tol: float = 1e-6) -> bool:
     R = T[:3, :3]
     return bool(np.allclose(R @ R.T, np.eye(3), atol=1e-4) and abs(np.linalg.det(R) - 1.0) < 1e-4
                 and np.allclose(T[3], [0, 0, 0, 1], atol=tol))
+
+
+def look_at_camera(eye, target) -> np.ndarray:
+    """T_world_cam of an optical-frame camera (x right, y down, z forward) at ``eye`` looking at
+    ``target``, with no roll (image rows stay level with the floor)."""
+    eye, target = np.asarray(eye, dtype=float), np.asarray(target, dtype=float)
+    z = target - eye
+    n = np.linalg.norm(z)
+    if n < 1e-9:
+        raise ValueError("camera eye and target coincide")
+    z /= n
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    if np.linalg.norm(x) < 1e-6:          # looking straight up or down: any level x will do
+        x = np.array([1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return make_transform(np.column_stack([x, y, z]), eye)

@@ -17,6 +17,7 @@ SUITES: dict[str, str] = {
     "scenes": "tools.bench_scenes",
     "perception": "tools.bench_perception",
     "trials": "tools.bench_trials",
+    "agent": "tools.bench_agent",
 }
 
 

@@ -28,6 +28,9 @@ class OccupancyGrid:
         shape = self.geometry.shape
         self.obstacle_hits = np.zeros(shape, dtype=np.int32)
         self.obstacle = np.zeros(shape, dtype=bool)
+        # Highest return in the obstacle band per cell (m; 0 where none): line-of-sight tests and
+        # the planner's "does the stowed arm clear it" check need heights, not just occupancy.
+        self.max_height = np.zeros(shape, dtype=np.float32)
         self.explored = np.zeros(shape, dtype=bool)
         self._bounds: tuple[int, int, int, int] | None = None  # explored bbox, half-open
 
@@ -64,6 +67,10 @@ class OccupancyGrid:
         landed = np.bincount(flat, minlength=h * w).reshape(h, w) > 0
 
         self.obstacle_hits[r0:r1, c0:c1] += hits.astype(np.int32)
+        in_band = inside & band
+        top = np.zeros(h * w, dtype=np.float32)
+        np.maximum.at(top, flat[band[inside]], z[in_band].astype(np.float32))
+        self.max_height[r0:r1, c0:c1] = np.maximum(self.max_height[r0:r1, c0:c1], top.reshape(h, w))
         self.obstacle[r0:r1, c0:c1] = self.obstacle_hits[r0:r1, c0:c1] >= cfg.obstacle_min_hits
         seen = view.visible | landed
         self.explored[r0:r1, c0:c1] |= seen
@@ -76,5 +83,42 @@ class OccupancyGrid:
                 b = self._bounds
                 self._bounds = (min(b[0], box[0]), max(b[1], box[1]), min(b[2], box[2]), max(b[3], box[3]))
 
+    def mark_seen(self, xy, radius: float) -> None:
+        """Declare discs of cells around points (N, 2) explored, e.g. where the robot's body has
+        been: the hand camera never sees right under it, but nothing can stand where it stood."""
+        geo = self.geometry
+        pts = np.asarray(xy, dtype=float).reshape(-1, 2)
+        k = int(np.ceil(radius / geo.cell_size))
+        yy, xx = np.mgrid[-k:k + 1, -k:k + 1]
+        disc = yy ** 2 + xx ** 2 <= k * k
+        for r, c in zip(*geo.world_to_cell(pts)):
+            r0, c0 = int(r) - k, int(c) - k
+            if r0 < 0 or c0 < 0 or r0 + 2 * k + 1 > geo.size or c0 + 2 * k + 1 > geo.size:
+                continue
+            self.explored[r0:r0 + 2 * k + 1, c0:c0 + 2 * k + 1] |= disc
+            box = (r0, r0 + 2 * k + 1, c0, c0 + 2 * k + 1)
+            b = self._bounds or box
+            self._bounds = (min(b[0], box[0]), max(b[1], box[1]), min(b[2], box[2]), max(b[3], box[3]))
+
+    def mark_obstacle(self, xy, radius: float, height: float = 1.0) -> None:
+        """Declare a disc of cells occupied (e.g. where the robot bumped into something it never
+        saw); it counts as seen and as an obstacle ``height`` metres tall from now on."""
+        geo = self.geometry
+        r, c = geo.world_to_cell(np.asarray(xy, dtype=float)[:2])
+        k = int(np.ceil(radius / geo.cell_size))
+        r0, r1 = max(int(r) - k, 0), min(int(r) + k + 1, geo.size)
+        c0, c1 = max(int(c) - k, 0), min(int(c) + k + 1, geo.size)
+        if r1 <= r0 or c1 <= c0:
+            return
+        rr, cc = np.ogrid[r0:r1, c0:c1]
+        disc = (rr - r) ** 2 + (cc - c) ** 2 <= k * k
+        self.obstacle_hits[r0:r1, c0:c1][disc] += self.cfg.obstacle_min_hits
+        self.obstacle[r0:r1, c0:c1] |= disc
+        self.explored[r0:r1, c0:c1] |= disc
+        self.max_height[r0:r1, c0:c1][disc] = np.maximum(self.max_height[r0:r1, c0:c1][disc], height)
+        box = (r0, r1, c0, c1)
+        b = self._bounds or box
+        self._bounds = (min(b[0], box[0]), max(b[1], box[1]), min(b[2], box[2]), max(b[3], box[3]))
+
     def memory_bytes(self) -> int:
-        return self.obstacle_hits.nbytes + self.obstacle.nbytes + self.explored.nbytes
+        return self.obstacle_hits.nbytes + self.obstacle.nbytes + self.explored.nbytes + self.max_height.nbytes

@@ -108,3 +108,25 @@ def predicted_object_score(gmap: GaussianMap, instance_id: int, target_class: st
     s0, u0, p0 = score(gamma)
     s1, u1, p1 = score(after)
     return PredictedScore(s0, u0, p0, s1, u1, p1)
+
+
+def views_information_gain(gmap: GaussianMap, instance_id: int, target_class: str, intrinsics: CameraIntrinsics,
+                           T_world_cams, assumption: str = "optimistic") -> float:
+    """IG of one view from each pose together (the gaze points of a local search): the
+    evidence of all views is added to one copy of the concentrations. ``assumption`` is
+    ``optimistic`` (all views say ``target_class``) or ``fifty_fifty`` (expected IG when they all
+    say the class or all say background, 1/2 each)."""
+    if assumption not in ("optimistic", "fifty_fifty"):
+        raise ValueError(f"unknown information-gain assumption {assumption!r}")
+    cls = gmap.classes.index(target_class)
+    idx = gmap.instance_indices(instance_id)
+    if idx.size == 0:
+        return 0.0
+    gamma = gmap.concentrations[torch.as_tensor(idx, device=gmap.device)]
+    delta = torch.zeros(idx.size, dtype=torch.float64, device=gmap.device)
+    for T in T_world_cams:
+        delta += optimistic_evidence(gmap, instance_id, intrinsics, T)[1]
+    gain = _gain_for_class(gamma, cls, delta)
+    if assumption == "fifty_fifty":
+        gain = 0.5 * gain + 0.5 * _gain_for_class(gamma, gmap.classes.background_index, delta)
+    return gain

@@ -1,0 +1,161 @@
+"""Agent settings: which variant runs, how it looks around, reaches, places and gives up.
+
+The method's own hyper-parameters (thresholds, alpha_d, IG assumption, map layers) live in
+:class:`helios.config.HeliosConfig`; this tree holds what the paper leaves to the robot: Spot's
+reach and camera placement, the view pattern, the place skill, and the search's bookkeeping.
+Every variant of the paper's ablation table is the same code with different values here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from helios.planning.fmm import PlannerConfig
+from helios.search.gaze_points import GazeConfig
+
+
+def _require(condition: bool, message: str) -> None:
+    if not condition:
+        raise ValueError(message)
+
+
+@dataclass(frozen=True)
+class ViewConfig:
+    """How the agent looks with Spot's hand camera (60 degrees wide at 320 x 240)."""
+
+    look_yaws_deg: tuple[float, ...] = (-60.0, 0.0, 60.0)
+    """Gaze directions relative to the body heading after each move: three 60-degree views cover
+    the half plane in front."""
+    start_look_yaws_deg: tuple[float, ...] = (-100.0, -50.0, 0.0, 50.0, 100.0)
+    """Gaze directions of the first look (260 degrees without turning the body, which might
+    sweep into something the robot has not seen yet)."""
+    start_turn_around: bool = True
+    """After the first look, turn round in place and look again (360 degrees before moving)."""
+    start_near_yaws_deg: tuple[float, ...] = (-60.0, 0.0, 60.0)
+    """Near-floor views of the first look (and of a look-around when stuck): the robot starts
+    surrounded by floor it has never seen and may only walk where it has looked."""
+    look_distance: float = 2.5
+    """Gaze points lie this far (m) ahead in each direction ..."""
+    look_height: float = 0.3
+    """... at this height (m): the view spans the floor from ~1.2 m out up to table and counter tops."""
+    near_look_distance: float = 1.2
+    """Each look ends with a view of the floor this far (m) ahead: the far views start seeing the
+    floor ~1.5 m out, and the body may only walk where the camera has looked. 0 disables it."""
+    shoulder_ahead: float = 0.29
+    arm_reach_front: float = 0.45
+    arm_swing_radius: float = 0.55
+    arm_swing_height: float = 0.65
+    """A look is skipped when an obstacle taller than ``arm_swing_height`` (m) lies on the arc the
+    arm sweeps to it, within ``arm_reach_front`` (m, straight ahead) to ``arm_swing_radius`` (m,
+    to the side) of the shoulder: measured in sim, gazing puts arm link frames 0.31 m (ahead) to
+    0.42 m (sideways) from the shoulder, plus ~0.1 m of geometry, and never below 0.72 m."""
+    camera_in_body: tuple[float, float, float] = (0.41, 0.02, 0.55)
+    """Hand camera position (m, body frame) while gazing, measured in sim; used to predict the
+    camera pose of hypothetical views (information gain, predicted scores)."""
+
+    def __post_init__(self) -> None:
+        _require(bool(self.look_yaws_deg) and bool(self.start_look_yaws_deg), "look yaw lists must not be empty")
+        _require(self.look_distance > 0.3, "look_distance must be > 0.3 m")
+
+
+@dataclass(frozen=True)
+class ReachConfig:
+    """Where Spot can stand to grasp or place at a point (numbers from robots/spot/model.py)."""
+
+    shoulder_height: float = 0.72
+    """Arm shoulder height above the floor at the stand pose (m)."""
+    shoulder_ahead: float = 0.29
+    """Shoulder ahead of the body centre (m)."""
+    arm_reach: float = 0.82
+    """Shoulder-to-point distance the arm handles comfortably (m)."""
+    min_standoff: float = 0.55
+    """Closest body-centre-to-point distance considered (m)."""
+    band: float = 0.35
+    """Standing distances from ``far - band`` to ``far`` are tried (m)."""
+    grasp_lift: float = 0.15
+    """Aim point for choosing a grasp pose lies this far above the object centre (room to lift)."""
+    place_lift: float = 0.25
+    """The hand holds the object about this far above the surface when it lets go (m)."""
+    n_angles: int = 24
+
+    def __post_init__(self) -> None:
+        _require(self.arm_reach > 0 and self.band >= 0 and self.n_angles >= 4, "invalid reach settings")
+
+
+@dataclass(frozen=True)
+class PlaceConfig:
+    """The place skill: the paper's drop, or the improved variant (behind ``mode``)."""
+
+    mode: Literal["drop", "improved"] = "drop"
+    """``drop``: release ``drop_height`` above the highest detected point in the region in front
+    (the paper's heuristic); ``improved``: lower the object to ``improved_height`` above the middle
+    of the detected top surface, away from its edges."""
+    drop_height: float = 0.10
+    improved_height: float = 0.02
+    region: tuple[float, float, float, float] = (0.45, 1.05, -0.35, 0.35)
+    """Body-frame box (x0, x1, y0, y1, m) in front of the robot searched for the release point."""
+    top_band: float = 0.03
+    """Points within this (m) of the highest one form the top surface (improved mode)."""
+    surface_cell: float = 0.02
+    """Grid (m) on which the top surface is rasterised to find its most interior point."""
+    mask_erosion_px: int = 2
+    """The receptacle's detection mask is eroded by this many pixels first: its boundary pixels
+    mix in the wall or floor behind (detector masks are noisy), whose "highest point" is no place."""
+    approach_inset: float = 0.20
+    """The approach aims at the receptacle's nearest footprint point moved this far (m) inwards."""
+
+    def __post_init__(self) -> None:
+        _require(self.mode in ("drop", "improved"), f"place mode must be 'drop' or 'improved', got {self.mode!r}")
+        _require(0 <= self.improved_height <= self.drop_height <= 1.0, "need 0 <= improved_height <= drop_height <= 1")
+        _require(self.region[0] < self.region[1] and self.region[2] < self.region[3], "place region must be x0<x1, y0<y1")
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """One agent, every variant of the paper's tables as flags."""
+
+    variant: Literal["helios", "no_global", "trusting"] = "helios"
+    """``helios``: the full method; ``no_global``: 'w/o global search objective' (any candidate
+    pick location is searched before any frontier); ``trusting``: 2D maps only, goes to the
+    highest-value frontier and trusts the first detection of the object / goal receptacle."""
+    max_pick_attempts: int = 0
+    """Grasp attempts before giving up (the paper reports 1, 5 and unlimited); 0 = unlimited."""
+    max_looks_per_candidate: int = 6
+    """Extra views of one target / goal candidate before it is left (a safety net: the decision
+    rule stops asking for views once they cannot raise Psi by tau_inc)."""
+    max_failures_per_candidate: int = 2
+    """Grasp or place failures on one candidate before it is no longer tried."""
+    require_start_support: bool = True
+    """HELIOS variants only grasp a target candidate that rests on a mapped start-receptacle
+    candidate ('move X *from* Y'); the trusting agent grasps the first detection wherever it is."""
+    support_radius: float = 0.35
+    """Horizontal distance (m) from a target candidate to the footprint of its supporting receptacle."""
+    frontier_reach: float = 0.8
+    """Going to a frontier ends within this distance (m) of its centre."""
+    frontier_blacklist_radius: float = 0.6
+    """Frontiers within this (m) of one already reached or found unreachable are skipped."""
+    max_revisits: int = 4
+    """When no frontier is left, up to this many walks to the most promising seen places (value
+    map) to look again before giving up."""
+    revisit_spacing: float = 1.5
+    """Revisited places are at least this far (m) from each other and from the robot."""
+    revisit_candidates: int = 8
+    """The planner tries this many best places at once (the nearest reachable one wins)."""
+    gaze_goal_radius: float = 0.15
+    """Walking to a gaze point or grasp pose ends within this (m) of it."""
+    max_walk_chunks: int = 8
+    """Plan-walk-look cycles allowed to reach one gaze point or grasp pose."""
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    gaze: GazeConfig = field(default_factory=GazeConfig)
+    view: ViewConfig = field(default_factory=ViewConfig)
+    reach: ReachConfig = field(default_factory=ReachConfig)
+    place: PlaceConfig = field(default_factory=PlaceConfig)
+
+    def __post_init__(self) -> None:
+        _require(self.variant in ("helios", "no_global", "trusting"),
+                 f"variant must be helios, no_global or trusting, got {self.variant!r}")
+        _require(self.max_pick_attempts >= 0, "max_pick_attempts must be >= 0 (0 = unlimited)")
+        _require(self.max_looks_per_candidate >= 0 and self.max_failures_per_candidate >= 1,
+                 "need max_looks_per_candidate >= 0 and max_failures_per_candidate >= 1")
+        _require(self.frontier_reach > 0 and self.gaze_goal_radius > 0, "radii must be > 0")

@@ -1,0 +1,77 @@
+"""Camera and reach geometry the agent needs: pixels <-> world points, where to stand to reach.
+
+Only HAL types are used (Observation, CameraIntrinsics, SE2Pose): what works on the simulated
+Spot works on the real one.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from helios.agents.config import ReachConfig, ViewConfig
+from helios.planning.footprint import FootprintChecker
+from robots.hal import CameraIntrinsics, Observation, SE2Pose
+from robots.transforms import invert_transform, look_at_camera
+
+
+def project(points: np.ndarray, intrinsics: CameraIntrinsics, T_world_cam: np.ndarray):
+    """(u, v, z) pixel coordinates and optical depth of world points (N, 3); z <= 0 is behind."""
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    T = invert_transform(T_world_cam)
+    pc = pts @ T[:3, :3].T + T[:3, 3]
+    z = pc[:, 2]
+    safe = np.where(z > 1e-6, z, 1.0)
+    u = intrinsics.fx * pc[:, 0] / safe + intrinsics.cx
+    v = intrinsics.fy * pc[:, 1] / safe + intrinsics.cy
+    return u, v, z
+
+
+def backproject(obs: Observation, mask: np.ndarray | None = None, stride: int = 1) -> np.ndarray:
+    """World points (N, 3) of the pixels in ``mask`` (all pixels if None) that have depth."""
+    depth = obs.depth
+    valid = depth > 0
+    if mask is not None:
+        valid &= mask
+    if stride > 1:
+        sub = np.zeros_like(valid)
+        sub[::stride, ::stride] = True
+        valid &= sub
+    v, u = np.nonzero(valid)
+    z = depth[v, u].astype(float)
+    k = obs.intrinsics
+    pc = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z], axis=1)
+    return pc @ obs.T_world_cam[:3, :3].T + obs.T_world_cam[:3, 3]
+
+
+def predicted_camera(pose: SE2Pose, look_at, body_height: float, view: ViewConfig) -> np.ndarray:
+    """T_world_cam of the hand camera when the robot stands at ``pose`` and gazes at ``look_at``."""
+    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+    ox, oy, oz = view.camera_in_body
+    eye = np.array([pose.x + c * ox - s * oy, pose.y + s * ox + c * oy, body_height + oz])
+    return look_at_camera(eye, np.asarray(look_at, dtype=float))
+
+
+def reach_distances(target_z: float, reach: ReachConfig) -> tuple[np.ndarray, float]:
+    """Body-centre distances to try for a point at height ``target_z``, and the comfortable one."""
+    dz = target_z - reach.shoulder_height
+    horizontal = math.sqrt(max(reach.arm_reach ** 2 - dz * dz, 0.2 ** 2))
+    far = horizontal + reach.shoulder_ahead
+    return np.linspace(max(reach.min_standoff, far - reach.band), far, 5), far - 0.12
+
+
+def approach_poses(target, reach: ReachConfig, checker: FootprintChecker) -> np.ndarray:
+    """(K, 3) standing poses (x, y, yaw) facing ``target`` (x, y, z) from which the arm reaches
+    it, whose footprint is free on the map; most comfortable first."""
+    target = np.asarray(target, dtype=float)
+    dists, comfortable = reach_distances(float(target[2]), reach)
+    ang = 2 * math.pi * np.arange(reach.n_angles) / reach.n_angles
+    d, a = np.meshgrid(dists, ang, indexing="ij")
+    d, a = d.ravel(), a.ravel()
+    poses = np.stack([target[0] + d * np.cos(a), target[1] + d * np.sin(a), a + math.pi], axis=1)
+    poses[:, 2] = np.arctan2(np.sin(poses[:, 2]), np.cos(poses[:, 2]))
+    free = checker.poses_free(poses)
+    order = np.argsort(np.abs(d - comfortable), kind="stable")
+    order = order[free[order]]
+    return poses[order]

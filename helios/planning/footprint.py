@@ -1,0 +1,126 @@
+"""Spot's plan-view footprint and collision checks of poses against the agent's occupancy map.
+
+The body and legs collide with anything in the obstacle band and, when the caller passes the
+unexplored cells, may not sweep those either (a stool that was never seen is still a stool); the
+stowed arm (or an object carried in front) sits ~0.75 m up and only meets obstacles taller than
+that, which the occupancy grid's per-cell maximum height tells apart. Cells under the robot's own
+footprint count as free (see ``clear_under``): the hand camera cannot see under the body.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from helios.maps.grid import GridGeometry
+
+
+@dataclass(frozen=True)
+class FootprintConfig:
+    body: tuple[float, float, float, float] = (-0.545, 0.43, -0.215, 0.215)
+    """Body and legs, (x0, x1, y0, y1) in the body frame, m (Spot at its stand pose)."""
+    arm: tuple[float, float, float, float] = (0.43, 0.62, -0.09, 0.09)
+    """Stowed arm or carry pose in front of the body, m."""
+    arm_clearance_height: float = 0.74
+    """Obstacles at most this tall (m) pass under the stowed arm."""
+    margin: float = 0.05
+    """Safety margin added around both boxes, m."""
+
+    def __post_init__(self) -> None:
+        for box in (self.body, self.arm):
+            if not (box[0] < box[1] and box[2] < box[3]):
+                raise ValueError(f"footprint box {box} must be (x0 < x1, y0 < y1)")
+        if self.margin < 0:
+            raise ValueError("footprint margin must be >= 0")
+
+
+class FootprintChecker:
+    """Collision tests of SE2 poses against an obstacle grid and its heights."""
+
+    def __init__(self, config: FootprintConfig, geometry: GridGeometry, obstacle: np.ndarray,
+                 max_height: np.ndarray | None = None, unknown: np.ndarray | None = None):
+        self.config = config
+        self.geometry = geometry
+        self.tall = obstacle if max_height is None else obstacle & (max_height > config.arm_clearance_height)
+        # Body and legs may only sweep cells the camera has seen: something low (a stool's base,
+        # a box) may hide in any unseen cell, and the hand camera never sees right under the body.
+        self.obstacle = obstacle if unknown is None else obstacle | unknown
+        step = geometry.cell_size / 2
+        self._body = _box_points(config.body, config.margin, step)
+        self._arm = _box_points(config.arm, config.margin, step)
+
+    def clear_under(self, pose, grow: float = 0.05) -> "FootprintChecker":
+        """A checker for moves *from* ``pose``: obstacle cells its footprint (grown by ``grow``)
+        already overlaps are dropped. The robot stands there without touching anything, so such
+        cells are map noise or margin, or were seen only after the robot got there (unseen cells
+        count as free); kept, they would block every move away from them. ``grow`` stops cells
+        right at the margin's edge from flickering in and out of the first few centimetres of a move."""
+        x, y, yaw = (pose.x, pose.y, pose.yaw) if hasattr(pose, "yaw") else pose
+        c, s = math.cos(yaw), math.sin(yaw)
+        step = self.geometry.cell_size / 2
+        pts = np.concatenate([_box_points(self.config.body, self.config.margin + grow, step),
+                              _box_points(self.config.arm, self.config.margin + grow, step)])
+        wx = x + c * pts[:, 0] - s * pts[:, 1]
+        wy = y + s * pts[:, 0] + c * pts[:, 1]
+        rows, cols = self.geometry.world_to_cell(np.stack([wx, wy], axis=-1))
+        inside = self.geometry.contains(rows, cols)
+        rows, cols = rows[inside], cols[inside]
+        if not (self.obstacle[rows, cols].any()):
+            return self
+        out = FootprintChecker.__new__(FootprintChecker)
+        out.config, out.geometry, out._body, out._arm = self.config, self.geometry, self._body, self._arm
+        out.obstacle = self.obstacle.copy()
+        out.obstacle[rows, cols] = False
+        out.tall = self.tall.copy() if self.tall is not self.obstacle else out.obstacle
+        out.tall[rows, cols] = False
+        return out
+
+    @property
+    def radius(self) -> float:
+        """Radius of the circle swept by the footprint when turning in place."""
+        return float(np.max(np.linalg.norm(np.concatenate([self._body, self._arm]), axis=1)))
+
+    def _hits(self, poses: np.ndarray, pts: np.ndarray, grid: np.ndarray) -> np.ndarray:
+        c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+        wx = poses[:, 0:1] + c * pts[None, :, 0] - s * pts[None, :, 1]
+        wy = poses[:, 1:2] + s * pts[None, :, 0] + c * pts[None, :, 1]
+        rows, cols = self.geometry.world_to_cell(np.stack([wx, wy], axis=-1))
+        inside = self.geometry.contains(rows, cols)
+        hit = np.zeros(rows.shape, dtype=bool)
+        hit[inside] = grid[rows[inside], cols[inside]]
+        return hit.any(axis=1)
+
+    def poses_free(self, poses) -> np.ndarray:
+        """(M,) bool: each (x, y, yaw) pose's footprint overlaps no obstacle."""
+        poses = np.atleast_2d(np.asarray(poses, dtype=float))
+        return ~(self._hits(poses, self._body, self.obstacle) | self._hits(poses, self._arm, self.tall))
+
+    def segment_free(self, x0: float, y0: float, x1: float, y1: float, yaw: float, step: float | None = None) -> bool:
+        """Every intermediate pose of a straight move at a fixed heading is free (sampled every
+        half cell by default)."""
+        step = self.geometry.cell_size / 2 if step is None else step
+        n = max(2, int(math.ceil(math.hypot(x1 - x0, y1 - y0) / step)) + 1)
+        t = np.linspace(0.0, 1.0, n)
+        poses = np.stack([x0 + t * (x1 - x0), y0 + t * (y1 - y0), np.full(n, yaw)], axis=1)
+        return bool(np.all(self.poses_free(poses)))
+
+    def turn_free(self, x: float, y: float, yaw0: float, yaw1: float, step: float | None = None) -> bool:
+        """Turning in place from yaw0 to yaw1 (the short way) sweeps only free space; by default
+        headings are checked finely enough that the farthest footprint point moves half a cell."""
+        delta = math.remainder(yaw1 - yaw0, 2 * math.pi)
+        if step is None:
+            step = 0.5 * self.geometry.cell_size / self.radius
+        n = max(2, int(abs(delta) / step) + 2)
+        yaws = yaw0 + np.linspace(0.0, delta, n)
+        return bool(np.all(self.poses_free(np.stack([np.full(n, x), np.full(n, y), yaws], axis=1))))
+
+
+def _box_points(box, margin: float, step: float) -> np.ndarray:
+    """Grid of points covering the box grown by ``margin``, edges included, at most ``step`` apart."""
+    x0, x1, y0, y1 = box[0] - margin, box[1] + margin, box[2] - margin, box[3] + margin
+    xs = np.linspace(x0, x1, int(math.ceil((x1 - x0) / step)) + 1)
+    ys = np.linspace(y0, y1, int(math.ceil((y1 - y0) / step)) + 1)
+    gx, gy = np.meshgrid(xs, ys)
+    return np.stack([gx.ravel(), gy.ravel()], axis=1)

@@ -1,0 +1,134 @@
+"""Gaze points for local search (paper Sec. "Local search").
+
+Poses on a contour around an instance's ground projection, from which the robot looks at the
+instance's ground-plane centre and highest point. Points are dropped when
+
+- the robot standing there (its footprint, see :mod:`helios.planning.footprint`) overlaps an
+  occupied cell, or
+- an occupied cell taller than the instance's highest point (plus ``los_margin``) lies on the
+  straight line between the point and the instance: it would hide the instance.
+
+The contour is the instance's footprint grown by ``standoff`` metres (its support function in
+each direction plus the standoff), sampled every ``spacing`` metres of arc; two rings by default,
+so a point blocked on the near ring can be replaced by one farther out. Cells of the instance's
+own footprint (grown by ``own_margin``) never block its line of sight: a table's top does not
+hide the table.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from helios.maps.grid import GridGeometry
+from helios.planning.footprint import FootprintChecker
+from robots.hal import SE2Pose
+
+
+@dataclass(frozen=True)
+class GazeConfig:
+    standoffs: tuple[float, ...] = (0.9, 1.3)
+    """Distances (m) from the instance's footprint edge to the robot's body centre, one ring each.
+    0.9 m leaves the body front (0.43 m + margin) clear of a table edge with the hand camera
+    about 0.4 m from it; 1.3 m is the fallback ring."""
+    spacing: float = 0.6
+    """Arc length (m) between neighbouring gaze points on a ring."""
+    min_points: int = 8
+    """At least this many directions per ring, however small the instance."""
+    los_margin: float = 0.0
+    """An occupied cell blocks the view when its height exceeds the instance's top by this (m)."""
+    own_margin: float = 0.15
+    """The instance's own footprint grown by this (m) is ignored by the line-of-sight test."""
+    min_look_height: float = 0.05
+    """Lower bound (m) of the look-at point's height (objects on the floor)."""
+
+    def __post_init__(self) -> None:
+        if not self.standoffs or any(s <= 0 for s in self.standoffs):
+            raise ValueError("standoffs must be positive distances")
+        if self.spacing <= 0 or self.min_points < 3:
+            raise ValueError("need spacing > 0 and min_points >= 3")
+
+
+@dataclass(frozen=True)
+class GazePoint:
+    pose: SE2Pose               # where the body stands, facing the instance's centre
+    look_at: np.ndarray         # (3,) world point the hand camera is aimed at
+
+
+def contour_points(footprint_xy: np.ndarray, standoff: float, spacing: float, min_points: int) -> np.ndarray:
+    """(M, 2) points at ``standoff`` beyond the support of ``footprint_xy`` in M directions."""
+    pts = np.asarray(footprint_xy, dtype=float).reshape(-1, 2)
+    centre = pts.mean(axis=0)
+    extent = float(np.max(np.linalg.norm(pts - centre, axis=1))) if len(pts) else 0.0
+    n = max(min_points, int(math.ceil(2 * math.pi * (extent + standoff) / spacing)))
+    ang = 2 * math.pi * np.arange(n) / n
+    dirs = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    support = np.max((pts - centre) @ dirs.T, axis=0)          # (n,) half-width in each direction
+    return centre + (np.maximum(support, 0.0) + standoff)[:, None] * dirs
+
+
+def gaze_points(footprint_xy: np.ndarray, top_z: float, geometry: GridGeometry, obstacle: np.ndarray,
+                max_height: np.ndarray, checker: FootprintChecker, config: GazeConfig = GazeConfig(),
+                centre_xy=None) -> list[GazePoint]:
+    """Free gaze points with a clear line of sight to the instance (ring by ring, nearest ring first)."""
+    pts = np.asarray(footprint_xy, dtype=float).reshape(-1, 2)
+    if not len(pts):
+        return []
+    centre = pts.mean(axis=0) if centre_xy is None else np.asarray(centre_xy, dtype=float)[:2]
+    look = np.array([centre[0], centre[1], max(float(top_z), config.min_look_height)])
+    rings = [contour_points(pts, s, config.spacing, config.min_points) for s in config.standoffs]
+    window = _Window(geometry, np.concatenate([pts, *rings]), obstacle.shape)
+    own = window.crop(np.zeros(obstacle.shape, dtype=bool))
+    r, c = window.local_cells(pts)
+    own[r, c] = True
+    k = int(math.ceil(config.own_margin / geometry.cell_size))
+    if k > 0:
+        yy, xx = np.mgrid[-k:k + 1, -k:k + 1]
+        own = ndimage.binary_dilation(own, structure=(yy ** 2 + xx ** 2) <= k * k)
+    blocking = window.crop(obstacle) & (window.crop(max_height) > float(top_z) + config.los_margin) & ~own
+    out: list[GazePoint] = []
+    for ring in rings:
+        yaw = np.arctan2(centre[1] - ring[:, 1], centre[0] - ring[:, 0])
+        poses = np.column_stack([ring, yaw])
+        free = checker.poses_free(poses)
+        for p, ok in zip(poses, free):
+            if ok and window.line_clear(p[:2], centre, blocking):
+                out.append(GazePoint(SE2Pose(float(p[0]), float(p[1]), float(p[2])), look.copy()))
+    return out
+
+
+def line_of_sight(a, b, geometry: GridGeometry, blocking: np.ndarray) -> bool:
+    """No blocking cell (a full-map bool grid) on the straight segment a -> b."""
+    window = _Window(geometry, np.array([a[:2], b[:2]], dtype=float), blocking.shape)
+    return window.line_clear(a, b, window.crop(blocking))
+
+
+class _Window:
+    """A rectangle of the grid around some world points, so work stays local to the instance."""
+
+    def __init__(self, geometry: GridGeometry, xy: np.ndarray, shape, pad: int = 2):
+        rows, cols = geometry.world_to_cell(xy)
+        self.geometry = geometry
+        self.r0 = int(np.clip(rows.min() - pad, 0, shape[0]))
+        self.r1 = int(np.clip(rows.max() + pad + 1, 0, shape[0]))
+        self.c0 = int(np.clip(cols.min() - pad, 0, shape[1]))
+        self.c1 = int(np.clip(cols.max() + pad + 1, 0, shape[1]))
+
+    def crop(self, grid: np.ndarray) -> np.ndarray:
+        return grid[self.r0:self.r1, self.c0:self.c1]
+
+    def local_cells(self, xy) -> tuple[np.ndarray, np.ndarray]:
+        rows, cols = self.geometry.world_to_cell(np.asarray(xy, dtype=float))
+        rows, cols = rows - self.r0, cols - self.c0
+        keep = (rows >= 0) & (rows < self.r1 - self.r0) & (cols >= 0) & (cols < self.c1 - self.c0)
+        return rows[keep], cols[keep]
+
+    def line_clear(self, a, b, local_blocking: np.ndarray) -> bool:
+        a, b = np.asarray(a, dtype=float)[:2], np.asarray(b, dtype=float)[:2]
+        n = max(2, int(math.dist(a, b) / (0.5 * self.geometry.cell_size)) + 1)
+        t = np.linspace(0.0, 1.0, n)[:, None]
+        rows, cols = self.local_cells(a + t * (b - a))
+        return not bool(local_blocking[rows, cols].any())

@@ -1,0 +1,145 @@
+"""HELIOS's global search objective: visit a candidate pick location or explore a frontier?
+
+Paper Sec. "Global search objective" (Eqs. frontier score, F0 and the objective):
+
+- candidates a_i (instances whose class score for the start receptacle is >= cs_a) are worth
+  ``V(a_i) = S(a_i) IG(a_i) - alpha_d dist(a_i)``;
+- frontiers f_i are worth ``V(f_i) = F(f_i) F0 - alpha_d dist(f_i)``, where F is the value-map
+  score near the frontier and F0 converts value-map scores into the candidates' units:
+  ``F0 = mean over previously chosen frontiers f' of V0(f') / F0(f')`` with
+  ``V0(f') = max_a (S0(a) IG0(a) - alpha_d dist(a, f'))`` built from every candidate's *initial*
+  score, information gain and centre (stored the first time it is seen) and ``F0(f')`` the value
+  the frontier had when it was chosen.
+
+Distances are measured in occupancy-grid cells (2.5 cm by default), not metres. The paper gives
+alpha_d = 0.001 without a unit; HELIOS plans on the 2.5 cm grid and home-robot's planner measures
+distances in cells, so cells is the reading that gives the distance term any weight at all: with
+IG summed over an instance's Gaussians (hundreds of nats), 0.001 per *metre* would make distance
+irrelevant, while 0.001 per cell costs 0.4 per 10 m. ``SearchConfig.distance_unit`` switches.
+
+Before any frontier has been chosen there is nothing to calibrate F0 with; we then use
+``initial_frontier_ratio`` (1 by default: raw value-map scores, i.e. any candidate with positive
+information gain outranks frontiers, which is the behaviour the paper describes for the start).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal, Sequence
+
+import numpy as np
+
+from helios.config import SearchConfig
+
+
+@dataclass(frozen=True)
+class CandidateLocation:
+    """A detected candidate pick location (an instance) as the objective sees it now."""
+
+    instance_id: int
+    centre: np.ndarray          # (2,) or (3,) world metres
+    class_score: float          # S_a
+    info_gain: float            # IG_a from the instance's gaze points (optimistic or 50-50)
+
+
+@dataclass(frozen=True)
+class FrontierOption:
+    """A frontier as the objective sees it: centre and value-map score for the current target."""
+
+    xy: np.ndarray
+    value: float                # F(f)
+    key: int = -1               # caller's index (e.g. into the frontier list)
+
+
+@dataclass(frozen=True)
+class Choice:
+    kind: Literal["candidate", "frontier"]
+    index: int                  # instance id for candidates, FrontierOption.key for frontiers
+    xy: np.ndarray
+    value: float                # V(r)
+
+
+@dataclass
+class _Initial:
+    score: float
+    info_gain: float
+    centre: np.ndarray
+
+
+@dataclass
+class GlobalObjective:
+    """Scores candidates and frontiers with the paper's objective; remembers what it needs to
+    (initial candidate scores, chosen frontiers). One instance per search target and episode.
+
+    ``mode``: ``"objective"`` (HELIOS), ``"prefer_candidates"`` (the "w/o global search
+    objective" ablation: any candidate beats every frontier) or ``"frontiers_only"``.
+    """
+
+    config: SearchConfig
+    cell_size: float
+    mode: Literal["objective", "prefer_candidates", "frontiers_only"] = "objective"
+    initial: dict[int, _Initial] = field(default_factory=dict)
+    chosen_frontiers: list[tuple[np.ndarray, float]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("objective", "prefer_candidates", "frontiers_only"):
+            raise ValueError(f"unknown objective mode {self.mode!r}")
+        if self.cell_size <= 0:
+            raise ValueError("cell_size must be > 0")
+
+    # ------------------------------------------------------------------ units
+    def distance(self, a, b) -> float:
+        """Euclidean ground distance in the objective's unit (cells or metres)."""
+        d = math.dist(np.asarray(a, dtype=float)[:2], np.asarray(b, dtype=float)[:2])
+        return d / self.cell_size if self.config.distance_unit == "cells" else d
+
+    # ------------------------------------------------------------------ memory
+    def remember(self, candidates: Sequence[CandidateLocation]) -> None:
+        """Store S0, IG0 and the centre of candidates seen for the first time."""
+        for c in candidates:
+            if c.instance_id not in self.initial:
+                self.initial[c.instance_id] = _Initial(float(c.class_score), float(c.info_gain),
+                                                       np.asarray(c.centre, dtype=float)[:2].copy())
+
+    def note_frontier_chosen(self, frontier: FrontierOption) -> None:
+        self.chosen_frontiers.append((np.asarray(frontier.xy, dtype=float)[:2].copy(), float(frontier.value)))
+
+    def frontier_ratio(self) -> float:
+        """F0: mean of V0(f') / F0(f') over previously chosen frontiers (see module doc)."""
+        if not self.initial:
+            return self.config.initial_frontier_ratio
+        ratios = []
+        for xy, f0 in self.chosen_frontiers:
+            if f0 <= self.config.min_frontier_value:
+                continue      # a zero-valued frontier says nothing about the scale
+            v0 = max(i.score * i.info_gain - self.config.alpha_d * self.distance(i.centre, xy)
+                     for i in self.initial.values())
+            ratios.append(v0 / f0)
+        return float(np.mean(ratios)) if ratios else self.config.initial_frontier_ratio
+
+    # ------------------------------------------------------------------ scoring
+    def candidate_value(self, c: CandidateLocation, robot_xy) -> float:
+        return float(c.class_score * c.info_gain - self.config.alpha_d * self.distance(c.centre, robot_xy))
+
+    def frontier_value(self, f: FrontierOption, robot_xy, ratio: float | None = None) -> float:
+        ratio = self.frontier_ratio() if ratio is None else ratio
+        return float(f.value * ratio - self.config.alpha_d * self.distance(f.xy, robot_xy))
+
+    def choose(self, robot_xy, candidates: Sequence[CandidateLocation],
+               frontiers: Sequence[FrontierOption]) -> Choice | None:
+        """The best candidate or frontier (None when there is neither). Candidates are
+        remembered (S0, IG0, centre) on first sight."""
+        self.remember(candidates)
+        options: list[Choice] = []
+        if self.mode != "frontiers_only":
+            options += [Choice("candidate", c.instance_id, np.asarray(c.centre, dtype=float)[:2],
+                               self.candidate_value(c, robot_xy)) for c in candidates]
+        if self.mode == "prefer_candidates" and options:
+            return max(options, key=lambda o: o.value)
+        ratio = self.frontier_ratio()
+        options += [Choice("frontier", f.key, np.asarray(f.xy, dtype=float)[:2], self.frontier_value(f, robot_xy, ratio))
+                    for f in frontiers]
+        if not options:
+            return None
+        return max(options, key=lambda o: o.value)

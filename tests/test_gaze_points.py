@@ -1,0 +1,210 @@
+"""Gaze points for local search (paper Sec. "Local search") on synthetic occupancy grids."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from helios.maps.grid import GridGeometry
+from helios.planning.footprint import FootprintChecker, FootprintConfig
+from helios.search.gaze_points import GazeConfig, GazePoint, contour_points, gaze_points, line_of_sight
+from robots.transforms import wrap_angle
+
+GEO = GridGeometry(0.025, 400, -5.0, -5.0)
+TABLE = (-0.5, 0.5, -0.3, 0.3)          # a 1.0 x 0.6 m table at the origin, 0.75 m tall
+TOP = 0.75
+
+
+class Grid:
+    def __init__(self):
+        self.obstacle = np.zeros(GEO.shape, dtype=bool)
+        self.max_height = np.zeros(GEO.shape, dtype=np.float32)
+
+    def box(self, x0, x1, y0, y1, h):
+        s = (slice(int(math.floor((y0 + 5) / 0.025)), int(math.ceil((y1 + 5) / 0.025))),
+             slice(int(math.floor((x0 + 5) / 0.025)), int(math.ceil((x1 + 5) / 0.025))))
+        self.obstacle[s] = True
+        self.max_height[s] = np.maximum(self.max_height[s], h)
+        return self
+
+    def checker(self) -> FootprintChecker:
+        return FootprintChecker(FootprintConfig(), GEO, self.obstacle, self.max_height)
+
+    def gaze(self, footprint_xy, top=TOP, config=GazeConfig(), centre_xy=None) -> list[GazePoint]:
+        return gaze_points(footprint_xy, top, GEO, self.obstacle, self.max_height, self.checker(), config, centre_xy)
+
+
+def table_grid() -> tuple[Grid, np.ndarray]:
+    g = Grid().box(*TABLE, TOP)
+    rows, cols = np.nonzero(g.obstacle)
+    return g, GEO.cell_to_world(rows, cols)
+
+
+def ring_poses(footprint_xy, standoff, config=GazeConfig()):
+    """The candidate poses of one ring before any filtering (facing the footprint's mean)."""
+    ring = contour_points(footprint_xy, standoff, config.spacing, config.min_points)
+    centre = np.asarray(footprint_xy).mean(axis=0)
+    yaw = np.arctan2(centre[1] - ring[:, 1], centre[0] - ring[:, 0])
+    return np.column_stack([ring, yaw])
+
+
+def assert_valid(points, grid: Grid, centre, top=TOP, config=GazeConfig()):
+    checker = grid.checker()
+    for p in points:
+        pose = p.pose
+        assert checker.poses_free([pose.as_tuple()])[0], pose
+        r, c = GEO.world_to_cell(np.array([pose.x, pose.y]))
+        assert not grid.obstacle[r, c], pose
+        facing = math.atan2(centre[1] - pose.y, centre[0] - pose.x)
+        assert abs(wrap_angle(pose.yaw - facing)) < 1e-9, (pose, facing)
+        np.testing.assert_allclose(p.look_at, [centre[0], centre[1], max(top, config.min_look_height)], atol=1e-12)
+
+
+# ------------------------------------------------------------------------------------ contour
+def test_contour_points_keep_the_standoff_from_the_footprint():
+    xs, ys = np.meshgrid(np.linspace(1.5, 2.5, 21), np.linspace(0.7, 1.3, 13))
+    fp = np.stack([xs.ravel(), ys.ravel()], axis=1)          # 1.0 x 0.6 m rectangle centred (2, 1)
+    pts = contour_points(fp, 0.9, 0.6, 8)
+    extent = math.hypot(0.5, 0.3)
+    assert len(pts) == max(8, math.ceil(2 * math.pi * (extent + 0.9) / 0.6))
+    d = np.min(np.linalg.norm(pts[:, None, :] - fp[None, :, :], axis=2), axis=1)
+    assert np.all(d >= 0.9 - 1e-9)
+    assert np.all(d <= 0.9 + extent + 1e-9)
+    ang = np.arctan2(pts[:, 1] - 1.0, pts[:, 0] - 2.0)
+    steps = np.diff(np.unwrap(ang))
+    np.testing.assert_allclose(steps, 2 * math.pi / len(pts), atol=1e-9)   # evenly spaced directions
+    # axis directions: half width + standoff from the centre
+    np.testing.assert_allclose(pts[0], [2.0 + 0.5 + 0.9, 1.0], atol=1e-12)
+    # a single point still gives min_points directions on a circle of radius standoff
+    one = contour_points(np.array([[0.0, 0.0]]), 1.0, 5.0, 8)
+    assert len(one) == 8
+    np.testing.assert_allclose(np.linalg.norm(one, axis=1), 1.0)
+
+
+# ------------------------------------------------------------------------------------ free poses
+def test_gaze_points_around_a_table_in_open_space():
+    g, fp = table_grid()
+    pts = g.gaze(fp)
+    cfg = GazeConfig()
+    total = sum(len(contour_points(fp, s, cfg.spacing, cfg.min_points)) for s in cfg.standoffs)
+    assert len(pts) == total                                  # nothing in the way: every ring point
+    assert_valid(pts, g, fp.mean(axis=0))
+    near = [p for p in pts][:len(contour_points(fp, cfg.standoffs[0], cfg.spacing, cfg.min_points))]
+    for p in near:                                            # nearest ring first
+        d = np.min(np.hypot(fp[:, 0] - p.pose.x, fp[:, 1] - p.pose.y))
+        assert cfg.standoffs[0] - 1e-9 <= d <= cfg.standoffs[0] + 0.6
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4])
+def test_gaze_points_never_in_occupied_cells(seed):
+    rng = np.random.default_rng(seed)
+    g, fp = table_grid()
+    for _ in range(10):                                       # furniture around the table
+        cx, cy = rng.uniform(-2.5, 2.5, 2)
+        if abs(cx) < 1.0 and abs(cy) < 0.8:
+            continue
+        w, h = rng.uniform(0.2, 0.8, 2)
+        g.box(cx - w / 2, cx + w / 2, cy - h / 2, cy + h / 2, float(rng.choice([0.3, 0.6, 1.0, 1.8])))
+    pts = g.gaze(fp)
+    assert_valid(pts, g, fp.mean(axis=0))
+    # the filter did something: some ring poses were dropped, and all that remain are free
+    all_ring = np.concatenate([ring_poses(fp, s) for s in GazeConfig().standoffs])
+    assert len(pts) <= len(all_ring)
+    blocked = ~g.checker().poses_free(all_ring)
+    kept = {(round(p.pose.x, 9), round(p.pose.y, 9)) for p in pts}
+    for pose in all_ring[blocked]:
+        assert (round(pose[0], 9), round(pose[1], 9)) not in kept
+
+
+def test_a_box_on_a_ring_point_removes_it():
+    g, fp = table_grid()
+    ring = ring_poses(fp, GazeConfig().standoffs[0])
+    x, y = ring[0, :2]                                        # the +x point (1.4, 0)
+    g.box(x - 0.1, x + 0.1, y - 0.1, y + 0.1, 0.3)
+    pts = g.gaze(fp)
+    assert all(math.hypot(p.pose.x - x, p.pose.y - y) > 1e-6 for p in pts)
+    assert_valid(pts, g, fp.mean(axis=0))
+
+
+def test_custom_centre_and_low_instances():
+    g, fp = table_grid()
+    centre = (0.2, -0.1)
+    pts = g.gaze(fp, top=0.0, centre_xy=np.array([0.2, -0.1, 0.3]))
+    assert pts
+    assert_valid(pts, g, centre, top=0.0)                     # look-at height floored at min_look_height
+    assert g.gaze(np.zeros((0, 2))) == []
+
+
+# ------------------------------------------------------------------------------------ line of sight
+FAR_RING = GazeConfig(standoffs=(2.0,))       # body centres 2 m from the table edge (x = 2.5 on +x)
+
+
+def beyond_wall_free_poses(g: Grid, fp) -> np.ndarray:
+    ring = ring_poses(fp, 2.0, FAR_RING)
+    free = g.checker().poses_free(ring)
+    return ring[free & (ring[:, 0] > 1.1)]
+
+
+def test_points_behind_a_tall_wall_are_removed():
+    g, fp = table_grid()
+    g.box(1.0, 1.1, -4.0, 4.0, 2.0)                           # a 2 m wall between table and x > 1.1
+    behind = beyond_wall_free_poses(g, fp)
+    assert len(behind) >= 3                                   # standing there would be fine ...
+    pts = g.gaze(fp, config=FAR_RING)
+    assert pts                                                # ... the other side is still visible
+    assert all(p.pose.x < 1.0 for p in pts)                   # ... but nothing behind the wall is kept
+    assert_valid(pts, g, fp.mean(axis=0), config=FAR_RING)
+
+
+def test_points_behind_a_low_obstacle_are_kept():
+    g, fp = table_grid()
+    g.box(1.0, 1.1, -4.0, 4.0, 0.4)                           # lower than the table top (0.75)
+    behind = beyond_wall_free_poses(g, fp)
+    assert len(behind) >= 3
+    pts = g.gaze(fp, config=FAR_RING)
+    kept = {(round(p.pose.x, 9), round(p.pose.y, 9)) for p in pts}
+    for pose in behind:
+        assert (round(pose[0], 9), round(pose[1], 9)) in kept
+    # as tall as the top: does not hide it either; taller than top + los_margin does
+    g2, _ = table_grid()
+    g2.box(1.0, 1.1, -4.0, 4.0, TOP)
+    assert any(p.pose.x > 1.1 for p in g2.gaze(fp, config=FAR_RING))
+    g3, _ = table_grid()
+    g3.box(1.0, 1.1, -4.0, 4.0, 0.85)
+    assert not any(p.pose.x > 1.1 for p in g3.gaze(fp, config=FAR_RING))
+    lenient = GazeConfig(standoffs=(2.0,), los_margin=0.2)
+    assert any(p.pose.x > 1.1 for p in g3.gaze(fp, config=lenient))
+
+
+def test_a_pillar_hides_only_the_points_behind_it():
+    g, fp = table_grid()
+    g.box(0.9, 1.0, -0.05, 0.05, 2.0)                         # thin tall pillar on the +x axis
+    pts = g.gaze(fp, config=FAR_RING)
+    ring = ring_poses(fp, 2.0, FAR_RING)
+    assert len(pts) == len(ring) - 1                          # exactly the +x point is hidden
+    assert all(not (p.pose.x > 2.0 and abs(p.pose.y) < 1e-6) for p in pts)
+
+
+def test_the_instance_itself_never_blocks_its_view():
+    g = Grid().box(*TABLE, 1.5)                               # a cabinet: its own cells are tall
+    rows, cols = np.nonzero(g.obstacle)
+    fp = GEO.cell_to_world(rows, cols)
+    pts = g.gaze(fp, top=1.5)
+    assert len(pts) == sum(len(contour_points(fp, s, 0.6, 8)) for s in GazeConfig().standoffs)
+
+
+def test_line_of_sight():
+    blocking = np.zeros(GEO.shape, dtype=bool)
+    r, c = GEO.world_to_cell(np.array([0.0, 0.0]))
+    blocking[r, c] = True
+    assert not line_of_sight(np.array([-1.0, 0.01]), np.array([1.0, 0.01]), GEO, blocking)
+    assert line_of_sight(np.array([-1.0, 0.2]), np.array([1.0, 0.2]), GEO, blocking)
+    assert line_of_sight(np.array([-1.0, -1.0]), np.array([-0.5, 1.0]), GEO, blocking)
+
+
+def test_gaze_config_validation():
+    for bad in (dict(standoffs=()), dict(standoffs=(0.9, -1.0)), dict(spacing=0.0), dict(min_points=2)):
+        with pytest.raises(ValueError):
+            GazeConfig(**bad)
