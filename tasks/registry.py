@@ -10,7 +10,7 @@ class UnknownAgentError(ValueError):
     """An agent name is not registered."""
 
 
-def _oracle(sim):
+def _oracle(sim, **_options):
     from tasks.oracle import OracleAgent
 
     return OracleAgent(sim)
@@ -65,9 +65,12 @@ def agent_names() -> list[str]:
     return sorted(AGENTS)
 
 
-def make_agent(name: str, sim):
+def make_agent(name: str, sim, **options):
+    """A fresh agent for one simulated episode; ``options`` (agent_config, method_config,
+    perception_config) configure the HELIOS agents and are ignored by the oracle. A registered
+    factory is called as ``factory(sim, **options)``, so it must accept (and may ignore) them."""
     try:
         factory, _ = AGENTS[name]
     except KeyError:
         raise UnknownAgentError(f"unknown agent {name!r}; valid agents: {', '.join(agent_names())}") from None
-    return factory(sim)
+    return factory(sim, **options)

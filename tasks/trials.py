@@ -36,8 +36,11 @@ from typing import Callable, Iterable
 
 import numpy as np
 
+from helios.agents.config import AgentConfig
+from helios.config import HeliosConfig
 from helios.configuration import ConfigError, dump_yaml, from_dict, to_dict
 from robots.spot.sim_backend import SimBackendConfig
+from sim.perception.config import SimPerceptionConfig
 from tasks.episodes import Episode
 from tasks.metrics import FAILURE_REASONS
 from tasks.registry import make_agent
@@ -59,6 +62,11 @@ class TrialConfig:
     seed: int = 0                    # master seed: each episode's RNG derives from (seed, episode id)
     sim: SimBackendConfig = field(default_factory=lambda: SimBackendConfig(stream_hz=0.0))
     runner: RunnerConfig = RunnerConfig()
+    # HELIOS agents only (the oracle ignores them); a variant's own settings (helios.agents.variants)
+    # and the "-gt" suffix (perception.mode) take precedence over these.
+    agent_config: AgentConfig = field(default_factory=AgentConfig)
+    helios: HeliosConfig = field(default_factory=HeliosConfig)
+    perception: SimPerceptionConfig = field(default_factory=SimPerceptionConfig)
 
 
 class RunFolderError(ValueError):
@@ -209,7 +217,8 @@ def run_one(config: TrialConfig, episode: Episode, recording: str | Path | None 
 
     def factory(sim):
         sim.seed = seed
-        agent = make_agent(config.agent, sim)
+        agent = make_agent(config.agent, sim, agent_config=config.agent_config, method_config=config.helios,
+                           perception_config=config.perception)
         state = None
         if recorder is not None:
             _log_scene(recorder, sim, episode)

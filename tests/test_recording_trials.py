@@ -26,7 +26,7 @@ class MappingOracle:
 
     name = "mapping-oracle"
 
-    def __init__(self, sim):
+    def __init__(self, sim, **_options):   # registry factories take config options
         self._oracle = OracleAgent(sim)
         self.map = None
         self.record_calls = 0

@@ -43,13 +43,24 @@ class ViewConfig:
     """Each look ends with a view of the floor this far (m) ahead: the far views start seeing the
     floor ~1.5 m out, and the body may only walk where the camera has looked. 0 disables it."""
     shoulder_ahead: float = 0.29
-    arm_reach_front: float = 0.45
+    elbow_radius: float = 0.42
+    """Looking needs no tall obstacle within this (m) of the shoulder: moving the arm swings its
+    links up to 0.34 m round the shoulder on any side (measured in sim), plus their thickness."""
     arm_swing_radius: float = 0.55
-    arm_swing_height: float = 0.65
-    """A look is skipped when an obstacle taller than ``arm_swing_height`` (m) lies on the arc the
-    arm sweeps to it, within ``arm_reach_front`` (m, straight ahead) to ``arm_swing_radius`` (m,
-    to the side) of the shoulder: measured in sim, gazing puts arm link frames 0.31 m (ahead) to
-    0.42 m (sideways) from the shoulder, plus ~0.1 m of geometry, and never below 0.72 m."""
+    """... nor on the arc the hand sweeps towards the look direction, out to this (m) from the
+    shoulder (link frames 0.34 m plus the gripper)."""
+    arm_swing_height: float = 0.76
+    """Obstacles taller than this (m) count for the arm checks: the arm never goes below ~0.69 m
+    while looking, so tables (<= 0.74 m) pass and counters, shelves and walls do not."""
+    make_room_distance: float = 0.5
+    """When a wall is too close to look around, the robot steps up to this far (m) away first."""
+    self_mask_margin: float = 0.08
+    """Depth points within the body footprint box grown by this (m) are the robot itself ..."""
+    self_mask_top: float = 0.25
+    """... if they lie below this height above the body origin (m); the arm is never masked."""
+    face_tolerance: float = 1.05
+    """Before a grasp or place gaze, turn the body towards the point if it lies more than this
+    (rad, 60 degrees) to the side; the gaze itself reaches about 105 degrees."""
     camera_in_body: tuple[float, float, float] = (0.41, 0.02, 0.55)
     """Hand camera position (m, body frame) while gazing, measured in sim; used to predict the
     camera pose of hypothetical views (information gain, predicted scores)."""
@@ -78,6 +89,11 @@ class ReachConfig:
     place_lift: float = 0.25
     """The hand holds the object about this far above the surface when it lets go (m)."""
     n_angles: int = 24
+    close_in_threshold: float = 0.1
+    """Before a grasp, step towards the object if it lies this much beyond the comfortable
+    standing distance (m)."""
+    close_in_radius: float = 0.08
+    """Goal radius of that step (m)."""
 
     def __post_init__(self) -> None:
         _require(self.arm_reach > 0 and self.band >= 0 and self.n_angles >= 4, "invalid reach settings")

@@ -27,14 +27,14 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
 from scipy import ndimage
 
 from helios.agents.config import AgentConfig
-from helios.agents.geometry import approach_poses, backproject, predicted_camera, project
+from helios.agents.geometry import approach_poses, backproject, predicted_camera, project, reach_distances
 from helios.agents.place import PlaceTarget, choose_place_point
 from helios.config import HeliosConfig
 from helios.maps.hierarchical import HierarchicalMap
@@ -47,7 +47,7 @@ from helios.search.decisions import Verdict, decide
 from helios.search.gaze_points import GazePoint, gaze_points
 from helios.search.information import predicted_object_score, views_information_gain
 from helios.search.objective import CandidateLocation, FrontierOption, GlobalObjective
-from robots.hal import Observation, RobotBackend, SE2Pose
+from robots.hal import Observation, Reason, RobotBackend, SE2Pose
 from robots.transforms import wrap_angle
 
 _MAX_GAZE_YAW = math.radians(105)   # the hand camera can be pointed this far to the side
@@ -147,6 +147,9 @@ class HeliosAgent:
         generation guarantees; it is skipped if the map already shows it is not free."""
         view = self.config.view
         self._observe(robot)
+        # the start clearance is free by construction: keep it as seen floor, or the strip beside
+        # the start that no view covers can cut the start off from the rest once the robot leaves
+        self.map.occupancy.mark_seen(self._xy()[None], self.config.planner.start_clearance)
         self._look(robot, view.start_look_yaws_deg, near_yaws_deg=view.start_near_yaws_deg)
         if not view.start_turn_around:
             return
@@ -178,7 +181,7 @@ class HeliosAgent:
     # ================================================================== perception
     def _observe(self, robot: RobotBackend) -> Observation:
         """One frame through the detector and scorer into the map."""
-        obs = robot.observe()
+        obs = self._without_self(robot.observe())
         t0 = time.perf_counter()
         detections = self.detector(obs.rgb, obs.depth, self.query_classes)
         scores = self.scorer(obs.rgb, self.prompts)
@@ -196,6 +199,28 @@ class HeliosAgent:
         self.last_detections = kept
         self._cache.clear()
         return obs
+
+    def _without_self(self, obs: Observation) -> Observation:
+        """The frame with the robot's own legs and body blanked out of the depth (no return): the
+        hand camera sees them when it looks down or sideways, and the map would turn them into
+        obstacles that box the robot in wherever it has stood."""
+        x0, x1, y0, y1 = self.config.planner.footprint.body
+        m = self.config.view.self_mask_margin
+        v, u = np.nonzero(obs.depth > 0)
+        if not len(v):
+            return obs
+        z = obs.depth[v, u].astype(float)
+        k = obs.intrinsics
+        pc = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z], axis=1)
+        T = np.linalg.inv(obs.T_world_body) @ obs.T_world_cam
+        pb = pc @ T[:3, :3].T + T[:3, 3]
+        own = (pb[:, 0] > x0 - m) & (pb[:, 0] < x1 + m) & (pb[:, 1] > y0 - m) & (pb[:, 1] < y1 + m) & \
+              (pb[:, 2] < self.config.view.self_mask_top)
+        if not own.any():
+            return obs
+        depth = obs.depth.copy()
+        depth[v[own], u[own]] = 0.0
+        return replace(obs, depth=depth)
 
     def _trust(self, obs: Observation, detections: Sequence[Detection]) -> None:
         """Trusting agent: every detection of the object / goal class becomes a target at once."""
@@ -441,14 +466,24 @@ class HeliosAgent:
         ok, _ = self._go(robot, np.array([[gp.pose.x, gp.pose.y]]), self.config.gaze_goal_radius, gp.pose.yaw)
         if not ok:
             return False
-        if self._gaze(robot, gp.look_at).success:
-            self._observe(robot)
+        direction = math.atan2(gp.look_at[1] - self.pose.y, gp.look_at[0] - self.pose.x)
+        if abs(wrap_angle(direction - self.pose.yaw)) > _MAX_GAZE_YAW:
+            self.log.append("gaze point: could not turn to face the object")
+            return False
+        if not self._make_room(robot) or not self._arm_clear(direction):
+            self.log.append("gaze point: the arm has no room to look from here")
+            return False
+        if not self._gaze(robot, gp.look_at).success:
+            return False
+        self._observe(robot)
         return True
 
     def _look(self, robot: RobotBackend, yaws_deg: Sequence[float], facing: float | None = None,
               near_yaws_deg: Sequence[float] = (0.0,)) -> None:
         """Point the hand camera in several directions and observe each (plus the near floor)."""
         view = self.config.view
+        if not self._make_room(robot):
+            return
         base = self.pose.yaw if facing is None else facing
         for deg in sorted(yaws_deg, key=abs):     # front first: each view reveals walls for the next
             a = base + math.radians(deg)
@@ -477,30 +512,78 @@ class HeliosAgent:
         self.arm_direction = math.atan2(point[1] - self.pose.y, point[0] - self.pose.x)
         if not res.success:
             self.log.append(f"gaze failed: {res.reason.value} {res.message}")
+            if res.reason is Reason.COLLISION:   # the arm met something the map lacks: remember it
+                view = self.config.view
+                reach = view.elbow_radius
+                sx = self.pose.x + view.shoulder_ahead * math.cos(self.pose.yaw)
+                sy = self.pose.y + view.shoulder_ahead * math.sin(self.pose.yaw)
+                self.map.occupancy.mark_obstacle((sx + reach * math.cos(self.arm_direction),
+                                                  sy + reach * math.sin(self.arm_direction)), 0.1, height=1.5)
         return res
 
-    def _arm_clear(self, direction: float) -> bool:
-        """No tall obstacle where the arm swings to point the camera in ``direction`` (world yaw):
-        the hand swings out ~0.75 m from the shoulder at about 1 m height, sweeping the arc from
-        where it points now. Beside the body, unseen cells count as blocked too (a wall the
-        camera has not looked at yet)."""
+    def _shoulder(self, x: float, y: float, yaw: float) -> tuple[float, float]:
+        ahead = self.config.view.shoulder_ahead
+        return x + ahead * math.cos(yaw), y + ahead * math.sin(yaw)
+
+    def _elbow_clear(self, x: float, y: float, yaw: float) -> bool:
+        """No tall obstacle within ``elbow_radius`` of the shoulder: moving the arm at all swings
+        its links up to 0.34 m round the shoulder, on any side (measured along gaze moves in sim)."""
         view = self.config.view
-        sx = self.pose.x + view.shoulder_ahead * math.cos(self.pose.yaw)
-        sy = self.pose.y + view.shoulder_ahead * math.sin(self.pose.yaw)
+        sx, sy = self._shoulder(x, y, yaw)
+        ring = np.linspace(0.0, 2 * math.pi, 32, endpoint=False)
+        rr = np.linspace(0.1, view.elbow_radius, 4)
+        disc = np.stack([sx + np.outer(rr, np.cos(ring)), sy + np.outer(rr, np.sin(ring))], axis=-1).reshape(-1, 2)
+        rows, cols = self.map.geometry.world_to_cell(disc)
+        occ = self.map.occupancy
+        return not bool((occ.obstacle[rows, cols] & (occ.max_height[rows, cols] > view.arm_swing_height)).any())
+
+    def _arm_clear(self, direction: float) -> bool:
+        """The arm can point the camera in ``direction`` (world yaw): the elbow has room, and no
+        tall obstacle lies on the arc the hand sweeps from where it points now (out to
+        ``arm_swing_radius`` from the shoulder). Far to the side, unseen cells count as blocked too
+        (a wall the camera has not looked at yet)."""
+        view = self.config.view
+        if not self._elbow_clear(self.pose.x, self.pose.y, self.pose.yaw):
+            return False
+        sx, sy = self._shoulder(self.pose.x, self.pose.y, self.pose.yaw)
         now = self.pose.yaw if self.arm_direction is None else self.arm_direction
         sweep = float(wrap_angle(direction - now))
         lo, hi = min(0.0, sweep) - 0.3, max(0.0, sweep) + 0.3
         angles = now + np.linspace(lo, hi, max(7, int((hi - lo) / 0.1) + 1))
-        rel = np.abs(wrap_angle(angles - self.pose.yaw))
-        reach = view.arm_reach_front + (view.arm_swing_radius - view.arm_reach_front) * np.minimum(1.0, rel / (math.pi / 2))
-        r, a = np.linspace(0.1, 1.0, 12)[None, :] * reach[:, None], np.repeat(angles[:, None], 12, axis=1)
+        r, a = np.meshgrid(np.linspace(0.1, view.arm_swing_radius, 10), angles)
         pts = np.stack([sx + r * np.cos(a), sy + r * np.sin(a)], axis=-1).reshape(-1, 2)
+        side = np.abs(wrap_angle(a.reshape(-1) - self.pose.yaw)) > math.radians(75)
         rows, cols = self.map.geometry.world_to_cell(pts)
         occ = self.map.occupancy
         blocked = occ.obstacle[rows, cols] & (occ.max_height[rows, cols] > view.arm_swing_height)
-        side = np.abs(wrap_angle(a.reshape(-1) - self.pose.yaw)) > math.radians(75)
         blocked |= side & ~occ.explored[rows, cols]
         return not bool(blocked.any())
+
+    def _make_room(self, robot: RobotBackend) -> bool:
+        """Before looking around: if a wall or a tall piece of furniture is too close for the arm,
+        step straight away from it (at the current heading) to the nearest pose where the elbow
+        has room. False if there is none within ``make_room_distance``."""
+        if self._elbow_clear(self.pose.x, self.pose.y, self.pose.yaw):
+            return True
+        x, y, yaw = self.pose.x, self.pose.y, self.pose.yaw
+        checker = self._checker().clear_under(self.pose)
+        c, s = math.cos(yaw), math.sin(yaw)
+        limit = self.config.view.make_room_distance
+        offsets = [(dx, dy) for dx in np.arange(-limit, limit + 1e-9, 0.1) for dy in np.arange(-limit, limit + 1e-9, 0.1)
+                   if 0 < math.hypot(dx, dy) <= limit + 1e-9]
+        for dx, dy in sorted(offsets, key=lambda o: math.hypot(*o)):
+            nx, ny = x + dx * c - dy * s, y + dx * s + dy * c
+            if self._elbow_clear(nx, ny, yaw) and checker.segment_free(x, y, nx, ny, yaw):
+                if not self.arm_stowed:
+                    robot.stow_arm()
+                    self.arm_stowed, self.arm_direction = True, None
+                res = robot.navigate_to(SE2Pose(nx, ny, yaw))
+                final = getattr(res, "final_pose", None)
+                self.pose = final if final is not None else robot.observe().body_pose
+                self.log.append(f"made room for the arm: stepped ({dx:+.1f}, {dy:+.1f}) m")
+                return bool(res.success) and self._elbow_clear(self.pose.x, self.pose.y, self.pose.yaw)
+        self.log.append("no room for the arm to look around here")
+        return False
 
     # ================================================================== walking
     def _checker(self) -> FootprintChecker:
@@ -618,14 +701,18 @@ class HeliosAgent:
         if not ok:
             self._fail(target, "could not reach a grasp pose")
             return
-        if not self._gaze(robot, aim).success:
-            self._fail(target, "cannot look at the object from the grasp pose")
-            return
-        obs = self._observe(robot)
-        pixel = self._grasp_pixel(obs, target)
-        if pixel is None:
-            self._fail(target, "not visible from the grasp pose")
-            return
+        for closer in (False, True):
+            self._face(robot, aim)
+            if not self._gaze(robot, aim).success:
+                self._fail(target, "cannot look at the object from the grasp pose")
+                return
+            obs = self._observe(robot)
+            pixel = self._grasp_pixel(obs, target)
+            if pixel is None:
+                self._fail(target, "not visible from the grasp pose")
+                return
+            if closer or not self._close_in(robot, obs, pixel):
+                break
         self.pick_attempts += 1
         res = robot.grasp(obs, pixel)
         self.log.append(f"grasp {target.key} at {pixel}: {res.reason.value} {res.message}")
@@ -636,6 +723,38 @@ class HeliosAgent:
         else:
             self._fail(target, f"grasp failed ({res.reason.value})")
 
+
+    def _face(self, robot: RobotBackend, point) -> None:
+        """Turn on the spot towards ``point`` if it lies well to the side (a goal pose is reached
+        within a radius, and its final turn may have been blocked)."""
+        direction = math.atan2(point[1] - self.pose.y, point[0] - self.pose.x)
+        if abs(wrap_angle(direction - self.pose.yaw)) > self.config.view.face_tolerance:
+            self._go(robot, self._xy()[None], self.config.gaze_goal_radius, [direction])
+
+    def _close_in(self, robot: RobotBackend, obs: Observation, pixel: tuple[int, int]) -> bool:
+        """Step straight towards the grasp point when it lies beyond a comfortable reach (the
+        approach pose is only reached within a goal radius and the object's visible surface may sit
+        behind its centre). True if the robot moved (the caller looks again)."""
+        reach = self.config.reach
+        u, v = pixel
+        mask = np.zeros(obs.depth.shape, dtype=bool)
+        mask[v, u] = True
+        pts = backproject(obs, mask)
+        if not len(pts):
+            return False
+        point = pts[0]
+        _, comfortable = reach_distances(float(point[2]), reach)
+        d = np.asarray(point[:2]) - self._xy()
+        dist = float(np.linalg.norm(d))
+        if dist - comfortable < reach.close_in_threshold or dist < 1e-6:
+            return False
+        unit = d / dist
+        goal = np.asarray(point[:2]) - unit * comfortable
+        yaw = math.atan2(unit[1], unit[0])
+        moved, _ = self._go(robot, goal[None], reach.close_in_radius, [yaw])
+        self.log.append(f"closing in on the grasp point: {dist:.2f} m -> {comfortable:.2f} m "
+                        f"({'done' if moved else 'blocked'})")
+        return moved
 
     def _visible_projection(self, obs: Observation, points: np.ndarray):
         """Pixels (u, v) of the points that are in view and not hidden behind a nearer surface."""
@@ -699,6 +818,7 @@ class HeliosAgent:
         if not ok:
             self._fail(target, "could not reach a place pose")
             return
+        self._face(robot, surface)
         if not self._gaze(robot, surface).success:
             self._fail(target, "cannot look at the place point from the place pose")
             return

@@ -1,16 +1,23 @@
-"""HELIOS's hierarchical map: occupancy + frontiers, value maps, object Gaussians, instances."""
+"""HELIOS's hierarchical map: occupancy + frontiers, value maps, object Gaussians, instances.
 
-from helios.maps.classes import ClassSet, UnknownClassError
-from helios.maps.frontiers import Frontier, find_frontiers
-from helios.maps.gaussians import GaussianMap, GaussianUpdate, RenderedImages
-from helios.maps.grid import GridGeometry
-from helios.maps.hierarchical import HierarchicalMap, MapUpdate
-from helios.maps.inputs import MapInputError
-from helios.maps.instances import Instance
-from helios.maps.occupancy import OccupancyGrid
-from helios.maps.renderer import Rendering, render_gaussians
-from helios.maps.value_map import ValueMap
+Names are imported on first use, so light users (the planner needs only ``GridGeometry``) do not
+load torch."""
 
-__all__ = ["ClassSet", "Frontier", "GaussianMap", "GaussianUpdate", "GridGeometry", "HierarchicalMap", "Instance",
-           "MapInputError", "MapUpdate", "OccupancyGrid", "RenderedImages", "Rendering", "UnknownClassError",
-           "ValueMap", "find_frontiers", "render_gaussians"]
+_LAZY = {
+    "ClassSet": "classes", "UnknownClassError": "classes", "Frontier": "frontiers", "find_frontiers": "frontiers",
+    "GaussianMap": "gaussians", "GaussianUpdate": "gaussians", "RenderedImages": "gaussians", "GridGeometry": "grid",
+    "HierarchicalMap": "hierarchical", "MapUpdate": "hierarchical", "MapInputError": "inputs",
+    "Instance": "instances", "OccupancyGrid": "occupancy", "Rendering": "renderer",
+    "render_gaussians": "renderer", "ValueMap": "value_map",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f"helios.maps.{_LAZY[name]}"), name)
+    raise AttributeError(name)
+
+
+__all__ = sorted(_LAZY)
