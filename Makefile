@@ -13,10 +13,11 @@ $(STAMP): setup.cfg pyproject.toml tools/setup_env.sh
 	bash tools/setup_env.sh $(VENV)
 	touch $(STAMP)
 
-# The main job: a short batch of simulated pick-and-place trials (20 smoke episodes), printing the
-# metrics table and writing runs/smoke/{config.yaml,episodes.jsonl,summary.json}.
+# The main job: HELIOS on the 20 smoke episodes (2 worker processes), printing the metrics table,
+# then the report (table, PNG plots, HTML) in runs/smoke/report/. Re-running resumes.
 run: setup
-	$(PY) -m tools trials --agent oracle --split smoke --episodes 20 --seed 0 --out runs/smoke $(ARGS)
+	$(PY) -m tools trials --agent helios --split smoke --episodes 20 --seed 0 --workers 2 --out runs/smoke $(ARGS)
+	$(PY) -m tools report runs/smoke --out runs/smoke/report
 
 # Scripted single pick-and-place in a two-table scene with a rerun recording.
 demo: setup
