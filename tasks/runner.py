@@ -172,6 +172,22 @@ def run_episode(agent: Agent, backend: RobotBackend, episode: Episode, config: R
 # ------------------------------------------------------------------------------------------------
 # Simulated episodes
 # ------------------------------------------------------------------------------------------------
+def build_episode_scene(world, episode: Episode):
+    """Build ``episode``'s procedural home in ``world`` and check that it has the named instances.
+    Shared by the sim backend's episodes and the fake Spot's (``robots.spot.fake_spot.launch``),
+    so both run on the very same scene."""
+    from sim.scenes.home import build_home
+    from sim.scenes.layout import generate_layout
+
+    scene = build_home(world, generate_layout(episode.scene.seed, episode.scene.layout_config()))
+    missing = [n for n in (episode.target_object, episode.start_receptacle, *episode.goal_receptacles)
+               if n not in scene.object_ids and n not in scene.receptacle_ids]
+    if missing:
+        raise ValueError(f"episode {episode.episode_id} names {missing}, absent from scene {episode.scene.seed}; "
+                         f"the episode file does not match this version of the scene generator")
+    return scene
+
+
 @dataclass
 class SimEpisode:
     """Everything a simulated episode needs: world, scene, Spot, the HAL backend and the judge."""
@@ -185,8 +201,6 @@ class SimEpisode:
     @classmethod
     def create(cls, episode: Episode, sim_config=None, metrics: MetricsConfig = MetricsConfig()) -> "SimEpisode":
         from robots.spot.sim_backend import SimBackendConfig, SimSpotBackend
-        from sim.scenes.home import build_home
-        from sim.scenes.layout import generate_layout
         from sim.spot import SpotBody
         from sim.world import World
         from tasks.metrics import EpisodeJudge
@@ -194,12 +208,7 @@ class SimEpisode:
         sim_config = sim_config or SimBackendConfig()
         world = World(sim_config.world)
         try:
-            scene = build_home(world, generate_layout(episode.scene.seed, episode.scene.layout_config()))
-            missing = [n for n in (episode.target_object, episode.start_receptacle, *episode.goal_receptacles)
-                       if n not in scene.object_ids and n not in scene.receptacle_ids]
-            if missing:
-                raise ValueError(f"episode {episode.episode_id} names {missing}, absent from scene {episode.scene.seed}; "
-                                 f"the episode file does not match this version of the scene generator")
+            scene = build_episode_scene(world, episode)
             spot = SpotBody(world, episode.start_pose)
             backend = SimSpotBackend(world, spot, sim_config)
             judge = EpisodeJudge(backend, scene, episode, metrics)

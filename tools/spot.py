@@ -6,15 +6,18 @@ end (unmodified bosdyn client, TLS, gRPC): a hardware dry run.
     BOSDYN_CLIENT_USERNAME=... BOSDYN_CLIENT_PASSWORD=... \\
         python -m tools spot 192.168.80.3 --task "Move the mug from the stool to the table"
     python -m tools spot --fake --task "Move the mug from the stool to the table"
+    python -m tools spot --fake --episode smoke-00001 --agent helios
 
 Bring-up: resolve, TLS + authenticate (credentials from the environment only), time sync, e-stop
 check, lease, power on, stand. Shutdown (always, also after a fault or Ctrl-C): stop, stow, sit
 and power off, return the lease. A run folder (``--out``/name) gets the resolved backend config,
 the session log and the outcome; never credentials or tokens.
 
-Agents: only ``scripted-demo`` exists yet (the scripted pick-and-place of ``tools demo``, given
-the demo layout instead of a detector); the HELIOS agent plugs into ``AGENTS``. ``--task`` is
-checked for being non-empty; task parsing arrives with the tasks issue.
+Agents: on the demo scene, ``scripted-demo`` (the scripted pick-and-place of ``tools demo``, given
+the demo layout instead of a detector). ``--fake --episode ID`` instead serves a task episode's
+home and runs any agent of ``tasks.registry`` (HELIOS with its simulated detector fed the fake's
+ground truth for each SDK image) through ``tasks.fake_sdk``, scored by the simulator's judge: the
+same episode and agent code as ``tools trials`` on the sim backend, over the SDK.
 """
 
 from __future__ import annotations
@@ -215,8 +218,15 @@ def physical_outcome(world, scene: dict, place_target=None) -> dict:
 # ============================================================================ command line
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("hostname", nargs="?", help="the robot's hostname or IP address (omit with --fake)")
-    parser.add_argument("--task", required=True, help='what to do, e.g. "Move the mug from the stool to the table"')
-    parser.add_argument("--agent", default="scripted-demo", help=f"agent to run (available: {', '.join(AGENTS)})")
+    parser.add_argument("--task", default=None,
+                        help='what to do, e.g. "Move the mug from the stool to the table" (not with --episode)')
+    parser.add_argument("--agent", default=None,
+                        help=f"agent to run (demo: {', '.join(AGENTS)}, the default; with --episode: an agent of "
+                             f"`python -m tools trials`, default helios)")
+    parser.add_argument("--episode", default=None, metavar="ID",
+                        help="--fake only: serve this task episode's scene (e.g. smoke-00001) and run the agent "
+                             "on it, scored like a simulated trial")
+    parser.add_argument("--split", default="", help="--episode: split to look the id up in (default: the id's prefix)")
     parser.add_argument("--fake", action="store_true",
                         help="start a fake Spot on 127.0.0.1 backed by the simulator and run against it "
                              "(a hardware dry run through the unmodified Spot SDK over TLS)")
@@ -228,7 +238,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="external: an e-stop held elsewhere must be released (default); endpoint: this "
                              "client registers its own software e-stop")
     parser.add_argument("--take-lease", action="store_true", help="take the body lease from its current holder")
-    parser.add_argument("--seed", type=int, default=0, help="--fake: demo scene seed (mug placement)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="--fake: demo scene seed (mug placement); with --episode: the agent's seed")
     parser.add_argument("--out", default="runs/spot", help="parent folder of the run folder")
     parser.add_argument("--name", default=None, help="run folder name (default: a timestamp)")
     parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
@@ -275,10 +286,25 @@ class _RunLog(logging.Handler):
 def _validate(args: argparse.Namespace):
     from tools.cli import CliError
 
-    if not args.task or not args.task.strip():
-        raise CliError("--task must not be empty (e.g. --task \"Move the mug from the stool to the table\")")
-    if args.agent not in AGENTS:
-        raise CliError(f"unknown agent {args.agent!r}; available: {', '.join(sorted(AGENTS))}")
+    if args.episode is not None:
+        if not args.fake:
+            raise CliError("--episode needs --fake: an episode's scene exists only in the simulator")
+        if args.task is not None:
+            raise CliError("--episode brings its own task; leave out --task")
+        if args.agent is None:
+            args.agent = "helios"
+        from tasks.registry import AGENTS as EPISODE_AGENTS
+        from tasks.registry import UnknownAgentError, agent_names
+
+        if args.agent not in EPISODE_AGENTS:
+            raise UnknownAgentError(f"unknown agent {args.agent!r}; valid agents: {', '.join(agent_names())}")
+    else:
+        if not args.task or not args.task.strip():
+            raise CliError("--task must not be empty (e.g. --task \"Move the mug from the stool to the table\")")
+        if args.agent is None:
+            args.agent = "scripted-demo"
+        if args.agent not in AGENTS:
+            raise CliError(f"unknown agent {args.agent!r}; available: {', '.join(sorted(AGENTS))}")
     if args.fake and args.hostname:
         raise CliError("--fake runs against a local fake robot; leave out the hostname")
     if not args.fake and not args.hostname:
@@ -312,6 +338,8 @@ def run(args: argparse.Namespace) -> int:
     demo = None
     saved_env: dict[str, str | None] = {}
     try:
+        if args.episode is not None:
+            return _run_episode(args, config, run_dir, handler, USERNAME_ENV, PASSWORD_ENV)
         if args.fake:
             demo, config, saved_env = _start_fake(args, config, USERNAME_ENV, PASSWORD_ENV)
         hints = None
@@ -362,20 +390,94 @@ def run(args: argparse.Namespace) -> int:
         handler.close()
 
 
-def _start_fake(args, config, user_env: str, password_env: str):
-    """Start the fake Spot (demo scene) and point the config at it. Without credentials in the
-    environment, a throwaway pair is made for this process only (never written anywhere)."""
+def _check_fake_available() -> None:
     from tools.cli import CliError
 
     try:
         import cryptography  # noqa: F401  (makes the fake's throwaway CA)
-        from robots.spot.fake_spot.launch import start_demo_fake
+        import robots.spot.fake_spot.launch  # noqa: F401
     except ImportError as exc:
         raise CliError(f"--fake needs {exc.name or 'cryptography'}: pip install 'helios-testbed[dev]'") from None
+
+
+def _dry_run_credentials(user_env: str, password_env: str) -> dict[str, str | None]:
+    """Credentials for a dry run: the environment's, else a throwaway pair for this process only
+    (never written anywhere). Returns the previous values, to restore."""
     saved = {user_env: os.environ.get(user_env), password_env: os.environ.get(password_env)}
-    user = os.environ.get(user_env) or "helios-dry-run"
-    password = os.environ.get(password_env) or secrets.token_urlsafe(16)
-    os.environ[user_env], os.environ[password_env] = user, password
+    os.environ[user_env] = os.environ.get(user_env) or "helios-dry-run"
+    os.environ[password_env] = os.environ.get(password_env) or secrets.token_urlsafe(16)
+    return saved
+
+
+def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str, password_env: str) -> int:
+    """``--fake --episode``: the episode through SDK -> fake Spot -> PyBullet, scored by the judge."""
+    from helios.configuration import dump_yaml
+    from tasks.episodes import load_split
+    from tasks.fake_sdk import run_fake_sdk_episode
+    from tools.cli import CliError
+
+    _check_fake_available()
+    matches = [e for e in load_split(args.split or args.episode.split("-")[0]) if e.episode_id == args.episode]
+    if not matches:
+        raise CliError(f"no episode {args.episode!r} in split {args.split or args.episode.split('-')[0]!r}")
+    episode = matches[0]
+    saved = _dry_run_credentials(user_env, password_env)
+
+    def connected(backend) -> None:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "config.yaml").write_text(dump_yaml(backend.config))
+        handler.open(run_dir / "session.log")
+        rid = backend.robot_id
+        print(f"[spot] connected to {rid.nickname or 'robot'} on 127.0.0.1:{backend.config.port} (fake Spot, "
+              f"episode scene); e-stop {backend.config.estop_mode}, lease held, standing")
+        print(f"[spot] running {args.agent} (seed {args.seed})")
+
+    print(f"[spot] episode {episode.episode_id}: {episode.task!r} (scene {episode.scene.seed}); "
+          f"starting a fake Spot on it")
+    try:
+        result = run_fake_sdk_episode(args.agent, episode, seed=args.seed, backend_config=config,
+                                      on_connected=connected)
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+    print("[spot] shut down: stopped, stowed, sat, powered off, lease returned; fake Spot stopped")
+    outcome = {"fake": True, **result.as_dict()}
+    (run_dir / "outcome.json").write_text(json.dumps(outcome, indent=2, default=str))
+    print()
+    print(_format_episode(result, run_dir))
+    return 0 if result.success else 1
+
+
+def _format_episode(result, run_dir: Path) -> str:
+    from tools.tables import format_table
+
+    m = result.metrics
+    rows = [("result", "SUCCESS" if result.success else f"FAILED ({m.failure_reason if m else 'no metrics'})"),
+            ("episode", f"{result.episode_id}: {result.task}"), ("agent", f"{result.agent} (seed {result.seed})")]
+    if m is not None:
+        rows += [(name, "yes" if getattr(m, name) else "no") for name in ("find_obj", "pick", "find_rec", "place")]
+        rows += [("collisions", str(m.collisions)), ("released on", m.released_on or "-")]
+    rows += [("commands", str(result.commands)), ("robot time", f"{result.sim_time:.1f} s"),
+             ("wall time", f"{result.wall_time:.1f} s")]
+    if result.limit_hit:
+        rows.append(("limit", "episode budget used up"))
+    if result.error:
+        rows.append(("error", result.error.splitlines()[0]))
+    rows.append(("run folder", str(run_dir)))
+    return format_table(["outcome", "value"], rows, title="Spot episode (fake robot, SDK)")
+
+
+def _start_fake(args, config, user_env: str, password_env: str):
+    """Start the fake Spot (demo scene) and point the config at it. Without credentials in the
+    environment, a throwaway pair is made for this process only (never written anywhere)."""
+    _check_fake_available()
+    from robots.spot.fake_spot.launch import start_demo_fake
+
+    saved = _dry_run_credentials(user_env, password_env)
+    user, password = os.environ[user_env], os.environ[password_env]
     pki_dir = tempfile.mkdtemp(prefix="helios-fake-spot-")
     try:
         demo = start_demo_fake(pki_dir, user, password, seed=args.seed)

@@ -1,0 +1,64 @@
+"""Running a task episode through the Spot SDK against a fake Spot: agent -> ``SdkSpotBackend`` ->
+bosdyn-client over TLS -> ``FakeSpot`` -> PyBullet, on the same scene, with the same agent code and
+the same ground-truth judge as ``tasks.runner.run_sim_episode``. It is the hardware dry run of a
+real episode: whatever the SDK path loses (JPEG colour, 16-bit depth, poses through frame
+snapshots, wall-clock command timing) shows up as a difference to the sim backend's result.
+
+Credentials come from the environment (``BOSDYN_CLIENT_USERNAME``/``BOSDYN_CLIENT_PASSWORD``), as
+on a robot; the fake accepts exactly them. Times in the result are the robot's (wall) clock.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Callable
+
+from tasks.episodes import Episode
+from tasks.runner import EpisodeResult, RunnerConfig, run_episode
+
+
+def run_fake_sdk_episode(agent_name: str, episode: Episode, seed: int | None = None, *,
+                         config: RunnerConfig = RunnerConfig(), backend_config=None, sim_config=None,
+                         pki=None, agent_options: dict | None = None,
+                         on_connected: Callable | None = None) -> EpisodeResult:
+    """Start a fake Spot on ``episode``'s scene, connect an SDK backend to it, run a fresh
+    ``agent_name`` agent (``tasks.registry``) through ``tasks.runner.run_episode`` and score it.
+
+    ``backend_config``: an ``SdkBackendConfig`` whose timeouts and modes to use (host, port and
+    CA are the fake's). ``pki``: a ``TestPKI`` or a folder to make one in (default: a throwaway
+    one, removed afterwards). ``on_connected(backend)`` is called once the robot stands (the
+    command line prints and records it there). Always shuts the robot down, stops the fake and
+    every thread it started, also after an error or Ctrl-C.
+    """
+    from robots.spot.fake_spot.launch import start_episode_fake
+    from robots.spot.sdk_backend import SdkBackendConfig, SdkSpotBackend, credentials_from_env
+    from tasks.registry import make_agent
+
+    user, password = credentials_from_env()
+    tmp = tempfile.mkdtemp(prefix="helios-fake-spot-") if pki is None else None
+    pki = pki if pki is not None else tmp
+    try:
+        ep = start_episode_fake(pki, episode, user, password, sim_config=sim_config, metrics=config.metrics)
+        try:
+            backend = SdkSpotBackend(replace(backend_config or SdkBackendConfig(), hostname="127.0.0.1",
+                                             port=ep.port, cert_path=str(ep.pki.ca_cert)))
+            try:
+                if on_connected is not None:
+                    on_connected(backend)
+                agent = make_agent(agent_name, ep, **(agent_options or {}))
+                result = run_episode(agent, ep.backend.watch(backend), episode, config, ep.judge,
+                                     start_time=time.time(), seed=seed)
+                result.extra["collision_events"] = [asdict(e) for e in ep.backend.collision_events]
+                result.extra["transport"] = "sdk-fake"
+                return result
+            finally:
+                backend.close()
+        finally:
+            ep.stop()
+    finally:
+        if tmp is not None:
+            shutil.rmtree(Path(tmp), ignore_errors=True)   # the throwaway CA and server key
