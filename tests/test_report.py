@@ -73,3 +73,15 @@ def test_report_on_real_runs_from_the_cli(tmp_path, capsys):
     assert all((tmp_path / "rep" / f).stat().st_size > 10_000 for f in FIGURES)
     with pytest.raises(Exception, match="--names has 1 name"):
         make_report([run, run], tmp_path / "rep2", names=["only"])
+
+
+def test_report_common_compares_runs_on_the_episodes_they_share(tmp_path):
+    a = _make_run(tmp_path / "long", [(5, None)] * 4 + [(0, "not_found")] * 6)       # 10 episodes
+    b = _make_run(tmp_path / "short", [(0, "not_found")] * 4)                          # val-00000..3
+    plain = make_report([a, b], tmp_path / "plain")
+    assert any("different numbers of episodes (4, 10)" in w for w in plain["warnings"])
+    assert "| long | 40.0 ± 15.5 |" in plain["markdown"]
+    shared = make_report([a, b], tmp_path / "shared", common=True)
+    assert any("the 4 episode(s) all runs finished" in w for w in shared["warnings"])
+    assert "| long | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 |" in shared["markdown"]
+    assert "| short | 0.0 ± 0.0 |" in shared["markdown"]

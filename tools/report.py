@@ -39,6 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("runs", nargs="+", metavar="RUN", help="run folders (from `python -m tools trials --out`)")
     parser.add_argument("--out", default="runs/report", help="folder for the table, PNGs and index.html")
     parser.add_argument("--names", default="", help="comma-separated row names (default: the folder names)")
+    parser.add_argument("--common", action="store_true",
+                        help="compare on the episodes every run has finished (runs of different lengths)")
 
 
 def load_run(path: str | Path, name: str | None = None) -> Run:
@@ -267,15 +269,40 @@ def write_html(path: Path, runs: list[Run], tables: list[tuple[str, list, list]]
     path.write_text("\n".join(parts))
 
 
-def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] | None = None) -> dict:
+def restrict_to_common(runs: list[Run]) -> int:
+    """Keep only the episodes every run has finished (a fair comparison of runs of different
+    lengths or of unfinished runs); returns how many that is."""
+    from tasks.trials import summarize
+    from tools.cli import CliError
+
+    common = set.intersection(*({r["episode_id"] for r in run.records} for run in runs))
+    if not common:
+        raise CliError("--common: the runs share no finished episode")
+    for run in runs:
+        run.records = [r for r in run.records if r["episode_id"] in common]
+        run.summary = summarize(run.records)
+    return len(common)
+
+
+def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] | None = None,
+                common: bool = False) -> dict:
     """Load the runs, write table.txt, table.md, the PNGs and index.html to ``out``; return what was
-    written (``text``, ``markdown``, ``figures``, ``html``, ``warnings``)."""
+    written (``text``, ``markdown``, ``figures``, ``html``, ``warnings``). ``common``: compare on the
+    episodes all runs have finished."""
     from tools.cli import CliError
     from tools.tables import format_markdown, format_table
 
     if names and len(names) != len(run_paths):
         raise CliError(f"--names has {len(names)} name(s) for {len(run_paths)} run(s)")
     runs = [load_run(p, names[i] if names else None) for i, p in enumerate(run_paths)]
+    counts = sorted({len(r.records) for r in runs})
+    note = []
+    if common:
+        n = restrict_to_common(runs)
+        note.append(f"compared on the {n} episode(s) all runs finished")
+    elif len(counts) > 1:
+        note.append(f"the runs cover different numbers of episodes ({', '.join(map(str, counts))}); "
+                    f"--common compares them on the episodes they share")
     seen: dict[str, int] = {}
     for r in runs:                                   # two folders with the same name: keep rows apart
         seen[r.name] = seen.get(r.name, 0) + 1
@@ -293,7 +320,7 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
                             format_markdown(f_headers, f_rows)])
     (out / "table.txt").write_text(text + "\n")
     (out / "table.md").write_text(markdown + "\n")
-    warnings = []
+    warnings = list(note)
     figures: list[Path] = []
     plt = _pyplot()
     if plt is None:
@@ -314,7 +341,7 @@ def run(args: argparse.Namespace) -> int:
     import sys
 
     names = [n.strip() for n in args.names.split(",")] if args.names else None
-    result = make_report(args.runs, args.out, names)
+    result = make_report(args.runs, args.out, names, common=args.common)
     print(result["text"])
     print()
     print(result["markdown"])
