@@ -32,3 +32,19 @@ def test_benchmark_reports_both_modes_side_by_side():
     assert full["peak_map_bytes"] > 5 * obj["peak_map_bytes"]
     report = format_report(obj, full, "test frames", 1)
     assert "object-only" in report and "full-scene" in report and "Peak Gaussian map tensors" in report
+
+
+def test_simulator_recording_streams_frames_with_detections_and_scores(tmp_path):
+    """The bench's default frame source: HELIOS's observations on val episode 0, one more frame
+    after every command, each with thresholded detections and a score per value-map layer."""
+    from tools.bench_maps import Trajectory, sim_frames
+
+    frames, classes, layers = sim_frames(12)
+    assert len(frames) == 12 and len(classes) == 3 and layers == classes[1:]
+    stamps = [obs.stamp for obs, _, _ in frames]
+    assert stamps == sorted(stamps) and stamps[-1] > stamps[0]
+    for obs, detections, scores in frames:
+        assert obs.depth.shape == (240, 320) and set(scores) == set(layers)
+        assert all(d.class_name in classes and d.mask.shape == obs.depth.shape for d in detections)
+    path = save_trajectory(tmp_path / "sim.npz", frames, classes, layers)
+    assert len(list(Trajectory.load(path).frames())) == 12

@@ -11,7 +11,7 @@ Frame source. Anything that yields ``(Observation, list[Detection], scores)`` tu
 benchmarked (:func:`benchmark_frames`); the command reads a recorded ``.npz`` trajectory given by
 ``--maps-recording PATH`` (``python -m tools.bench_maps``) or the ``HELIOS_MAPS_RECORDING``
 environment variable. Without one it records, once, 300 frames of the simulated Spot doing a val
-episode (:func:`sim_frames`, cached under ``runs/bench_maps/``); ``--maps-synthetic`` uses a
+episode (HELIOS's own observations, :func:`sim_frames`, cached under ``runs/bench_maps/``); ``--maps-synthetic`` uses a
 synthetic furnished two-room flat of boxes instead (:func:`synthetic_frames`).
 
 Recorded trajectory format (``.npz``, written by :func:`save_trajectory`; N frames, M detections):
@@ -349,6 +349,94 @@ def synthetic_trajectory_file(n_frames: int, seed: int) -> Path:
     return path
 
 
+class _EnoughFrames(Exception):
+    """Stops the recording episode once it has the frames it needs."""
+
+
+class _RecordingBackend:
+    """A HAL backend wrapper that runs the simulated detector and scorer on every observation the
+    agent takes, and on one more frame after every other command (as a camera streaming during
+    the episode would), and keeps ``(Observation, detections, scores)``."""
+
+    def __init__(self, backend, detector, scorer, task_classes, value_layers, thresholds, n_frames: int):
+        from helios.perception.prompts import value_prompt
+
+        self._backend = backend
+        self._detector, self._scorer = detector, scorer
+        self._classes, self._layers = list(task_classes), list(value_layers)
+        self._prompts = [value_prompt(layer) for layer in value_layers]
+        self._thresholds = thresholds
+        self._n = n_frames
+        self.frames: list[Frame] = []
+
+    def observe(self, *args, **kwargs):
+        obs = self._backend.observe(*args, **kwargs)
+        detections = [d for d in self._detector(obs.rgb, obs.depth, self._classes)
+                      if d.score >= self._thresholds.get(d.class_name, 1.0)]
+        scores = dict(zip(self._layers, (float(v) for v in self._scorer(obs.rgb, self._prompts))))
+        self.frames.append((obs, detections, scores))
+        if len(self.frames) >= self._n:
+            raise _EnoughFrames()
+        return obs
+
+    def __getattr__(self, name):
+        attr = getattr(self._backend, name)
+        if not callable(attr) or name.startswith("_") or name in ("close",):
+            return attr
+
+        def command(*args, **kwargs):     # a streaming camera: one more frame after every command
+            result = attr(*args, **kwargs)
+            self.observe()
+            return result
+        return command
+
+
+def sim_frames(n_frames: int, episode_index: int = 0,
+               agent: str = "helios") -> tuple[list[Frame], list[str], list[str]]:
+    """Frames of the simulated Spot working on a val episode: the HELIOS agent's own observations,
+    with the simulated detector's detections (above the paper's per-class thresholds) and the
+    image-text scores; up to ``n_frames`` (fewer if the episode ends first). Returns the frames,
+    the episode's classes (object, start and goal receptacle) and its value-map layers."""
+    from helios.config import HeliosConfig
+    from sim.perception import make_sim_perception
+    from tasks.episodes import load_split
+    from tasks.registry import make_agent
+    from tasks.runner import RunnerConfig, SimEpisode, run_episode
+
+    episode = load_split("val")[episode_index]
+    spec = episode.spec
+    classes = [spec.object, spec.start_receptacle, spec.goal_receptacle]
+    layers = [spec.start_receptacle, spec.goal_receptacle]
+    det = HeliosConfig().detection
+    thresholds = {spec.object: det.od_object, spec.start_receptacle: det.od_start_receptacle,
+                  spec.goal_receptacle: det.od_goal_receptacle}
+    sim = SimEpisode.create(episode)
+    try:
+        detector, scorer = make_sim_perception(sim.backend, seed=episode.seed, rooms=sim.scene.layout.rooms)
+        robot = _RecordingBackend(sim.backend, detector, scorer, classes, layers, thresholds, n_frames)
+        try:
+            run_episode(make_agent(agent, sim), robot, episode, RunnerConfig(), sim.judge,
+                        start_time=sim.world.time, seed=episode.seed)
+        except _EnoughFrames:
+            pass
+        return robot.frames, classes, layers
+    finally:
+        sim.close()
+
+
+def sim_trajectory_file(n_frames: int, episode_index: int = 0) -> Path:
+    """Path of the cached simulator trajectory (HELIOS on val episode ``episode_index``),
+    recording it on first use (about a minute)."""
+    path = SYNTHETIC_DIR / f"sim_helios_val{episode_index}_{n_frames}f_{WIDTH}x{HEIGHT}.npz"
+    if not path.is_file():
+        frames, classes, layers = sim_frames(n_frames, episode_index)
+        first = frames[0][0].intrinsics
+        if (first.width, first.height) != (WIDTH, HEIGHT):
+            raise ValueError(f"the simulated hand camera renders {first.width}x{first.height}, expected {WIDTH}x{HEIGHT}")
+        save_trajectory(path, frames, classes, layers)
+    return path
+
+
 # ============================================================================ measurement
 def _rss_bytes() -> int:
     import psutil
@@ -452,6 +540,8 @@ def format_report(obj: dict, full: dict, source: str, threads: int) -> str:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--maps-recording", default=None, help="trajectory .npz (see tools/bench_maps.py)")
+    parser.add_argument("--maps-synthetic", action="store_true",
+                        help="replay a synthetic two-room flat instead of a simulator recording")
     parser.add_argument("--maps-threads", type=int, default=None,
                         help="torch threads (default 1, or $HELIOS_BENCH_THREADS)")
 
@@ -471,7 +561,7 @@ def run(args: argparse.Namespace) -> str:
         source = f"synthetic two-room flat ({path})"
     else:
         path = sim_trajectory_file(DEFAULT_FRAMES)
-        source = f"simulator recording: oracle on val episode 0 ({path})"
+        source = f"simulator recording: HELIOS on val episode 0 ({path})"
     obj = _in_fresh_process(str(path), False, threads, limit)
     full = _in_fresh_process(str(path), True, threads, limit)
     return format_report(obj, full, source, threads)
