@@ -267,6 +267,42 @@ class PlaceResult(CommandResult):
 
 
 # --------------------------------------------------------------------------------------------
+# Argument checks shared by the backends
+# --------------------------------------------------------------------------------------------
+def as_se2(value, name: str) -> SE2Pose:
+    """A command argument as an SE2Pose (an SE2Pose or any (x, y, yaw)); one clear error otherwise."""
+    if isinstance(value, SE2Pose):
+        return value
+    try:
+        x, y, yaw = (float(v) for v in value)
+    except (TypeError, ValueError) as exc:
+        raise InvalidCommandError(f"{name} must be an SE2Pose or (x, y, yaw), got {value!r}") from exc
+    return SE2Pose(x, y, yaw)
+
+
+def as_point(value, name: str) -> np.ndarray:
+    """A command argument as a finite 3D point; every backend validates the same way."""
+    try:
+        p = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise InvalidCommandError(f"{name} must be 3 numbers, got {value!r}") from exc
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise InvalidCommandError(f"{name} must be 3 finite numbers, got {value!r}")
+    return p
+
+
+def as_pixel(pixel, obs: Observation) -> tuple[int, int]:
+    """A command argument as an integer (u, v) pixel inside ``obs``'s image."""
+    try:
+        u, v = (int(round(float(x))) for x in pixel)
+    except (TypeError, ValueError) as exc:
+        raise InvalidCommandError(f"pixel must be (u, v), got {pixel!r}") from exc
+    if not (0 <= u < obs.intrinsics.width and 0 <= v < obs.intrinsics.height):
+        raise InvalidCommandError(f"pixel ({u}, {v}) is outside the {obs.intrinsics.width}x{obs.intrinsics.height} image")
+    return u, v
+
+
+# --------------------------------------------------------------------------------------------
 # The backend protocol
 # --------------------------------------------------------------------------------------------
 @runtime_checkable

@@ -47,6 +47,9 @@ from typing import Callable, Literal, Sequence
 import numpy as np
 
 from robots.hal import (
+    as_pixel,
+    as_point,
+    as_se2,
     CommandResult,
     CommandTimeoutError,
     ConnectionLostError,
@@ -233,36 +236,6 @@ def _lease_keep_alive_class(bd: _Bosdyn):
 # --------------------------------------------------------------------------------------------
 # Helpers
 # --------------------------------------------------------------------------------------------
-def _as_se2(value, name: str) -> SE2Pose:
-    if isinstance(value, SE2Pose):
-        return value
-    try:
-        x, y, yaw = (float(v) for v in value)
-    except (TypeError, ValueError) as exc:
-        raise InvalidCommandError(f"{name} must be an SE2Pose or (x, y, yaw), got {value!r}") from exc
-    return SE2Pose(x, y, yaw)
-
-
-def _as_point(value, name: str) -> np.ndarray:
-    try:
-        p = np.asarray(value, dtype=float).reshape(-1)
-    except (TypeError, ValueError) as exc:
-        raise InvalidCommandError(f"{name} must be 3 numbers, got {value!r}") from exc
-    if p.shape != (3,) or not np.all(np.isfinite(p)):
-        raise InvalidCommandError(f"{name} must be 3 finite numbers, got {value!r}")
-    return p
-
-
-def _as_pixel(pixel, obs: Observation) -> tuple[int, int]:
-    try:
-        u, v = (int(round(float(x))) for x in pixel)
-    except (TypeError, ValueError) as exc:
-        raise InvalidCommandError(f"pixel must be (u, v), got {pixel!r}") from exc
-    if not (0 <= u < obs.intrinsics.width and 0 <= v < obs.intrinsics.height):
-        raise InvalidCommandError(f"pixel ({u}, {v}) is outside the {obs.intrinsics.width}x{obs.intrinsics.height} image")
-    return u, v
-
-
 def estimate_object_base(obs: Observation, target: np.ndarray, radius: float = 0.12) -> np.ndarray:
     """Bottom centre (world) of the object seen at ``target``, from the observation's depth alone:
     its support is the 90th-percentile height of points just around and below the target, its
@@ -694,8 +667,8 @@ class SdkSpotBackend:
 
     # ================================================================== base
     def navigate_to(self, goal: SE2Pose, via: Sequence[SE2Pose] = ()) -> NavigateResult:
-        goal = _as_se2(goal, "goal")
-        via = [_as_se2(v, f"via[{i}]") for i, v in enumerate(via)]
+        goal = as_se2(goal, "goal")
+        via = [as_se2(v, f"via[{i}]") for i, v in enumerate(via)]
         self._guard()
         cfg, bd = self.config, self._bd
         cv = bd.cv
@@ -807,7 +780,7 @@ class SdkSpotBackend:
         return CommandResult(False, Reason.COLLISION, "the arm stalled before reaching the hand pose", duration=took)
 
     def gaze_at(self, point: Sequence[float]) -> CommandResult:
-        p = _as_point(point, "gaze point")
+        p = as_point(point, "gaze point")
         self._guard()
         bd = self._bd
         command = bd.Builder.arm_gaze_command(float(p[0]), float(p[1]), float(p[2]), bd.cv.ODOM)
@@ -866,7 +839,7 @@ class SdkSpotBackend:
         if not isinstance(observation, Observation):
             raise InvalidCommandError(f"grasp needs the Observation the pixel refers to, got "
                                       f"{type(observation).__name__}")
-        u, v = _as_pixel(pixel, observation)
+        u, v = as_pixel(pixel, observation)
         self._guard()
         cfg, bd = self.config, self._bd
         cv, M = bd.cv, bd.manip
@@ -949,7 +922,7 @@ class SdkSpotBackend:
         self._grip = (invert_transform(T_world_grasp) @ np.append(base, 1.0))[:3]
 
     def place(self, point: Sequence[float], release_height: float = 0.10) -> PlaceResult:
-        p = _as_point(point, "place point")
+        p = as_point(point, "place point")
         if not (math.isfinite(release_height) and 0.0 <= release_height <= 1.0):
             raise InvalidCommandError(f"release_height must be within [0, 1] m, got {release_height}")
         self._guard()

@@ -17,6 +17,9 @@ from typing import Callable, Literal, Sequence
 import numpy as np
 
 from robots.hal import (
+    as_pixel,
+    as_point,
+    as_se2,
     CameraIntrinsics,
     CommandResult,
     GraspResult,
@@ -168,8 +171,8 @@ class SimSpotBackend:
     # ================================================================== base
     def navigate_to(self, goal: SE2Pose, via: Sequence[SE2Pose] = ()) -> NavigateResult:
         self._check_open()
-        goal = _as_se2(goal, "goal")
-        via = [_as_se2(v, f"via[{i}]") for i, v in enumerate(via)]
+        goal = as_se2(goal, "goal")
+        via = [as_se2(v, f"via[{i}]") for i, v in enumerate(via)]
         return self.follow_base_path(plan_base(self.spot.base_pose(), [*via, goal], self.config.motion.base))
 
     def follow_base_path(self, path) -> NavigateResult:
@@ -236,7 +239,7 @@ class SimSpotBackend:
 
     def gaze_at(self, point: Sequence[float]) -> CommandResult:
         self._check_open()
-        p_world = _as_point(point, "gaze point")
+        p_world = as_point(point, "gaze point")
         T_body_world = invert_transform(self.spot.T_world_body())
         p_body = transform_points(T_body_world, p_world[None])[0]
         q = self._gaze_solution(p_body)
@@ -422,7 +425,7 @@ class SimSpotBackend:
         self._check_open()
         if not isinstance(observation, Observation):
             raise InvalidCommandError(f"grasp needs the Observation the pixel refers to, got {type(observation).__name__}")
-        u, v = _as_pixel(pixel, observation)
+        u, v = as_pixel(pixel, observation)
         t0 = self.world.time
         if self._held is not None:
             return GraspResult(False, Reason.ALREADY_HOLDING, "the claw already holds an object", holding=True)
@@ -530,7 +533,7 @@ class SimSpotBackend:
 
     def place(self, point: Sequence[float], release_height: float = 0.10) -> PlaceResult:
         self._check_open()
-        p_world = _as_point(point, "place point")
+        p_world = as_point(point, "place point")
         if not (math.isfinite(release_height) and 0.0 <= release_height <= 1.0):
             raise InvalidCommandError(f"release_height must be within [0, 1] m, got {release_height}")
         if self._held is None:
@@ -710,33 +713,3 @@ class SimSpotBackend:
         """Block until every streamed frame has been rendered and handed to the listeners."""
         if self._render_worker is not None:
             self._deliver(self._render_worker.poll(block=True))
-
-
-def _as_se2(value, name: str) -> SE2Pose:
-    if isinstance(value, SE2Pose):
-        return value
-    try:
-        x, y, yaw = (float(v) for v in value)
-    except (TypeError, ValueError) as exc:
-        raise InvalidCommandError(f"{name} must be an SE2Pose or (x, y, yaw), got {value!r}") from exc
-    return SE2Pose(x, y, yaw)
-
-
-def _as_point(value, name: str) -> np.ndarray:
-    try:
-        p = np.asarray(value, dtype=float).reshape(-1)
-    except (TypeError, ValueError) as exc:
-        raise InvalidCommandError(f"{name} must be 3 numbers, got {value!r}") from exc
-    if p.shape != (3,) or not np.all(np.isfinite(p)):
-        raise InvalidCommandError(f"{name} must be 3 finite numbers, got {value!r}")
-    return p
-
-
-def _as_pixel(pixel, obs: Observation) -> tuple[int, int]:
-    try:
-        u, v = (int(round(float(x))) for x in pixel)
-    except (TypeError, ValueError) as exc:
-        raise InvalidCommandError(f"pixel must be (u, v), got {pixel!r}") from exc
-    if not (0 <= u < obs.intrinsics.width and 0 <= v < obs.intrinsics.height):
-        raise InvalidCommandError(f"pixel ({u}, {v}) is outside the {obs.intrinsics.width}x{obs.intrinsics.height} image")
-    return u, v
