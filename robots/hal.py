@@ -344,3 +344,39 @@ class RobotBackend(Protocol):
 
     def close(self) -> None:
         """Release the robot (leases, connections, simulator) — safe to call twice."""
+
+
+class CommandProxy:
+    """Base of HAL wrappers (budget monitors, instrumentation) that route every command through
+    one hook, ``_command(name, *args)``, so the list of HAL commands is written once. Subclasses
+    implement ``_command`` and ``observe``."""
+
+    def _command(self, name: str, *args, **kwargs):
+        raise NotImplementedError(f"{type(self).__name__} must implement _command")
+
+    def navigate_to(self, goal: SE2Pose, via: Sequence[SE2Pose] = ()):
+        return self._command("navigate_to", goal, via)
+
+    def gaze_at(self, point):
+        return self._command("gaze_at", point)
+
+    def move_arm_joints(self, joints):
+        return self._command("move_arm_joints", joints)
+
+    def move_hand(self, T_body_hand):
+        return self._command("move_hand", T_body_hand)
+
+    def grasp(self, observation: Observation, pixel):
+        return self._command("grasp", observation, pixel)
+
+    def place(self, point, release_height: float = 0.10):
+        return self._command("place", point, release_height)
+
+    def stow_arm(self):
+        return self._command("stow_arm")
+
+    def stand(self):
+        return self._command("stand")
+
+    def stop(self):
+        return self._command("stop")

@@ -27,6 +27,8 @@ import sys
 import traceback
 from typing import Any, Callable, Mapping, Sequence
 
+from robots.hal import CommandProxy
+
 MB = 1024.0 * 1024.0
 MAX_SAMPLES = 64
 
@@ -156,7 +158,7 @@ def _thin(samples: Sequence[tuple], limit: int) -> dict[str, list]:
 # ------------------------------------------------------------------------------------------------
 # Wrappers
 # ------------------------------------------------------------------------------------------------
-class InstrumentedRobot:
+class InstrumentedRobot(CommandProxy):
     """The robot handed to the agent: forwards every call unchanged, then samples memory and, when
     recording, logs the observation or the command, its result and the robot's state."""
 
@@ -176,31 +178,7 @@ class InstrumentedRobot:
 
     def navigate_to(self, goal, via=()):
         self._owner.before_navigate(goal, via)
-        return self._command("navigate_to", goal, via)
-
-    def gaze_at(self, point):
-        return self._command("gaze_at", point)
-
-    def move_arm_joints(self, joints):
-        return self._command("move_arm_joints", joints)
-
-    def move_hand(self, T_body_hand):
-        return self._command("move_hand", T_body_hand)
-
-    def grasp(self, observation, pixel):
-        return self._command("grasp", observation, pixel)
-
-    def place(self, point, release_height: float = 0.10):
-        return self._command("place", point, release_height)
-
-    def stow_arm(self):
-        return self._command("stow_arm")
-
-    def stand(self):
-        return self._command("stand")
-
-    def stop(self):
-        return self._command("stop")
+        return super().navigate_to(goal, via)
 
     def __getattr__(self, name: str):
         return getattr(self._robot, name)

@@ -11,11 +11,11 @@ from __future__ import annotations
 import time
 import traceback
 from dataclasses import asdict, dataclass, field
-from typing import Protocol, Sequence, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from robots.hal import Observation, RobotBackend, RobotFault, SE2Pose
+from robots.hal import CommandProxy, Observation, RobotBackend, RobotFault
 from tasks.episodes import Episode
 from tasks.metrics import EpisodeMetrics, MetricsConfig
 from tasks.spec import TaskSpec
@@ -68,7 +68,7 @@ class EpisodeResult:
         return d
 
 
-class MonitoredBackend:
+class MonitoredBackend(CommandProxy):
     """HAL proxy handed to agents: counts commands, enforces limits, informs the judge."""
 
     def __init__(self, backend: RobotBackend, config: RunnerConfig, judge=None, start_time: float = 0.0):
@@ -109,33 +109,6 @@ class MonitoredBackend:
         result = getattr(self._backend, name)(*args, **kwargs)
         self._after(name, result)
         return result
-
-    def navigate_to(self, goal: SE2Pose, via: Sequence[SE2Pose] = ()):
-        return self._command("navigate_to", goal, via)
-
-    def gaze_at(self, point):
-        return self._command("gaze_at", point)
-
-    def move_arm_joints(self, joints):
-        return self._command("move_arm_joints", joints)
-
-    def move_hand(self, T_body_hand):
-        return self._command("move_hand", T_body_hand)
-
-    def grasp(self, observation: Observation, pixel):
-        return self._command("grasp", observation, pixel)
-
-    def place(self, point, release_height: float = 0.10):
-        return self._command("place", point, release_height)
-
-    def stow_arm(self):
-        return self._command("stow_arm")
-
-    def stand(self):
-        return self._command("stand")
-
-    def stop(self):
-        return self._command("stop")
 
     def close(self) -> None:
         """Agents do not own the robot; closing is the runner's job."""
