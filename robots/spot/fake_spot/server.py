@@ -455,7 +455,6 @@ class FakeSpot:
 def _execute_on_sim(fake: FakeSpot, cmd: _Command) -> tuple[bool, str, dict]:
     """Run one accepted command on the simulator (robot thread, sim_lock held)."""
     sim = fake.sim
-    req = cmd.request
     if cmd.kind == "se2":
         res = sim.follow_base_path(cmd.extra["path"])
         return res.success, res.message, {"blocked": res.reason is Reason.COLLISION}
@@ -933,6 +932,15 @@ class _SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
     def _lease_owner_proto(self):
         return lease_pb2.LeaseOwner(client_name=self.f.lease_owner or "")
 
+    def _grant_lease(self, resp, request) -> None:
+        """Give the body lease to the caller (a new sequence number); call with ``f._lock`` held."""
+        f = self.f
+        f._lease_seq += 1
+        f.lease_owner = request.header.client_name or "unnamed client"
+        resp.status = resp.STATUS_OK
+        resp.lease.CopyFrom(f.current_lease())
+        resp.lease_owner.CopyFrom(self._lease_owner_proto())
+
     def AcquireLease(self, request, context):
         f = self.f
         resp = lease_pb2.AcquireLeaseResponse()
@@ -943,11 +951,7 @@ class _SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
                 resp.status = resp.STATUS_RESOURCE_ALREADY_CLAIMED
                 resp.lease_owner.CopyFrom(self._lease_owner_proto())
             else:
-                f._lease_seq += 1
-                f.lease_owner = request.header.client_name or "unnamed client"
-                resp.status = resp.STATUS_OK
-                resp.lease.CopyFrom(f.current_lease())
-                resp.lease_owner.CopyFrom(self._lease_owner_proto())
+                self._grant_lease(resp, request)
         return f.header(resp, request)
 
     def TakeLease(self, request, context):
@@ -957,11 +961,7 @@ class _SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
             if request.resource != "body":
                 resp.status = resp.STATUS_INVALID_RESOURCE
             else:
-                f._lease_seq += 1
-                f.lease_owner = request.header.client_name or "unnamed client"
-                resp.status = resp.STATUS_OK
-                resp.lease.CopyFrom(f.current_lease())
-                resp.lease_owner.CopyFrom(self._lease_owner_proto())
+                self._grant_lease(resp, request)
         return f.header(resp, request)
 
     def ReturnLease(self, request, context):
