@@ -18,8 +18,6 @@ from collections import deque
 from multiprocessing.connection import Connection
 from typing import Any
 
-import numpy as np
-
 from sim.camera import CameraConfig, RenderedFrame, decode, raw_render
 
 

@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Iterable
 
 import numpy as np
 
 from robots.hal import SE2Pose
-from sim.scenes.catalog import GRASPABLE_CATEGORIES, OBJECT_CATEGORIES, RECEPTACLE_CATEGORIES
+from sim.scenes.catalog import GRASPABLE_CATEGORIES
 from tasks.spec import TaskSpec, TaskSpecError, parse_task
 
 SCHEMA_VERSION = 1
@@ -214,7 +214,6 @@ def _episodes_for_scene(scene, scene_ref: SceneRef, rng: np.random.Generator, se
                         name: str, next_index: Callable[[], int]) -> list[Episode]:
     layout = scene.layout
     recs = {r.name: r for r in layout.receptacles}
-    start_xy = layout.robot_start[:2]
     objects = [o for o in layout.objects if o.category in GRASPABLE_CATEGORIES and o.receptacle in scene.approachable]
     if settings.difficulty == "easy":
         objects = [o for o in objects if o.category in EASY_OBJECTS]

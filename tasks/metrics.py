@@ -22,8 +22,7 @@ Each failed episode gets exactly one reason from ``FAILURE_REASONS`` (see ``Epis
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import numpy as np
 

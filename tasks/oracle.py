@@ -82,7 +82,6 @@ class OracleAgent:
         here = robot.observe().body_pose
         options = []
         for name in self._goals:
-            rec = self._scene.receptacle(name)
             for si, centre in enumerate(self._scene.surface_points(name)):
                 # the hand holds the object ~0.25 m above the surface when it lets go
                 poses = self._scene.nav.approach_poses(centre + [0.0, 0.0, 0.25], (here.x, here.y),

@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import sys
 from collections import Counter
-from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

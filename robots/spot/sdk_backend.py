@@ -842,7 +842,7 @@ class SdkSpotBackend:
         u, v = as_pixel(pixel, observation)
         self._guard()
         cfg, bd = self.config, self._bd
-        cv, M = bd.cv, bd.manip
+        M = bd.manip
         if self._state("checking the gripper").manipulator_state.is_gripper_holding_item:
             return GraspResult(False, Reason.ALREADY_HOLDING, "the claw already holds an object", holding=True)
         target = observation.point_at_pixel(u, v)

@@ -11,7 +11,7 @@ exist on purpose: the simulated detector confuses them the way open-vocabulary d
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np

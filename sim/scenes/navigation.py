@@ -16,7 +16,7 @@ import numpy as np
 from scipy import ndimage
 
 from robots.hal import SE2Pose
-from sim.scenes.layout import HomeLayout, _obb_corners, _segment_rect
+from sim.scenes.layout import HomeLayout, _segment_rect
 
 # Spot's plan-view footprint in its body frame (x0, x1, y0, y1), measured from the model at the
 # stand pose: body and legs (the hind knees stick out furthest) ...
