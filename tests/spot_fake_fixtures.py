@@ -14,6 +14,7 @@ import secrets
 import shutil
 import tempfile
 import threading
+import time
 
 from robots.spot.fake_spot.certs import TestPKI, make_test_pki
 from robots.spot.sdk_backend import PASSWORD_ENV, USERNAME_ENV, SdkBackendConfig, SdkSpotBackend
@@ -92,3 +93,20 @@ def sdk_backend_factory():
     facts = {"mug_position": demo.facts["mug_position"], "place_table": demo.facts["place_table"]["centre"],
              "table_height": demo.facts["table_height"]}
     return backend, facts
+
+
+def python_threads() -> set[threading.Thread]:
+    # _DummyThread entries are grpc's own native threads that once called into Python (auth
+    # metadata plugin); they are not started by Python and never "end".
+    return {t for t in threading.enumerate() if not isinstance(t, threading._DummyThread)}
+
+
+def wait_for_threads_to_end(before: set, timeout: float = 3.0) -> set:
+    """Threads started since ``before`` that are still alive after ``timeout`` s (a leak)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        extra = {t for t in python_threads() - before if t.is_alive()}
+        if not extra:
+            return set()
+        time.sleep(0.02)
+    return extra

@@ -11,16 +11,14 @@ must still agree.
 
 from __future__ import annotations
 
-import threading
-import time
-
 import numpy as np
 import pytest
 
 pytest.importorskip("bosdyn.client")
 
 from robots.spot.fake_spot.launch import start_episode_fake  # noqa: E402
-from spot_fake_fixtures import TEST_PASSWORD, TEST_USER, credentials_env, fast_config, session_pki  # noqa: E402
+from spot_fake_fixtures import (TEST_PASSWORD, TEST_USER, credentials_env, fast_config, python_threads,  # noqa: E402
+                                session_pki, wait_for_threads_to_end)
 from tasks.episodes import load_split  # noqa: E402
 from tasks.fake_sdk import run_fake_sdk_episode  # noqa: E402
 from tasks.registry import make_agent  # noqa: E402
@@ -32,21 +30,6 @@ FLAGS = ("find_obj", "pick", "find_rec", "place", "success")
 
 def _episode(episode_id: str):
     return next(e for e in load_split(episode_id.split("-")[0]) if e.episode_id == episode_id)
-
-
-def _python_threads() -> set[threading.Thread]:
-    # _DummyThread entries are grpc's own native threads that once called into Python; never "end".
-    return {t for t in threading.enumerate() if not isinstance(t, threading._DummyThread)}
-
-
-def _wait_for_threads_to_end(before: set, timeout: float = 5.0) -> set:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        extra = {t for t in _python_threads() - before if t.is_alive()}
-        if not extra:
-            return set()
-        time.sleep(0.02)
-    return extra
 
 
 def test_sdk_observation_resolves_to_the_frame_the_fake_rendered():
@@ -82,10 +65,10 @@ def test_smoke_episode_through_sdk_matches_sim_backend():
     sim = run_sim_episode(lambda s: make_agent("helios", s), episode, seed=0)
     assert sim.success, sim.as_dict()
 
-    before = _python_threads()
+    before = python_threads()
     with credentials_env():
         sdk = run_fake_sdk_episode("helios", episode, seed=0, pki=session_pki())
-    leaked = _wait_for_threads_to_end(before)
+    leaked = wait_for_threads_to_end(before, timeout=5.0)
     assert not leaked, f"threads left after teardown: {sorted(t.name for t in leaked)}"
 
     assert sdk.error is None and not sdk.limit_hit, sdk.as_dict()

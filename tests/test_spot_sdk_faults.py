@@ -21,7 +21,7 @@ from robots.hal import (  # noqa: E402
     TimeSyncLostError,
 )
 from robots.spot import model  # noqa: E402
-from spot_fake_fixtures import connect, start_fake  # noqa: E402
+from spot_fake_fixtures import connect, python_threads, start_fake, wait_for_threads_to_end  # noqa: E402
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -39,22 +39,6 @@ FAULTS = {
 }
 
 
-def _python_threads() -> set[threading.Thread]:
-    # _DummyThread entries are grpc's own native threads that once called into Python (auth
-    # metadata plugin); they are not started by Python and never "end".
-    return {t for t in threading.enumerate() if not isinstance(t, threading._DummyThread)}
-
-
-def _wait_for_threads_to_end(before: set, timeout: float = 3.0) -> set:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        extra = {t for t in _python_threads() - before if t.is_alive()}
-        if not extra:
-            return set()
-        time.sleep(0.02)
-    return extra
-
-
 def _active(fake) -> list:
     return [(c.kind, c.state) for c in fake.commands.values() if c.state in ("queued", "running", "hung")]
 
@@ -66,7 +50,7 @@ def _robot_commands(fake) -> int:
 @pytest.mark.parametrize("fault", sorted(FAULTS))
 def test_fault_ends_in_a_typed_error_and_leaves_the_robot_safe(fault):
     params, expected, sticky = FAULTS[fault]
-    before = _python_threads()
+    before = python_threads()
     demo = start_fake(seed=0)
     backend = connect(demo)
     fake = demo.fake
@@ -117,7 +101,7 @@ def test_fault_ends_in_a_typed_error_and_leaves_the_robot_safe(fault):
         backend.close()
         closing = time.monotonic() - t2
     assert closing < CLOSE_WITHIN, f"close() after {fault} took {closing:.2f} s"
-    leaked = _wait_for_threads_to_end(before)
+    leaked = wait_for_threads_to_end(before)
     assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
 
 
@@ -192,12 +176,12 @@ def test_grasp_failure_feedback_is_a_failed_grasp_result():
 
 
 def test_keep_alive_threads_stop_at_close():
-    before = _python_threads()
+    before = python_threads()
     demo = start_fake(seed=0)
     backend = connect(demo)       # e-stop endpoint mode: an EstopKeepAlive runs too
     backend.observe()
     assert backend.navigate_to(SE2Pose(0.2, 0.0, 0.0)).success
-    running = _python_threads() - before
+    running = python_threads() - before
     targets = " ".join(f"{t.name} {getattr(t, '_target', '')}" for t in running)
     for expected in ("token_manager", "_timesync_thread", "_periodic_check_in"):
         assert expected in targets, f"{expected} not running: {targets}"
@@ -205,7 +189,7 @@ def test_keep_alive_threads_stop_at_close():
     backend.close()
     backend.close()                                    # twice is fine
     assert backend.robot is None
-    leaked = _wait_for_threads_to_end(before)
+    leaked = wait_for_threads_to_end(before)
     assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
     assert demo.fake.lease_owner is None and not demo.fake.powered   # lease returned, powered off
 
