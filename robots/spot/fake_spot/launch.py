@@ -16,14 +16,10 @@ from robots.spot.fake_spot.sim_view import FakeSimView, LockedJudge
 from robots.spot.sim_backend import SimBackendConfig
 
 
-@dataclass
-class DemoFake:
-    """A running fake Spot plus what a test or a dry run needs to know about its scene."""
+class _RunningFake:
+    """What every handle on a running fake Spot offers (needs a ``fake`` attribute)."""
 
     fake: FakeSpot
-    pki: TestPKI
-    scene: dict                      # sim.scenes.demo.build_demo_scene's facts
-    facts: dict = field(default_factory=dict)   # ground truth: mug position, table poses, sizes
 
     @property
     def port(self) -> int:
@@ -35,6 +31,16 @@ class DemoFake:
 
     def stop(self) -> None:
         self.fake.stop()
+
+
+@dataclass
+class DemoFake(_RunningFake):
+    """A running fake Spot plus what a test or a dry run needs to know about its scene."""
+
+    fake: FakeSpot
+    pki: TestPKI
+    scene: dict                      # sim.scenes.demo.build_demo_scene's facts
+    facts: dict = field(default_factory=dict)   # ground truth: mug position, table poses, sizes
 
 
 def scene_facts(world, scene: dict) -> dict:
@@ -74,7 +80,7 @@ def start_demo_fake(pki: TestPKI | str | Path, username: str | None = None, pass
 
 
 @dataclass
-class EpisodeFake:
+class EpisodeFake(_RunningFake):
     """A running fake Spot in an episode's scene. Shaped like ``tasks.runner.SimEpisode``
     (``episode``, ``world``, ``scene``, ``backend``, ``judge``) so the agent registry and the judge
     take it unchanged; but ``backend`` is the simulator side of the SDK observations
@@ -87,17 +93,6 @@ class EpisodeFake:
     scene: object                    # sim.scenes.home.HomeScene
     backend: FakeSimView
     judge: LockedJudge               # tasks.metrics.EpisodeJudge, run under the fake's sim_lock
-
-    @property
-    def port(self) -> int:
-        return int(self.fake.port)
-
-    @property
-    def world(self):
-        return self.fake.sim.world
-
-    def stop(self) -> None:
-        self.fake.stop()
 
 
 def start_episode_fake(pki: TestPKI | str | Path, episode, username: str, password: str,
