@@ -14,6 +14,7 @@ from helios.perception.errors import ImageInputError, PerceptionError, PromptErr
 from helios.perception.prompts import value_prompt
 from robots.hal import SE2Pose
 from robots.spot.sim_backend import SimSpotBackend
+from robots.transforms import look_at_camera as look_at
 from sim import assets
 from sim.camera import decode_body_ids
 from sim.perception import (
@@ -24,7 +25,7 @@ from sim.perception import (
     SimPerceptionConfig,
     make_sim_perception,
 )
-from sim.perception.geometry import camera_around, look_at
+from sim.perception.geometry import camera_around
 from sim.scenes.catalog import ALL_CATEGORIES
 from sim.spot import SpotBody
 from sim.world import World

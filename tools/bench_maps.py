@@ -54,6 +54,7 @@ import numpy as np
 
 from helios.perception.detection import Detection
 from robots.hal import CameraIntrinsics, Observation
+from robots.transforms import look_at_camera
 
 DEFAULT_FRAMES = 300
 QUICK_FRAMES = 60
@@ -174,22 +175,6 @@ class Box:
     object_id: int | None = None
 
 
-def look_at(eye: Sequence[float], target: Sequence[float]) -> np.ndarray:
-    """T_world_cam of an optical-frame camera at ``eye`` looking at ``target`` (world z up)."""
-    eye, target = np.asarray(eye, dtype=float), np.asarray(target, dtype=float)
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    if np.linalg.norm(x) < 1e-9:  # looking straight up/down: pick image-right along world -y
-        x = np.array([0.0, -1.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], axis=1)
-    T[:3, 3] = eye
-    return T
-
-
 def pinhole(width: int = WIDTH, height: int = HEIGHT, hfov_deg: float = HFOV_DEG) -> CameraIntrinsics:
     f = width / 2 / math.tan(math.radians(hfov_deg) / 2)
     return CameraIntrinsics(width, height, f, f, (width - 1) / 2, (height - 1) / 2)
@@ -297,7 +282,7 @@ def _camera_path(n: int) -> list[np.ndarray]:
         yaw = heading[i] + math.radians(40) * math.sin(i * 2 * math.pi / 40)
         eye = np.array([xy[i, 0], xy[i, 1], 0.9])
         target = eye + np.array([math.cos(yaw), math.sin(yaw), -math.tan(math.radians(25))])
-        poses.append(look_at(eye, target))
+        poses.append(look_at_camera(eye, target))
     return poses
 
 

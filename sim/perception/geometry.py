@@ -16,6 +16,8 @@ from typing import Sequence
 
 import numpy as np
 
+from robots.transforms import look_at_camera
+
 # PyBullet geometry types (getCollisionShapeData)
 _SPHERE, _BOX, _CYLINDER, _CAPSULE = 2, 3, 4, 7
 _MASK64 = (1 << 64) - 1
@@ -179,29 +181,9 @@ def view_of(shape: BodyShape, T_world_body: np.ndarray, cam_pos: Sequence[float]
 
 
 # ------------------------------------------------------------------------------------ cameras
-def look_at(eye: Sequence[float], target: Sequence[float]) -> np.ndarray:
-    """T_world_cam (optical frame: x right, y down, z forward) of a camera at ``eye`` looking at
-    ``target``, with image "up" towards world +z."""
-    eye = np.asarray(eye, dtype=float)
-    z = np.asarray(target, dtype=float) - eye
-    n = float(np.linalg.norm(z))
-    if n < 1e-9:
-        raise ValueError("look_at: the eye and the target coincide")
-    z /= n
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    if np.linalg.norm(x) < 1e-9:   # straight down/up: image right along world -y
-        x = np.array([0.0, -1.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], axis=1)
-    T[:3, 3] = eye
-    return T
-
-
 def camera_around(target: Sequence[float], distance: float, azimuth: float, elevation: float) -> np.ndarray:
     """A camera ``distance`` m from ``target`` in world direction (azimuth, elevation), looking at it."""
     t = np.asarray(target, dtype=float)
     eye = t + distance * np.array([math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth),
                                    math.sin(elevation)])
-    return look_at(eye, t)
+    return look_at_camera(eye, t)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.perception.geometry import look_at
+from robots.transforms import look_at_camera
 
 
 @dataclass(frozen=True)
@@ -51,5 +51,5 @@ def random_view(scene, world, body_id: int, rng: np.random.Generator, sampling: 
         aim = centre + rng.uniform(-sampling.aim_jitter, sampling.aim_jitter, size=3)
         if np.linalg.norm(aim - eye) < 0.2:
             continue
-        return look_at(eye, aim)
+        return look_at_camera(eye, aim)
     return None
