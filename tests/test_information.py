@@ -9,7 +9,8 @@ from helios.config import HeliosConfig
 from helios.maps import ClassSet, GaussianMap, GridGeometry, MapInputError, UnknownClassError
 from helios.search import (dirichlet_entropy, fifty_fifty_information_gain, information_gain,
                            optimistic_evidence, optimistic_information_gain, predicted_object_score)
-from tools.bench_maps import look_at, pinhole
+from robots.transforms import look_at_camera as look_at
+from tools.bench_maps import pinhole
 
 CAM = pinhole(160, 120)
 POSE = look_at([0.0, 0.0, 1.0], [2.0, 0.0, 1.0])

@@ -14,7 +14,8 @@ from helios.configuration import with_overrides
 from helios.maps import HierarchicalMap
 from helios.perception.detection import Detection
 from robots.hal import Observation
-from tools.bench_maps import Box, look_at, pinhole, render_boxes
+from robots.transforms import look_at_camera as look_at
+from tools.bench_maps import Box, pinhole, render_boxes
 
 CAM = pinhole(160, 120)
 FLOOR = Box((-2.0, -3.0, -0.02), (5.0, 3.0, 0.0), "floor")

@@ -10,7 +10,8 @@ from helios.maps import ClassSet, GaussianMap, GridGeometry, HierarchicalMap, Ma
 from helios.maps.labels import label_detections
 from helios.perception.detection import Detection
 from robots.hal import Observation
-from tools.bench_maps import Box, look_at, pinhole, render_boxes
+from robots.transforms import look_at_camera as look_at
+from tools.bench_maps import Box, pinhole, render_boxes
 
 CAM = pinhole(160, 120)
 POSE = look_at([0.0, 0.0, 1.0], [3.0, 0.0, 0.6])

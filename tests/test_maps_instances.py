@@ -8,7 +8,8 @@ from helios.maps import ClassSet, GaussianMap, GridGeometry
 from helios.maps.instances import assign_instances
 from helios.maps.labels import label_detections
 from helios.perception.detection import Detection
-from tools.bench_maps import Box, look_at, pinhole, render_boxes
+from robots.transforms import look_at_camera as look_at
+from tools.bench_maps import Box, pinhole, render_boxes
 
 
 def blob(centre, n=20, spread=0.1, seed=0):

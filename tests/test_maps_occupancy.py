@@ -9,7 +9,8 @@ from helios.config import FrontierConfig, HeliosConfig, OccupancyConfig
 from helios.configuration import with_overrides
 from helios.maps import GridGeometry, HierarchicalMap, OccupancyGrid, find_frontiers
 from robots.hal import Observation
-from tools.bench_maps import Box, look_at, pinhole, render_boxes, wall
+from robots.transforms import look_at_camera as look_at
+from tools.bench_maps import Box, pinhole, render_boxes, wall
 
 CAM = pinhole(320, 240)
 SMALL = OccupancyConfig(grid_size=400, origin_xy=(-3.0, -3.0))

@@ -9,7 +9,7 @@ import torch
 from helios.config import RenderConfig
 from helios.maps.renderer import render_gaussians
 from robots.hal import CameraIntrinsics
-from tools.bench_maps import look_at
+from robots.transforms import look_at_camera as look_at
 
 CAM = CameraIntrinsics(40, 30, 30.0, 30.0, 19.5, 14.5)
 CFG = RenderConfig()

@@ -1,18 +1,10 @@
 """HELIOS agents: the full method and the paper's ablations as flags on one code path
 (:mod:`helios.agents.helios_agent`; named variants in :mod:`helios.agents.variants`)."""
 
-_LAZY = {"AgentConfig": "helios.agents.config", "PlaceConfig": "helios.agents.config",
-         "ReachConfig": "helios.agents.config", "ViewConfig": "helios.agents.config",
-         "HeliosAgent": "helios.agents.helios_agent", "VARIANTS": "helios.agents.variants"}
+from helios._lazy import lazy_getattr
 
-
-def __getattr__(name: str):
-    """Imported on first use: the agent pulls in torch and the map, the command line needs only names."""
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(name)
-
-
+# imported on first use: the agent pulls in torch and the map, the command line needs only names
+_LAZY = {"AgentConfig": "config", "PlaceConfig": "config", "ReachConfig": "config", "ViewConfig": "config",
+         "HeliosAgent": "helios_agent", "VARIANTS": "variants"}
+__getattr__ = lazy_getattr(__name__, _LAZY)
 __all__ = sorted(_LAZY)

@@ -3,6 +3,8 @@
 Names are imported on first use, so light users (the planner needs only ``GridGeometry``) do not
 load torch."""
 
+from helios._lazy import lazy_getattr
+
 _LAZY = {
     "ClassSet": "classes", "UnknownClassError": "classes", "Frontier": "frontiers", "find_frontiers": "frontiers",
     "GaussianMap": "gaussians", "GaussianUpdate": "gaussians", "RenderedImages": "gaussians", "GridGeometry": "grid",
@@ -10,14 +12,5 @@ _LAZY = {
     "Instance": "instances", "OccupancyGrid": "occupancy", "Rendering": "renderer",
     "render_gaussians": "renderer", "ValueMap": "value_map",
 }
-
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(f"helios.maps.{_LAZY[name]}"), name)
-    raise AttributeError(name)
-
-
+__getattr__ = lazy_getattr(__name__, _LAZY)
 __all__ = sorted(_LAZY)

@@ -1,6 +1,8 @@
 """HELIOS search: information gain of candidate views, the global objective, gaze points and the
 pick/place decision rule (names imported on first use)."""
 
+from helios._lazy import lazy_getattr
+
 _LAZY = {
     "PredictedScore": "information", "dirichlet_entropy": "information", "fifty_fifty_information_gain": "information",
     "information_gain": "information", "optimistic_evidence": "information",
@@ -10,14 +12,5 @@ _LAZY = {
     "GazeConfig": "gaze_points", "GazePoint": "gaze_points",
     "Verdict": "decisions", "decide": "decisions",
 }
-
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(f"helios.search.{_LAZY[name]}"), name)
-    raise AttributeError(name)
-
-
+__getattr__ = lazy_getattr(__name__, _LAZY)
 __all__ = sorted(_LAZY)
