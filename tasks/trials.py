@@ -108,12 +108,7 @@ def _config_text(config: TrialConfig) -> str:
 
 
 def _write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with tmp.open("w") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    tmp.replace(path)
+    _write_bytes_atomic(path, text.encode())
 
 
 def read_run_config(out: Path) -> tuple[dict, TrialConfig]:
@@ -426,6 +421,7 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
 
 
 def _write_bytes_atomic(path: Path, data: bytes) -> None:
+    """Write to a temporary file, fsync, rename: a kill leaves the old file or the new one."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     with tmp.open("wb") as fh:

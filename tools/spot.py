@@ -380,11 +380,7 @@ def run(args: argparse.Namespace) -> int:
         if demo is not None:
             demo.stop()
             shutil.rmtree(demo.pki.ca_cert.parent, ignore_errors=True)   # the throwaway CA and server key
-        for key, value in saved_env.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
+        _restore_env(saved_env)
         root.removeHandler(handler)
         root.setLevel(old_level)
         handler.close()
@@ -407,6 +403,15 @@ def _dry_run_credentials(user_env: str, password_env: str) -> dict[str, str | No
     os.environ[user_env] = os.environ.get(user_env) or "helios-dry-run"
     os.environ[password_env] = os.environ.get(password_env) or secrets.token_urlsafe(16)
     return saved
+
+
+def _restore_env(saved: dict[str, str | None]) -> None:
+    """Put environment variables back as ``_dry_run_credentials`` found them."""
+    for key, value in saved.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
 
 
 def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str, password_env: str) -> int:
@@ -438,11 +443,7 @@ def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str,
         result = run_fake_sdk_episode(args.agent, episode, seed=args.seed, backend_config=config,
                                       on_connected=connected)
     finally:
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
+        _restore_env(saved)
     print("[spot] shut down: stopped, stowed, sat, powered off, lease returned; fake Spot stopped")
     outcome = {"fake": True, **result.as_dict()}
     (run_dir / "outcome.json").write_text(json.dumps(outcome, indent=2, default=str))
