@@ -39,9 +39,7 @@ def backproject(obs: Observation, mask: np.ndarray | None = None, stride: int = 
         sub[::stride, ::stride] = True
         valid &= sub
     v, u = np.nonzero(valid)
-    z = depth[v, u].astype(float)
-    k = obs.intrinsics
-    pc = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z], axis=1)
+    pc = obs.intrinsics.backproject(u, v, depth[v, u]).reshape(-1, 3)
     return pc @ obs.T_world_cam[:3, :3].T + obs.T_world_cam[:3, 3]
 
 

@@ -209,9 +209,7 @@ class HeliosAgent:
         v, u = np.nonzero(obs.depth > 0)
         if not len(v):
             return obs
-        z = obs.depth[v, u].astype(float)
-        k = obs.intrinsics
-        pc = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z], axis=1)
+        pc = obs.intrinsics.backproject(u, v, obs.depth[v, u])
         T = np.linalg.inv(obs.T_world_body) @ obs.T_world_cam
         pb = pc @ T[:3, :3].T + T[:3, 3]
         own = (pb[:, 0] > x0 - m) & (pb[:, 0] < x1 + m) & (pb[:, 1] > y0 - m) & (pb[:, 1] < y1 + m) & \
@@ -736,13 +734,9 @@ class HeliosAgent:
         approach pose is only reached within a goal radius and the object's visible surface may sit
         behind its centre). True if the robot moved (the caller looks again)."""
         reach = self.config.reach
-        u, v = pixel
-        mask = np.zeros(obs.depth.shape, dtype=bool)
-        mask[v, u] = True
-        pts = backproject(obs, mask)
-        if not len(pts):
+        point = obs.point_at_pixel(*pixel, window=0)
+        if point is None:
             return False
-        point = pts[0]
         _, comfortable = reach_distances(float(point[2]), reach)
         d = np.asarray(point[:2]) - self._xy()
         dist = float(np.linalg.norm(d))
