@@ -53,7 +53,7 @@ from typing import Iterable, Iterator, Mapping, Sequence
 import numpy as np
 
 from helios.perception.detection import Detection
-from robots.hal import CameraIntrinsics, Observation
+from robots.hal import CameraIntrinsics, CommandProxy, Observation
 from robots.transforms import look_at_camera
 
 DEFAULT_FRAMES = 300
@@ -338,7 +338,7 @@ class _EnoughFrames(Exception):
     """Stops the recording episode once it has the frames it needs."""
 
 
-class _RecordingBackend:
+class _RecordingBackend(CommandProxy):
     """A HAL backend wrapper that runs the simulated detector and scorer on every observation the
     agent takes, and on one more frame after every other command (as a camera streaming during
     the episode would), and keeps ``(Observation, detections, scores)``."""
@@ -364,16 +364,13 @@ class _RecordingBackend:
             raise _EnoughFrames()
         return obs
 
-    def __getattr__(self, name):
-        attr = getattr(self._backend, name)
-        if not callable(attr) or name.startswith("_") or name in ("close",):
-            return attr
+    def _command(self, name: str, *args, **kwargs):
+        result = getattr(self._backend, name)(*args, **kwargs)
+        self.observe()                    # a streaming camera: one more frame after every command
+        return result
 
-        def command(*args, **kwargs):     # a streaming camera: one more frame after every command
-            result = attr(*args, **kwargs)
-            self.observe()
-            return result
-        return command
+    def __getattr__(self, name):
+        return getattr(self._backend, name)
 
 
 def sim_frames(n_frames: int, episode_index: int = 0,
