@@ -131,7 +131,10 @@ def prepare_run_folder(out: Path, config: TrialConfig) -> dict[str, dict]:
     """Create or reopen a run folder; returns the episodes already finished (by id).
 
     Reopening checks the saved config is the same (results of different configs never mix) and
-    drops a torn last line left by a kill in the middle of a write.
+    drops a torn last line left by a kill in the middle of a write. The one allowed difference is
+    a larger ``episodes``: episodes are a prefix of the split and each one's seed depends only on
+    (seed, episode id), so a 100-episode run extended to 200 gives exactly the numbers of a fresh
+    200-episode run; config.yaml is then rewritten with the new count.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -140,8 +143,15 @@ def prepare_run_folder(out: Path, config: TrialConfig) -> dict[str, dict]:
         _, saved_cfg = read_run_config(out)
         if saved_cfg != config:
             diff = [k for k, v in to_dict(config).items() if to_dict(saved_cfg).get(k) != v]
-            raise RunFolderError(f"run folder {str(out)!r} holds results of a different configuration "
-                                 f"(differs in: {', '.join(diff)}); use another --out to start a new run")
+            if diff == ["episodes"] and config.episodes > saved_cfg.episodes:
+                _write_atomic(cfg_path, _config_text(config))
+            elif diff == ["episodes"]:
+                raise RunFolderError(f"run folder {str(out)!r} holds a run of {saved_cfg.episodes} episodes; "
+                                     f"a run can be extended but not shortened (asked for {config.episodes}); "
+                                     f"use another --out, or `tools report` to look at part of a run")
+            else:
+                raise RunFolderError(f"run folder {str(out)!r} holds results of a different configuration "
+                                     f"(differs in: {', '.join(diff)}); use another --out to start a new run")
     else:
         _write_atomic(cfg_path, _config_text(config))
     return read_results(out / "episodes.jsonl", repair=True)

@@ -90,6 +90,24 @@ def test_a_run_folder_refuses_a_different_config(tmp_path):
     assert read_results(tmp_path / "episodes.jsonl") == {}
 
 
+def test_a_run_can_be_extended_to_more_episodes_but_not_shortened(tmp_path):
+    from tasks.trials import read_run_config
+
+    episodes = load_split("smoke")[:2]
+    first = run_batch(TrialConfig(agent="oracle", split="smoke", episodes=1), episodes[:1], tmp_path)
+    extended = run_batch(TrialConfig(agent="oracle", split="smoke", episodes=2), episodes, tmp_path)
+    assert read_run_config(tmp_path)[1].episodes == 2
+    assert [r["episode_id"] for r in extended] == [e.episode_id for e in episodes]
+    assert extended[0] == first[0]          # the finished episode was kept, not re-run
+    fresh = run_batch(TrialConfig(agent="oracle", split="smoke", episodes=2), episodes, tmp_path / "fresh")
+    strip = lambda r: {k: v for k, v in r.items() if k not in ("wall_time", "memory")}
+    assert [strip(r) for r in extended] == [strip(r) for r in fresh]
+    with pytest.raises(RunFolderError, match="extended but not shortened"):
+        prepare_run_folder(tmp_path, TrialConfig(agent="oracle", split="smoke", episodes=1))
+    with pytest.raises(RunFolderError, match="differs in: episodes, seed"):
+        prepare_run_folder(tmp_path, TrialConfig(agent="oracle", split="smoke", episodes=3, seed=1))
+
+
 @pytest.mark.slow
 def test_oracle_reaches_90_percent_on_the_smoke_split(tmp_path):
     records = run_batch(TrialConfig(agent="oracle", split="smoke", episodes=20), load_split("smoke"), tmp_path)
