@@ -152,3 +152,14 @@ def test_cli_trials_and_episodes_commands(tmp_path):
     assert proc.returncode == 0 and len(out.read_text().splitlines()) == 2
     proc = _cli("episodes", "check", str(out))
     assert "2 valid episodes" in proc.stdout
+
+
+def test_every_command_help_describes_it_in_whole_sentences():
+    from tools.cli import COMMANDS, build_parser
+
+    parser = build_parser()
+    subparsers = next(a for a in parser._actions if a.dest == "command").choices
+    assert set(subparsers) == set(COMMANDS)
+    for name, p in subparsers.items():
+        assert p.description and p.description.rstrip().endswith((".", ")")), (name, p.description)
+        assert "\n" not in p.description

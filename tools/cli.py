@@ -48,13 +48,18 @@ class CliError(Exception):
     """A command-line usage problem detected after argument parsing."""
 
 
+def _summary(doc: str) -> str:
+    """A module docstring's first paragraph as one line (a sentence can wrap over lines)."""
+    return " ".join(doc.strip().split("\n\n")[0].split())
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="helios", description="HELIOS testbed command line.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name, (module, help_) in COMMANDS.items():
         mod = importlib.import_module(module)
-        p = sub.add_parser(name, help=help_, description=(mod.__doc__ or help_).strip().splitlines()[0])
+        p = sub.add_parser(name, help=help_, description=_summary(mod.__doc__ or help_))
         mod.add_arguments(p)
         p.set_defaults(_module=module)
     return parser
