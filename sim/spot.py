@@ -161,20 +161,17 @@ class SpotBody:
         """
         c = self.world.client
         lo, hi = self._robot_aabb()
-        lo -= margin + 0.01
-        hi += margin + 0.01
+        pad = margin + 0.01
+        lo = [v - pad for v in lo]
+        hi = [v + pad for v in hi]
         hits: list[tuple[str, int]] = []
         skip = set(exclude_bodies) | {self.id}
         for info in self.world.bodies.values():
             if info.body_id in skip or info.kind == GROUND:
                 continue
-            blo, bhi = self.world.aabb(info.body_id)
-            n_links = c.getNumJoints(info.body_id)
-            if n_links:
-                for link in range(n_links):
-                    llo, lhi = self.world.aabb(info.body_id, link)
-                    blo, bhi = np.minimum(blo, llo), np.maximum(bhi, lhi)
-            if np.any(bhi < lo) or np.any(blo > hi):
+            blo, bhi = self.world.body_aabb(info.body_id)
+            if (bhi[0] < lo[0] or bhi[1] < lo[1] or bhi[2] < lo[2]
+                    or blo[0] > hi[0] or blo[1] > hi[1] or blo[2] > hi[2]):
                 continue
             for pt in c.getClosestPoints(self.id, info.body_id, distance=margin):
                 link_name = self.link_name.get(pt[3], str(pt[3]))
@@ -183,10 +180,12 @@ class SpotBody:
                 hits.append((link_name, info.body_id))
         return hits
 
-    def _robot_aabb(self) -> tuple[np.ndarray, np.ndarray]:
-        lo, hi = self.world.aabb(self.id, -1)
+    def _robot_aabb(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        get_aabb = self.world.client.getAABB
+        lo, hi = get_aabb(self.id, -1)
         for idx in self.link_name:
             if idx >= 0:
-                llo, lhi = self.world.aabb(self.id, idx)
-                lo, hi = np.minimum(lo, llo), np.maximum(hi, lhi)
+                llo, lhi = get_aabb(self.id, idx)
+                lo = tuple(map(min, lo, llo))
+                hi = tuple(map(max, hi, lhi))
         return lo, hi

@@ -164,3 +164,30 @@ def test_same_seed_gives_bit_identical_object_poses():
     assert a.object_poses == b.object_poses            # exact float equality, every object
     assert a.sim_time == b.sim_time
     assert a.object_poses != c.object_poses
+
+
+def test_body_aabbs_are_cached_for_fixed_bodies_and_follow_moving_ones(world):
+    table = assets.add_table(world, "table", (0.0, 0.0), height=0.5)
+    cube = assets.add_box_object(world, "cube", (0.0, 0.0, 0.8), half_extents=(0.025, 0.025, 0.025))
+    fresh = lambda b: tuple(tuple(map(float, v)) for v in world.aabb(b))
+    assert world.body_aabb(table) == fresh(table)
+    assert table in world._static_aabbs and cube not in world._static_aabbs
+    top_before = world.body_aabb(cube)[1][2]
+    world.settle([cube], max_time=1.0)
+    assert world.body_aabb(cube) == fresh(cube)          # the falling cube's box moved with it
+    assert world.body_aabb(cube)[1][2] < top_before - 0.2
+    # a visual call is still logged on every use once its bound call is cached
+    n = len(world.visual_log)
+    for _ in range(2):
+        world.client.changeVisualShape(cube, -1, rgbaColor=[1, 0, 0, 1])
+    assert len(world.visual_log) == n + 2
+
+
+def test_contact_check_sees_a_box_beside_the_robot_and_not_one_farther_away(world):
+    near = assets.add_box_object(world, "near", (0.45, 0.0, 0.3), half_extents=(0.05, 0.3, 0.3))
+    assets.add_box_object(world, "far", (2.0, 0.0, 0.3), half_extents=(0.05, 0.3, 0.3))
+    spot = SpotBody(world, SE2Pose(0.0, 0.0, 0.0))
+    assert {body for _, body in spot.touching()} == {near}
+    assert spot.touching(exclude_bodies=[near]) == []
+    spot.set_base_pose(SE2Pose(-1.0, 0.0, 0.0))
+    assert spot.touching() == []
