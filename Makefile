@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 ARGS   ?=
 
-.PHONY: setup run demo test test-all bench lint clean
+.PHONY: setup run demo compare test test-all bench lint clean
 
 setup: $(STAMP)
 
@@ -22,6 +22,17 @@ run: setup
 # Scripted single pick-and-place in a two-table scene with a rerun recording.
 demo: setup
 	$(PY) -m tools demo --out runs/demo $(ARGS)
+
+# The paper's ablation tables on val: each agent and its -gt twin on the first N episodes (seed 0,
+# 2 workers; resumable, and a larger N extends the runs), then one report on the episodes all
+# runs share. About half an hour per agent for N=200 on the 2-core machine (4 h for all 8).
+COMPARE ?= helios helios-no-global trusting helios-5050 helios-gt helios-no-global-gt trusting-gt helios-5050-gt
+N ?= 200
+compare: setup
+	for a in $(COMPARE); do \
+	  $(PY) -m tools trials --agent $$a --split val --episodes $(N) --seed 0 --workers 2 --out runs/val/$$a --progress lines || exit 1; \
+	done
+	$(PY) -m tools report $(addprefix runs/val/,$(COMPARE)) --common --out runs/val/report
 
 # Fast test suite (what CI runs): headless, deterministic, under 5 minutes on 2 cores.
 test: setup
