@@ -265,6 +265,11 @@ class SearchConfig:
     """F0 used before any frontier has been chosen (nothing to calibrate it with yet)."""
     min_frontier_value: float = 1e-3
     """Chosen frontiers whose value-map score was below this are left out of the F0 average."""
+    frontier_calibration: Literal["all_candidates", "open_candidates"] = "all_candidates"
+    """Which candidates' stored (S0, IG0) the max in V0(f') runs over: every candidate ever seen,
+    or only those still in A (not yet searched); with no open candidate both use every one.
+    The paper's A loses a candidate once it is searched, but IG is summed over Gaussians, so
+    with "all_candidates" the largest instance ever seen sets F0 for the rest of the episode."""
     information_gain: Literal["optimistic", "fifty_fifty"] = "optimistic"
     """*paper* Measurement assumption of IG: every hypothetical view labels the candidate as the
     searched class (HELIOS), or 50 % that class / 50 % background (the ablation)."""
@@ -274,6 +279,8 @@ class SearchConfig:
         _require(0 <= self.cs_start_receptacle <= 1, "cs_start_receptacle must be in [0, 1]")
         _require(self.distance_unit in ("cells", "metres"), "distance_unit must be 'cells' or 'metres'")
         _require(self.initial_frontier_ratio > 0, "initial_frontier_ratio must be > 0")
+        _require(self.frontier_calibration in ("all_candidates", "open_candidates"),
+                 "frontier_calibration must be 'all_candidates' or 'open_candidates'")
         _require(self.information_gain in ("optimistic", "fifty_fifty"),
                  "information_gain must be 'optimistic' or 'fifty_fifty'")
 

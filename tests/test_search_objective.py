@@ -171,3 +171,24 @@ def test_search_config_validation():
         with pytest.raises(ValueError):
             SearchConfig(**bad)
     assert dataclasses.replace(SearchConfig(), alpha_d=0.0).alpha_d == 0.0
+
+
+def test_open_candidates_calibration_scales_frontiers_to_the_candidates_still_in_A():
+    """A big searched candidate (S0 IG0 = 1 * 9000) no longer sets F0 once it has left A: with
+    one small open candidate (S0 IG0 = 1 * 200) and a chosen frontier of value 0.25 at both
+    centres, F0 = 9000 / 0.25 = 36000 over all candidates but 200 / 0.25 = 800 over the open
+    one, and a 0.2 frontier then loses to the open candidate (160 < 200) instead of beating it
+    7200 to 200."""
+    big, small = cand(1, (0.0, 0.0), 1.0, 9000.0), cand(2, (0.0, 0.0), 1.0, 200.0)
+    frontier = front((0.0, 0.0), 0.2, key=7)
+    results = {}
+    for mode in ("all_candidates", "open_candidates"):
+        obj = objective(frontier_calibration=mode)
+        obj.remember([big, small])
+        obj.note_frontier_chosen(front((0.0, 0.0), 0.25))
+        results[mode] = (obj.frontier_ratio([2]), obj.choose((0.0, 0.0), [small], [frontier]).kind)
+        assert obj.frontier_ratio([]) == pytest.approx(36000.0)     # no open candidate: all of them
+    assert results["all_candidates"] == (pytest.approx(36000.0), "frontier")
+    assert results["open_candidates"] == (pytest.approx(800.0), "candidate")
+    with pytest.raises(Exception, match="frontier_calibration"):
+        SearchConfig(frontier_calibration="latest")

@@ -17,6 +17,14 @@ distances in cells, so cells is the reading that gives the distance term any wei
 IG summed over an instance's Gaussians (hundreds of nats), 0.001 per *metre* would make distance
 irrelevant, while 0.001 per cell costs 0.4 per 10 m. ``SearchConfig.distance_unit`` switches.
 
+Which candidates V0 maximises over is a reading of the paper's A: by default every candidate ever
+seen (its S0, IG0 are stored "the first time each a_i is detected"); ``frontier_calibration =
+"open_candidates"`` uses only those not yet searched. Because IG is summed over an instance's
+Gaussians, S0 IG0 spans orders of magnitude (a whole table ~9000, a fragment seen from afar ~30),
+and under the default the largest instance ever seen fixes F0 for the rest of the episode: on
+val-00004 F0 ~ 35000 made every frontier worth ~5000-25000 against open candidates of 33 and 222.
+On 30 train episodes the two readings gave the same FindObj (17 of 30 each) and SR 5 vs 4.
+
 Before any frontier has been chosen there is nothing to calibrate F0 with; we then use
 ``initial_frontier_ratio`` (1 by default: raw value-map scores, i.e. any candidate with positive
 information gain outranks frontiers, which is the behaviour the paper describes for the start).
@@ -105,16 +113,20 @@ class GlobalObjective:
     def note_frontier_chosen(self, frontier: FrontierOption) -> None:
         self.chosen_frontiers.append((np.asarray(frontier.xy, dtype=float)[:2].copy(), float(frontier.value)))
 
-    def frontier_ratio(self) -> float:
-        """F0: mean of V0(f') / F0(f') over previously chosen frontiers (see module doc)."""
+    def frontier_ratio(self, open_ids: Sequence[int] = ()) -> float:
+        """F0: mean of V0(f') / F0(f') over previously chosen frontiers (see module doc).
+        ``open_ids``: the candidates still in A, used for V0 under ``frontier_calibration =
+        "open_candidates"``."""
         if not self.initial:
             return self.config.initial_frontier_ratio
+        pool = list(self.initial.values())
+        if self.config.frontier_calibration == "open_candidates":
+            pool = [self.initial[i] for i in open_ids if i in self.initial] or pool
         ratios = []
         for xy, f0 in self.chosen_frontiers:
             if f0 <= self.config.min_frontier_value:
                 continue      # a zero-valued frontier says nothing about the scale
-            v0 = max(i.score * i.info_gain - self.config.alpha_d * self.distance(i.centre, xy)
-                     for i in self.initial.values())
+            v0 = max(i.score * i.info_gain - self.config.alpha_d * self.distance(i.centre, xy) for i in pool)
             ratios.append(v0 / f0)
         return float(np.mean(ratios)) if ratios else self.config.initial_frontier_ratio
 
@@ -137,7 +149,7 @@ class GlobalObjective:
                                self.candidate_value(c, robot_xy)) for c in candidates]
         if self.mode == "prefer_candidates" and options:
             return max(options, key=lambda o: o.value)
-        ratio = self.frontier_ratio()
+        ratio = self.frontier_ratio([c.instance_id for c in candidates])
         options += [Choice("frontier", f.key, np.asarray(f.xy, dtype=float)[:2], self.frontier_value(f, robot_xy, ratio))
                     for f in frontiers]
         if not options:
