@@ -85,3 +85,24 @@ def test_report_common_compares_runs_on_the_episodes_they_share(tmp_path):
     assert any("the 4 episode(s) all runs finished" in w for w in shared["warnings"])
     assert "| long | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 |" in shared["markdown"]
     assert "| short | 0.0 ± 0.0 |" in shared["markdown"]
+
+
+def test_sign_test_matches_the_binomial_tails_by_hand():
+    from tools.report import sign_test_p
+
+    assert sign_test_p(0, 0) == 1.0
+    assert sign_test_p(3, 3) == 1.0
+    assert sign_test_p(5, 0) == pytest.approx(2 / 32)                 # 2 * 0.5^5
+    assert sign_test_p(1, 14) == pytest.approx(2 * 16 / 2 ** 15)      # 2 * (C(15,0) + C(15,1)) / 2^15
+    assert sign_test_p(2, 9) == sign_test_p(9, 2)
+
+
+def test_report_pairs_each_run_with_the_first_episode_by_episode(tmp_path):
+    # episodes 0-3: both succeed; 4-5: only b finds the object; 6: only a succeeds; 7-9: both fail
+    a = _make_run(tmp_path / "a", [(5, None)] * 4 + [(0, "not_found")] * 2 + [(5, None)] + [(0, "not_found")] * 3)
+    b = _make_run(tmp_path / "b", [(5, None)] * 4 + [(1, "pick_failed")] * 2 + [(0, "not_found")] * 4)
+    result = make_report([a, b], tmp_path / "rep", common=True)
+    row = "| b | a | 10 | +2 -1 (p=1.00) | +0 -1 (p=1.00) | +0 -1 (p=1.00) | +0 -1 (p=1.00) | +0 -1 (p=1.00) |"
+    assert row in result["markdown"]
+    assert "Paired with a" in result["text"]
+    assert "Paired with" not in make_report([a], tmp_path / "one")["text"]

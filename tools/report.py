@@ -14,6 +14,7 @@ import argparse
 import base64
 import html
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -100,6 +101,40 @@ def failure_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     used = [k for k in FAILURE_REASONS if any(r.summary["failure_reasons"][k] for r in runs)]
     headers = ["run", "success"] + used
     rows = [[r.name, r.summary["SR"]["count"]] + [r.summary["failure_reasons"][k] for k in used] for r in runs]
+    return headers, rows
+
+
+_PHASE_KEYS = dict(zip(PHASES, ("find_obj", "pick", "find_rec", "place", "success")))
+
+
+def sign_test_p(wins: int, losses: int) -> float:
+    """Exact two-sided sign test (McNemar's exact test) on the discordant episodes: the chance of a
+    split at least this uneven if either run were equally likely to win each one."""
+    n = wins + losses
+    if n == 0:
+        return 1.0
+    k = min(wins, losses)
+    tail = sum(math.comb(n, i) for i in range(k + 1)) / 2 ** n
+    return min(1.0, 2 * tail)
+
+
+def paired_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
+    """Each run against the first on the same episodes: per phase, the episodes only this run
+    passed / only the first passed, and the sign-test p-value. Ablations that differ by a few
+    points are often the same agent on most episodes; this says how many episodes actually differ."""
+    ref = {r["episode_id"]: r["metrics"] for r in runs[0].records if r.get("metrics")}
+    headers = ["run", "vs", "episodes"] + list(PHASES)
+    rows = []
+    for run in runs[1:]:
+        mine = {r["episode_id"]: r["metrics"] for r in run.records if r.get("metrics")}
+        shared = sorted(set(ref) & set(mine))
+        cells = []
+        for phase in PHASES:
+            key = _PHASE_KEYS[phase]
+            wins = sum(bool(mine[e][key]) and not ref[e][key] for e in shared)
+            losses = sum(bool(ref[e][key]) and not mine[e][key] for e in shared)
+            cells.append(f"+{wins} -{losses} (p={sign_test_p(wins, losses):.2f})")
+        rows.append([run.name, runs[0].name, len(shared)] + cells)
     return headers, rows
 
 
@@ -313,11 +348,14 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     headers, rows = metrics_rows(runs)
     d_headers, d_rows = detail_rows(runs)
     f_headers, f_rows = failure_rows(runs)
-    text = "\n\n".join([format_table(headers, rows, title="Percent of episodes ± standard error"),
-                        format_table(d_headers, d_rows, title="Runs"),
-                        format_table(f_headers, f_rows, title="How episodes ended (counts)")])
-    markdown = "\n\n".join([format_markdown(headers, rows), format_markdown(d_headers, d_rows),
-                            format_markdown(f_headers, f_rows)])
+    tables = [("Percent of episodes ± standard error", headers, rows), ("Runs", d_headers, d_rows),
+              ("How episodes ended (counts)", f_headers, f_rows)]
+    if len(runs) > 1:
+        p_headers, p_rows = paired_rows(runs)
+        tables.append((f"Paired with {runs[0].name}: episodes only this run passed (+) / only "
+                       f"{runs[0].name} passed (-), exact sign test", p_headers, p_rows))
+    text = "\n\n".join(format_table(h, r, title=t) for t, h, r in tables)
+    markdown = "\n\n".join(format_markdown(h, r) for _, h, r in tables)
     (out / "table.txt").write_text(text + "\n")
     (out / "table.md").write_text(markdown + "\n")
     warnings = list(note)
@@ -329,8 +367,6 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
         for fname, fn in zip(FIGURES, (plot_subtasks, plot_failures, plot_memory)):
             fn(runs, out / fname, plt)
             figures.append(out / fname)
-    tables = [("Percent of episodes ± standard error", headers, rows), ("Runs", d_headers, d_rows),
-              ("How episodes ended (counts)", f_headers, f_rows)]
     write_html(out / "index.html", runs, tables, figures)
     (out / "report.json").write_text(json.dumps({r.name: {"path": str(r.path), "summary": r.summary} for r in runs},
                                                 indent=2, sort_keys=True))
