@@ -13,6 +13,7 @@ revoked, e-stop, lost connection, timeouts) raise a :class:`RobotFault` subclass
 
 from __future__ import annotations
 
+import abc
 import enum
 import math
 from dataclasses import dataclass, field
@@ -346,13 +347,18 @@ class RobotBackend(Protocol):
         """Release the robot (leases, connections, simulator) — safe to call twice."""
 
 
-class CommandProxy:
+class CommandProxy(abc.ABC):
     """Base of HAL wrappers (budget monitors, instrumentation) that route every command through
     one hook, ``_command(name, *args)``, so the list of HAL commands is written once. Subclasses
     implement ``_command`` and ``observe``."""
 
+    @abc.abstractmethod
     def _command(self, name: str, *args, **kwargs):
-        raise NotImplementedError(f"{type(self).__name__} must implement _command")
+        """Run HAL command ``name`` on the wrapped backend (and do the wrapper's own work)."""
+
+    @abc.abstractmethod
+    def observe(self) -> Observation:
+        """The wrapped backend's observation (wrappers usually record or check it)."""
 
     def navigate_to(self, goal: SE2Pose, via: Sequence[SE2Pose] = ()):
         return self._command("navigate_to", goal, via)

@@ -160,7 +160,7 @@ class SpotBody:
         base motion can be checked pose by pose. The floor and excluded bodies/links are ignored.
         """
         c = self.world.client
-        lo, hi = self._robot_aabb()
+        lo, hi = self.world.body_aabb(self.id)     # base and every link (never cached: it has joints)
         pad = margin + 0.01
         lo = [v - pad for v in lo]
         hi = [v + pad for v in hi]
@@ -179,13 +179,3 @@ class SpotBody:
                     continue
                 hits.append((link_name, info.body_id))
         return hits
-
-    def _robot_aabb(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        get_aabb = self.world.client.getAABB
-        lo, hi = get_aabb(self.id, -1)
-        for idx in self.link_name:
-            if idx >= 0:
-                llo, lhi = get_aabb(self.id, idx)
-                lo = tuple(map(min, lo, llo))
-                hi = tuple(map(max, hi, lhi))
-        return lo, hi

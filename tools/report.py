@@ -104,9 +104,6 @@ def failure_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     return headers, rows
 
 
-_PHASE_KEYS = dict(zip(PHASES, ("find_obj", "pick", "find_rec", "place", "success")))
-
-
 def sign_test_p(wins: int, losses: int) -> float:
     """Exact two-sided sign test (McNemar's exact test) on the discordant episodes: the chance of a
     split at least this uneven if either run were equally likely to win each one."""
@@ -122,6 +119,8 @@ def paired_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     """Each run against the first on the same episodes: per phase, the episodes only this run
     passed / only the first passed, and the sign-test p-value. Ablations that differ by a few
     points are often the same agent on most episodes; this says how many episodes actually differ."""
+    from tasks.trials import METRIC_KEYS
+
     ref = {r["episode_id"]: r["metrics"] for r in runs[0].records if r.get("metrics")}
     headers = ["run", "vs", "episodes"] + list(PHASES)
     rows = []
@@ -129,8 +128,7 @@ def paired_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
         mine = {r["episode_id"]: r["metrics"] for r in run.records if r.get("metrics")}
         shared = sorted(set(ref) & set(mine))
         cells = []
-        for phase in PHASES:
-            key = _PHASE_KEYS[phase]
+        for key in METRIC_KEYS:        # the order of PHASES
             wins = sum(bool(mine[e][key]) and not ref[e][key] for e in shared)
             losses = sum(bool(ref[e][key]) and not mine[e][key] for e in shared)
             cells.append(f"+{wins} -{losses} (p={sign_test_p(wins, losses):.2f})")
