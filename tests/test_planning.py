@@ -464,6 +464,73 @@ def test_footprint_turns_segments_and_clear_under():
     assert ch.clear_under(SE2Pose(0.0, 2.0, 0.0)) is ch      # nothing underfoot: the same checker
 
 
+def _low_box_behind_left() -> Scene:
+    """A low box 0.6 m behind-left of a robot at the origin facing +x: turning clockwise towards
+    -170 degrees swings the rear corners (0.65 m out) into it; counter-clockwise they swing
+    round the other side and the front (0.55 m out) passes inside it."""
+    a = math.radians(135)
+    cx, cy = 0.65 * math.cos(a), 0.65 * math.sin(a)
+    return Scene().box(cx - 0.05, cx + 0.05, cy - 0.05, cy + 0.05, h=0.3)
+
+
+def test_sweep_free_is_signed():
+    ch = _low_box_behind_left().checker()
+    target = -(math.pi - 0.3)
+    assert ch.poses_free([(0.0, 0.0, 0.0), (0.0, 0.0, target)]).all()
+    assert not ch.turn_free(0.0, 0.0, 0.0, target)                     # the short way (clockwise)
+    assert not ch.sweep_free(0.0, 0.0, 0.0, target)
+    assert ch.sweep_free(0.0, 0.0, 0.0, target + 2 * math.pi)           # the long way round
+    assert ch.turn_free(0.0, 0.0, 0.0, target) == ch.sweep_free(0.0, 0.0, 0.0, math.remainder(target, 2 * math.pi))
+
+
+def _turn_waypoints_followable(start: SE2Pose, result: PlanResult) -> None:
+    """A robot turns the short way to each waypoint's heading: consecutive waypoint headings must
+    differ by less than half a turn, so it turns the way the planner checked."""
+    yaws = [start.yaw] + [w.yaw for w in result.waypoints]
+    for a, b in zip(yaws[:-1], yaws[1:]):
+        assert abs(wrap_angle(b - a)) <= CFG.rotate_max + 1e-9 or abs(wrap_angle(b - a)) < math.pi / 2
+
+
+def test_final_turn_goes_the_long_way_round_when_the_short_way_is_blocked():
+    s = _low_box_behind_left()
+    start, target = SE2Pose(0.0, 0.0, 0.0), -(math.pi - 0.3)
+    r = s.plan(start, (0.0, 0.0), goal_radius=0.0, goal_yaw=target)
+    assert r.success and not r.final_turn_blocked
+    assert all(a.kind == "rotate" for a in r.actions)
+    assert sum(a.amount for a in r.actions) == pytest.approx(target + 2 * math.pi)   # +190 degrees
+    assert all(0 < a.amount <= CFG.rotate_max + 1e-9 for a in r.actions)
+    assert r.waypoints[-1].yaw == pytest.approx(target)
+    assert len(r.waypoints) == len(r.actions)               # one waypoint per step of the long turn
+    _turn_waypoints_followable(start, r)
+    assert_replay_free(s, start, r)
+    # the mirror box behind-right blocks the long way too: a clear "cannot face that way"
+    a = math.radians(-135)
+    cx, cy = 0.65 * math.cos(a), 0.65 * math.sin(a)
+    s.box(cx - 0.05, cx + 0.05, cy - 0.05, cy + 0.05, h=0.3)
+    assert s.checker().poses_free([(0.0, 0.0, 0.0), (0.0, 0.0, target)]).all()
+    blocked = s.plan(start, (0.0, 0.0), goal_radius=0.0, goal_yaw=target)
+    assert blocked.success and blocked.final_turn_blocked and not blocked.actions
+
+
+def test_path_turn_goes_the_long_way_round_when_it_cannot_shuffle():
+    class NoShuffle(FMMPlanner):
+        def _shuffle(self, *args, **kw):
+            return None
+    s = _low_box_behind_left()
+    start = SE2Pose(0.0, 0.0, 0.0)
+    goal = (-2.0 * math.cos(math.radians(10)), -2.0 * math.sin(math.radians(10)))   # behind, slightly right
+    r = s.plan(start, goal, planner=NoShuffle(CFG), horizon=100.0)
+    assert r.success and r.reaches_goal
+    first_turn = []
+    for a in r.actions:
+        if a.kind != "rotate":
+            break
+        first_turn.append(a.amount)
+    assert sum(first_turn) > math.pi / 2                    # counter-clockwise, though the goal is clockwise
+    _turn_waypoints_followable(start, r)
+    assert_replay_free(s, start, r)
+
+
 def test_footprint_config_validation():
     with pytest.raises(ValueError):
         FootprintConfig(body=(0.4, -0.5, -0.2, 0.2))

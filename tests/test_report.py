@@ -97,6 +97,15 @@ def test_sign_test_matches_the_binomial_tails_by_hand():
     assert sign_test_p(2, 9) == sign_test_p(9, 2)
 
 
+def test_p_values_below_one_percent_are_not_printed_as_zero():
+    from tools.report import _p_text
+
+    assert _p_text(0.0004) == "p<0.01"
+    assert _p_text(0.0049) == "p<0.01"
+    assert _p_text(0.0051) == "p=0.01"
+    assert _p_text(0.56) == "p=0.56"
+
+
 def test_report_pairs_each_run_with_the_first_episode_by_episode(tmp_path):
     # episodes 0-3: both succeed; 4-5: only b finds the object; 6: only a succeeds; 7-9: both fail
     a = _make_run(tmp_path / "a", [(5, None)] * 4 + [(0, "not_found")] * 2 + [(5, None)] + [(0, "not_found")] * 3)

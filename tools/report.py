@@ -115,6 +115,11 @@ def sign_test_p(wins: int, losses: int) -> float:
     return min(1.0, 2 * tail)
 
 
+def _p_text(p: float) -> str:
+    """Two decimals, except below 0.01 (where "p=0.00" would read as impossible)."""
+    return "p<0.01" if p < 0.005 else f"p={p:.2f}"
+
+
 def paired_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     """Each run against the first on the same episodes: per phase, the episodes only this run
     passed / only the first passed, and the sign-test p-value. Ablations that differ by a few
@@ -131,7 +136,7 @@ def paired_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
         for key in METRIC_KEYS:        # the order of PHASES
             wins = sum(bool(mine[e][key]) and not ref[e][key] for e in shared)
             losses = sum(bool(ref[e][key]) and not mine[e][key] for e in shared)
-            cells.append(f"+{wins} -{losses} (p={sign_test_p(wins, losses):.2f})")
+            cells.append(f"+{wins} -{losses} ({_p_text(sign_test_p(wins, losses))})")
         rows.append([run.name, runs[0].name, len(shared)] + cells)
     return headers, rows
 

@@ -251,16 +251,20 @@ class FMMPlanner:
             heading = math.atan2(ty - y, tx - x)
             turn = float(wrap_angle(heading - yaw))
             if abs(turn) >= cfg.rotate_min:
+                long_way = False
                 if not checker.turn_free(x, y, yaw, heading):
                     shifted = self._shuffle(checker, x, y, yaw, (tx, ty), actions, waypoints)
-                    if shifted is None:
+                    if shifted is not None:
+                        x, y = shifted
+                        heading = math.atan2(ty - y, tx - x)
+                        turn = float(wrap_angle(heading - yaw))
+                        dist = math.hypot(tx - x, ty - y)
+                    elif checker.sweep_free(x, y, yaw, _other_way(turn)):
+                        turn, long_way = _other_way(turn), True
+                    else:
                         blocked = True
                         break
-                    x, y = shifted
-                    heading = math.atan2(ty - y, tx - x)
-                    turn = float(wrap_angle(heading - yaw))
-                    dist = math.hypot(tx - x, ty - y)
-                yaw = self._emit_turn(actions, waypoints, x, y, yaw, turn)
+                yaw = self._emit_turn(actions, waypoints, x, y, yaw, turn, long_way)
             else:
                 heading = yaw   # within 5 degrees: walk on at the current heading
             move = min(dist, cfg.forward_max)       # a shuffle may have put the point farther away
@@ -285,6 +289,8 @@ class FMMPlanner:
             if abs(turn) >= cfg.rotate_min:
                 if checker.turn_free(x, y, yaw, goal_yaw):
                     self._emit_turn(actions, waypoints, x, y, yaw, turn)
+                elif checker.sweep_free(x, y, yaw, _other_way(turn)):
+                    self._emit_turn(actions, waypoints, x, y, yaw, _other_way(turn), stepwise=True)
                 else:
                     turn_blocked = True    # at the goal, but cannot face the requested way
         return actions, waypoints, complete, blocked, turn_blocked
@@ -334,11 +340,16 @@ class FMMPlanner:
                 return nx, ny
         return None
 
-    def _emit_turn(self, actions, waypoints, x, y, yaw, turn) -> float:
+    def _emit_turn(self, actions, waypoints, x, y, yaw, turn, stepwise: bool = False) -> float:
+        """Rotate actions of at most ``rotate_max`` and a waypoint at the end. A robot turns the
+        short way to a waypoint's heading, so a turn the long way round (``stepwise``, when the
+        short way is blocked) gets a waypoint after every action."""
         cfg = self.config
         n = max(1, int(math.ceil(abs(turn) / cfg.rotate_max)))
-        for _ in range(n):
+        for k in range(1, n + 1):
             actions.append(Action("rotate", turn / n))
+            if stepwise and k < n:
+                waypoints.append(SE2Pose(x, y, float(wrap_angle(yaw + turn * k / n))))
         yaw = float(wrap_angle(yaw + turn))
         waypoints.append(SE2Pose(x, y, yaw))
         return yaw
@@ -355,6 +366,11 @@ class FMMPlanner:
             return dist
         first_bad = int(np.argmin(free))
         return float(t[first_bad - 1]) if first_bad > 0 else 0.0
+
+
+def _other_way(turn: float) -> float:
+    """The same change of heading, turning the other way round."""
+    return turn - math.copysign(2 * math.pi, turn)
 
 
 def _pool(grid: np.ndarray, f: int) -> np.ndarray:

@@ -107,9 +107,14 @@ class FootprintChecker:
         return bool(np.all(self.poses_free(poses)))
 
     def turn_free(self, x: float, y: float, yaw0: float, yaw1: float, step: float | None = None) -> bool:
-        """Turning in place from yaw0 to yaw1 (the short way) sweeps only free space; by default
-        headings are checked finely enough that the farthest footprint point moves half a cell."""
-        delta = math.remainder(yaw1 - yaw0, 2 * math.pi)
+        """Turning in place from yaw0 to yaw1 (the short way) sweeps only free space."""
+        return self.sweep_free(x, y, yaw0, math.remainder(yaw1 - yaw0, 2 * math.pi), step)
+
+    def sweep_free(self, x: float, y: float, yaw0: float, delta: float, step: float | None = None) -> bool:
+        """Turning in place from yaw0 by the signed angle ``delta`` (either way round, up to a
+        full turn) sweeps only free space: beside a cabinet the short way round can be blocked
+        while the long way is free. By default headings are checked finely enough that the
+        farthest footprint point moves half a cell."""
         if step is None:
             step = 0.5 * self.geometry.cell_size / self.radius
         n = max(2, int(abs(delta) / step) + 2)
