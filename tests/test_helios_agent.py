@@ -128,3 +128,39 @@ def test_variants_differ_only_in_flags():
     for agent in agents.values():
         agent.reset(ep.spec, rng)
         assert agent.phase == "start"
+
+
+def test_the_claw_and_held_object_are_blanked_from_the_depth_while_holding():
+    """The hand camera sees the claw and what it holds 5-12 cm away. While holding, returns closer
+    than the map's min_depth are blanked, so the place skill cannot take them for the receptacle's
+    top; without an object in the claw the frame is left as it is (grasp views may be close)."""
+    ep = _episode(E2E_EPISODE)
+    sim = SimEpisode.create(ep)
+    try:
+        agent = make_agent("helios", sim)
+        agent.reset(ep.spec, np.random.default_rng(0))
+        obs = sim.backend.observe()
+    finally:
+        sim.close()
+    depth = obs.depth.copy()
+    depth[:40, :40] = 0.08                          # the claw / a held object
+    depth[:40, -40:] = 0.5                          # something real, farther away
+    near_limit = agent.method.occupancy.min_depth
+    held = agent._without_self(replace(obs, depth=depth, holding=True))
+    assert np.all(held.depth[:40, :40] == 0.0)
+    assert np.all(held.depth[:40, -40:] == 0.5)
+    assert not np.any((held.depth > 0) & (held.depth < near_limit))
+    empty = agent._without_self(replace(obs, depth=depth, holding=False))
+    assert np.all(empty.depth[:40, :40] == np.float32(0.08))
+
+
+@pytest.mark.slow
+def test_place_lands_on_the_bed_not_where_the_claw_is():
+    """val-00105 with gt semantics: before the claw was blanked, the drop took the claw's own
+    points for the bed's top and let the jar go 0.26 m short of the bed (it fell to the floor)."""
+    ep = next(e for e in load_split("val") if e.episode_id == "val-00105")
+    result = run_sim_episode(lambda sim: make_agent("helios-gt", sim), ep, seed=0)
+    m = result.metrics
+    assert result.error is None, result.error
+    assert m.find_rec and m.place, m
+    assert m.released_on is not None and m.released_on.startswith("bed"), m

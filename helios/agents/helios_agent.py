@@ -203,7 +203,14 @@ class HeliosAgent:
     def _without_self(self, obs: Observation) -> Observation:
         """The frame with the robot's own legs and body blanked out of the depth (no return): the
         hand camera sees them when it looks down or sideways, and the map would turn them into
-        obstacles that box the robot in wherever it has stood."""
+        obstacles that box the robot in wherever it has stood. While the claw holds something,
+        the near field (closer than the map's ``min_depth``) is blanked too: it is the claw and
+        the held object, 5-12 cm from the lens, and the place skill would otherwise take them for
+        the highest point of the receptacle and let go where the object already is."""
+        if obs.holding:
+            near = (obs.depth > 0) & (obs.depth < self.method.occupancy.min_depth)
+            if near.any():
+                obs = replace(obs, depth=np.where(near, np.float32(0.0), obs.depth))
         x0, x1, y0, y1 = self.config.planner.footprint.body
         m = self.config.view.self_mask_margin
         v, u = np.nonzero(obs.depth > 0)
