@@ -23,9 +23,10 @@ run: setup
 demo: setup
 	$(PY) -m tools demo --out runs/demo $(ARGS)
 
-# The paper's ablation tables on val: each agent and its -gt twin on the first N episodes (seed 0,
-# 2 workers; resumable, and a larger N extends the runs), then one report on the episodes all
-# runs share. About half an hour per agent for N=200 on the 2-core machine (4 h for all 8).
+# The paper's ablation tables on val, plus the improved place: each agent and its -gt twin on the
+# first N episodes (seed 0, 2 workers; resumable, and a larger N extends the runs), then one
+# report on the episodes all runs share. About 20-30 min per agent for N=200 on the 2-core
+# machine (4-5 h for all 10).
 COMPARE ?= helios helios-no-global trusting helios-5050 helios-place helios-gt helios-no-global-gt trusting-gt helios-5050-gt helios-place-gt
 N ?= 200
 compare: setup

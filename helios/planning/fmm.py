@@ -259,8 +259,8 @@ class FMMPlanner:
                         heading = math.atan2(ty - y, tx - x)
                         turn = float(wrap_angle(heading - yaw))
                         dist = math.hypot(tx - x, ty - y)
-                    elif checker.sweep_free(x, y, yaw, _other_way(turn)):
-                        turn, long_way = _other_way(turn), True
+                    elif (other := _long_way(checker, x, y, yaw, turn)) is not None:
+                        turn, long_way = other, True
                     else:
                         blocked = True
                         break
@@ -289,8 +289,8 @@ class FMMPlanner:
             if abs(turn) >= cfg.rotate_min:
                 if checker.turn_free(x, y, yaw, goal_yaw):
                     self._emit_turn(actions, waypoints, x, y, yaw, turn)
-                elif checker.sweep_free(x, y, yaw, _other_way(turn)):
-                    self._emit_turn(actions, waypoints, x, y, yaw, _other_way(turn), stepwise=True)
+                elif (other := _long_way(checker, x, y, yaw, turn)) is not None:
+                    self._emit_turn(actions, waypoints, x, y, yaw, other, stepwise=True)
                 else:
                     turn_blocked = True    # at the goal, but cannot face the requested way
         return actions, waypoints, complete, blocked, turn_blocked
@@ -368,9 +368,10 @@ class FMMPlanner:
         return float(t[first_bad - 1]) if first_bad > 0 else 0.0
 
 
-def _other_way(turn: float) -> float:
-    """The same change of heading, turning the other way round."""
-    return turn - math.copysign(2 * math.pi, turn)
+def _long_way(checker: FootprintChecker, x: float, y: float, yaw: float, turn: float) -> float | None:
+    """The same change of heading turning the other way round, if that sweep is free; else None."""
+    other = turn - math.copysign(2 * math.pi, turn)
+    return other if checker.sweep_free(x, y, yaw, other) else None
 
 
 def _pool(grid: np.ndarray, f: int) -> np.ndarray:
