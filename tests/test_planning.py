@@ -540,3 +540,19 @@ def test_footprint_config_validation():
         PlannerConfig(forward_min=1.5, forward_max=1.0)
     with pytest.raises(ValueError):
         PlannerConfig(horizon=0.0)
+
+
+def test_footprint_at_the_grid_edge_only_hits_cells_on_the_grid():
+    """Footprint points off the grid are free (nothing is known there); an obstacle in the last
+    row of the grid under the footprint is still a hit, whichever side of the grid the robot is on."""
+    geometry = GridGeometry(0.025, 80, 0.0, 0.0)          # 2 m x 2 m, origin at (0, 0)
+    obstacle = np.zeros(geometry.shape, dtype=bool)
+    checker = FootprintChecker(FootprintConfig(), geometry, obstacle)
+    edge_poses = np.array([[0.1, 1.0, 0.0], [1.9, 1.0, math.pi], [1.0, 0.05, 0.3], [1.0, 1.95, -2.0]])
+    assert checker.poses_free(edge_poses).all()
+    for row, col, pose in [(40, 0, edge_poses[0]), (40, 79, edge_poses[1]), (0, 40, edge_poses[2]), (79, 40, edge_poses[3])]:
+        grid = obstacle.copy()
+        grid[row, col] = True
+        hit = FootprintChecker(FootprintConfig(), geometry, grid)
+        assert not hit.poses_free(pose[None])[0], (row, col)
+        assert hit.poses_free(np.array([[1.0, 1.0, 0.0]]))[0]     # the same cell is far from the middle

@@ -119,8 +119,10 @@ class FMMPlanner:
         origin = np.array([geometry.origin_x + c0 * geometry.cell_size, geometry.origin_y + r0 * geometry.cell_size])
 
         def to_cell(xy):
+            """(row, col) of the coarse cell holding a point, clipped to the window; arrays for (N, 2)."""
             c = np.floor((np.asarray(xy) - origin) / cell).astype(int)
-            return int(np.clip(c[1], 0, coarse_obs.shape[0] - 1)), int(np.clip(c[0], 0, coarse_obs.shape[1] - 1))
+            rows, cols = np.clip(c[..., 1], 0, coarse_obs.shape[0] - 1), np.clip(c[..., 0], 0, coarse_obs.shape[1] - 1)
+            return (int(rows), int(cols)) if c.ndim == 1 else (rows, cols)
 
         def to_world(rc):
             rc = np.asarray(rc, dtype=float)
@@ -402,9 +404,9 @@ def _descend(times: np.ndarray, start: tuple[int, int]) -> list[tuple[int, int]]
 
 
 def _line_in(mask: np.ndarray, to_cell, a, b) -> bool:
+    """Every point of the segment a-b, sampled every 2.5 cm, lies in ``mask`` (``to_cell`` takes
+    one point or an (N, 2) array)."""
     n = max(2, int(math.dist(a, b) / 0.025) + 1)
-    for t in np.linspace(0.0, 1.0, n):
-        r, c = to_cell((a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])))
-        if not mask[r, c]:
-            return False
-    return True
+    t = np.linspace(0.0, 1.0, n)
+    rows, cols = to_cell(np.stack([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])], axis=1))
+    return bool(mask[rows, cols].all())

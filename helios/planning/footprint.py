@@ -84,13 +84,14 @@ class FootprintChecker:
 
     def _hits(self, poses: np.ndarray, pts: np.ndarray, grid: np.ndarray) -> np.ndarray:
         c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
-        wx = poses[:, 0:1] + c * pts[None, :, 0] - s * pts[None, :, 1]
-        wy = poses[:, 1:2] + s * pts[None, :, 0] + c * pts[None, :, 1]
-        rows, cols = self.geometry.world_to_cell(np.stack([wx, wy], axis=-1))
-        inside = self.geometry.contains(rows, cols)
-        hit = np.zeros(rows.shape, dtype=bool)
-        hit[inside] = grid[rows[inside], cols[inside]]
-        return hit.any(axis=1)
+        g = self.geometry
+        # the same arithmetic as GridGeometry.world_to_cell, without stacking (P, N, 2) first
+        cols = np.floor((poses[:, 0:1] + c * pts[None, :, 0] - s * pts[None, :, 1] - g.origin_x) / g.cell_size)
+        rows = np.floor((poses[:, 1:2] + s * pts[None, :, 0] + c * pts[None, :, 1] - g.origin_y) / g.cell_size)
+        inside = (rows >= 0) & (rows < g.size) & (cols >= 0) & (cols < g.size)
+        rows = np.clip(rows, 0, g.size - 1).astype(np.intp)
+        cols = np.clip(cols, 0, g.size - 1).astype(np.intp)
+        return (grid[rows, cols] & inside).any(axis=1)
 
     def poses_free(self, poses) -> np.ndarray:
         """(M,) bool: each (x, y, yaw) pose's footprint overlaps no obstacle."""
