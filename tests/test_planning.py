@@ -543,8 +543,8 @@ def test_footprint_config_validation():
 
 
 def test_footprint_at_the_grid_edge_only_hits_cells_on_the_grid():
-    """Footprint points off the grid are free (nothing is known there); an obstacle in the last
-    row of the grid under the footprint is still a hit, whichever side of the grid the robot is on."""
+    """Footprint points off the grid are free (nothing is known there); an obstacle in the edge
+    row or column under the footprint is still a hit, whichever side of the grid the robot is on."""
     geometry = GridGeometry(0.025, 80, 0.0, 0.0)          # 2 m x 2 m, origin at (0, 0)
     obstacle = np.zeros(geometry.shape, dtype=bool)
     checker = FootprintChecker(FootprintConfig(), geometry, obstacle)

@@ -34,8 +34,13 @@ class GridGeometry:
     def world_to_cell(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(rows, cols) of the cells containing world points ``xy`` (..., 2); may be outside."""
         xy = np.asarray(xy, dtype=float)
-        cols = np.floor((xy[..., 0] - self.origin_x) / self.cell_size).astype(np.int64)
-        rows = np.floor((xy[..., 1] - self.origin_y) / self.cell_size).astype(np.int64)
+        return self.xy_to_cell(xy[..., 0], xy[..., 1])
+
+    def xy_to_cell(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``world_to_cell`` for x and y in separate arrays: spares large callers (footprint
+        checks of many poses) stacking them into one (..., 2) array first."""
+        cols = np.floor((np.asarray(x, dtype=float) - self.origin_x) / self.cell_size).astype(np.int64)
+        rows = np.floor((np.asarray(y, dtype=float) - self.origin_y) / self.cell_size).astype(np.int64)
         return rows, cols
 
     def cell_to_world(self, rows, cols) -> np.ndarray:

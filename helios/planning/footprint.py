@@ -64,7 +64,7 @@ class FootprintChecker:
                               _box_points(self.config.arm, self.config.margin + grow, step)])
         wx = x + c * pts[:, 0] - s * pts[:, 1]
         wy = y + s * pts[:, 0] + c * pts[:, 1]
-        rows, cols = self.geometry.world_to_cell(np.stack([wx, wy], axis=-1))
+        rows, cols = self.geometry.xy_to_cell(wx, wy)
         inside = self.geometry.contains(rows, cols)
         rows, cols = rows[inside], cols[inside]
         if not (self.obstacle[rows, cols].any()):
@@ -84,14 +84,11 @@ class FootprintChecker:
 
     def _hits(self, poses: np.ndarray, pts: np.ndarray, grid: np.ndarray) -> np.ndarray:
         c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
-        g = self.geometry
-        # the same arithmetic as GridGeometry.world_to_cell, without stacking (P, N, 2) first
-        cols = np.floor((poses[:, 0:1] + c * pts[None, :, 0] - s * pts[None, :, 1] - g.origin_x) / g.cell_size)
-        rows = np.floor((poses[:, 1:2] + s * pts[None, :, 0] + c * pts[None, :, 1] - g.origin_y) / g.cell_size)
-        inside = (rows >= 0) & (rows < g.size) & (cols >= 0) & (cols < g.size)
-        rows = np.clip(rows, 0, g.size - 1).astype(np.intp)
-        cols = np.clip(cols, 0, g.size - 1).astype(np.intp)
-        return (grid[rows, cols] & inside).any(axis=1)
+        rows, cols = self.geometry.xy_to_cell(poses[:, 0:1] + c * pts[None, :, 0] - s * pts[None, :, 1],
+                                              poses[:, 1:2] + s * pts[None, :, 0] + c * pts[None, :, 1])
+        inside = self.geometry.contains(rows, cols)
+        last = self.geometry.size - 1      # off-grid points look up an edge cell, then count as free
+        return (grid[np.clip(rows, 0, last), np.clip(cols, 0, last)] & inside).any(axis=1)
 
     def poses_free(self, poses) -> np.ndarray:
         """(M,) bool: each (x, y, yaw) pose's footprint overlaps no obstacle."""
