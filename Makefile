@@ -16,7 +16,7 @@ $(STAMP): setup.cfg pyproject.toml tools/setup_env.sh
 # The main job: HELIOS on the 20 smoke episodes (2 worker processes), printing the metrics table,
 # then the report (table, PNG plots, HTML) in runs/smoke/report/. Re-running resumes.
 run: setup
-	$(PY) -m tools trials --agent helios --split smoke --episodes 20 --seed 0 --workers 2 --out runs/smoke $(ARGS)
+	$(PY) -m tools trials --config configs/smoke.yaml --workers 2 --out runs/smoke $(ARGS)
 	$(PY) -m tools report runs/smoke --out runs/smoke/report
 
 # Scripted single pick-and-place in a two-table scene with a rerun recording.
@@ -25,13 +25,13 @@ demo: setup
 
 # The paper's ablation tables on val, plus the improved place: each agent and its -gt twin on the
 # first N episodes (seed 0, 2 workers; resumable, and a larger N extends the runs), then one
-# report on the episodes all runs share. About 20-30 min per agent for N=200 on the 2-core
-# machine (4-5 h for all 10).
+# report on the episodes all runs share (one scenario file per agent: configs/val_<agent>.yaml).
+# About 20-30 min per agent for N=200 on the 2-core machine (4-5 h for all 10).
 COMPARE ?= helios helios-no-global trusting helios-5050 helios-place helios-gt helios-no-global-gt trusting-gt helios-5050-gt helios-place-gt
 N ?= 200
 compare: setup
 	for a in $(COMPARE); do \
-	  $(PY) -m tools trials --agent $$a --split val --episodes $(N) --seed 0 --workers 2 --out runs/val/$$a --progress lines || exit 1; \
+	  $(PY) -m tools trials --config configs/val_$$a.yaml --episodes $(N) --workers 2 --out runs/val/$$a --progress lines || exit 1; \
 	done
 	$(PY) -m tools report $(addprefix runs/val/,$(COMPARE)) --common --out runs/val/report
 

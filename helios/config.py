@@ -2,7 +2,7 @@
 
 Values marked *paper* come from the paper's "Hyperparameters" table; the rest are choices the
 paper leaves open, each documented with its unit and the reason for the default. Build a config
-with ``HeliosConfig()`` or ``helios.configuration.load_config(HeliosConfig, path, overrides)``;
+with ``HeliosConfig()`` or ``helios.schema.load_config(HeliosConfig, path, overrides)``;
 sections are added here as later parts of the method need them.
 """
 
@@ -12,10 +12,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
-
-def _require(condition: bool, message: str) -> None:
-    if not condition:
-        raise ValueError(message)
+from helios.perception.config import DetectionThresholds
+from helios.schema import require
 
 
 @dataclass(frozen=True)
@@ -53,14 +51,14 @@ class OccupancyConfig:
     are widened to 1.5 sampled pixel columns when the image is coarser than that."""
 
     def __post_init__(self) -> None:
-        _require(math.isfinite(self.cell_size) and self.cell_size > 0, f"cell_size must be > 0, got {self.cell_size}")
-        _require(self.grid_size >= 8, f"grid_size must be >= 8 cells, got {self.grid_size}")
-        _require(0 <= self.obstacle_min_height < self.obstacle_max_height,
-                 "need 0 <= obstacle_min_height < obstacle_max_height")
-        _require(self.obstacle_min_hits >= 1, "obstacle_min_hits must be >= 1")
-        _require(0 <= self.min_depth < self.max_depth, "need 0 <= min_depth < max_depth")
-        _require(self.depth_stride >= 1, "depth_stride must be >= 1")
-        _require(0 < self.visibility_bin_deg <= 10, "visibility_bin_deg must be in (0, 10]")
+        require(math.isfinite(self.cell_size) and self.cell_size > 0, f"cell_size must be > 0, got {self.cell_size}")
+        require(self.grid_size >= 8, f"grid_size must be >= 8 cells, got {self.grid_size}")
+        require(0 <= self.obstacle_min_height < self.obstacle_max_height,
+                "need 0 <= obstacle_min_height < obstacle_max_height")
+        require(self.obstacle_min_hits >= 1, "obstacle_min_hits must be >= 1")
+        require(0 <= self.min_depth < self.max_depth, "need 0 <= min_depth < max_depth")
+        require(self.depth_stride >= 1, "depth_stride must be >= 1")
+        require(0 < self.visibility_bin_deg <= 10, "visibility_bin_deg must be in (0, 10]")
 
 
 @dataclass(frozen=True)
@@ -82,10 +80,10 @@ class FrontierConfig:
     """Radius (m) around a frontier centre whose value-map cells give its value (VLFM: 0.5 m)."""
 
     def __post_init__(self) -> None:
-        _require(self.min_size >= 0, "min_size must be >= 0")
-        _require(self.obstacle_clearance >= 0, "obstacle_clearance must be >= 0")
-        _require(self.fill_holes_area >= 0, "fill_holes_area must be >= 0")
-        _require(self.value_radius > 0, "value_radius must be > 0")
+        require(self.min_size >= 0, "min_size must be >= 0")
+        require(self.obstacle_clearance >= 0, "obstacle_clearance must be >= 0")
+        require(self.fill_holes_area >= 0, "fill_holes_area must be >= 0")
+        require(self.value_radius > 0, "value_radius must be > 0")
 
 
 @dataclass(frozen=True)
@@ -102,8 +100,8 @@ class ValueMapConfig:
     ``max_confidence``: keep the value seen with the highest confidence."""
 
     def __post_init__(self) -> None:
-        _require(0 <= self.min_confidence <= 1, "min_confidence must be in [0, 1]")
-        _require(0 <= self.decision_threshold <= 1, "decision_threshold must be in [0, 1]")
+        require(0 <= self.min_confidence <= 1, "min_confidence must be in [0, 1]")
+        require(0 <= self.decision_threshold <= 1, "decision_threshold must be in [0, 1]")
 
 
 @dataclass(frozen=True)
@@ -126,11 +124,11 @@ class RenderConfig:
     the camera is very close to a Gaussian."""
 
     def __post_init__(self) -> None:
-        _require(self.near > 0, "near must be > 0")
-        _require(0 < self.alpha_min < self.alpha_max < 1, "need 0 < alpha_min < alpha_max < 1")
-        _require(0 < self.transmittance_min < 1, "transmittance_min must be in (0, 1)")
-        _require(self.blur_px2 >= 0, "blur_px2 must be >= 0")
-        _require(self.max_radius_px >= 1, "max_radius_px must be >= 1")
+        require(self.near > 0, "near must be > 0")
+        require(0 < self.alpha_min < self.alpha_max < 1, "need 0 < alpha_min < alpha_max < 1")
+        require(0 < self.transmittance_min < 1, "transmittance_min must be in (0, 1)")
+        require(self.blur_px2 >= 0, "blur_px2 must be >= 0")
+        require(self.max_radius_px >= 1, "max_radius_px must be >= 1")
 
 
 @dataclass(frozen=True)
@@ -187,18 +185,18 @@ class GaussianConfig:
     render: RenderConfig = field(default_factory=RenderConfig)
 
     def __post_init__(self) -> None:
-        _require(self.alpha_cpa > 0, "alpha_cpa must be > 0")
-        _require(self.prior_concentration > 0, "prior_concentration must be > 0 (digamma(0) = -inf)")
-        _require(self.update_max_width >= 8, "update_max_width must be >= 8 pixels")
-        _require(self.creation_stride >= 1, "creation_stride must be >= 1")
-        _require(self.scale_factor > 0, "scale_factor must be > 0")
-        _require(0 < self.initial_opacity < 1, "initial_opacity must be in (0, 1)")
-        _require(self.creation_erosion_px >= 1, "creation_erosion_px must be >= 1 (1 = no erosion)")
-        _require(0 < self.creation_silhouette <= 1, "creation_silhouette must be in (0, 1]")
-        _require(self.creation_depth_error > 0, "creation_depth_error must be > 0")
-        _require(self.reobservation_depth_error > 0, "reobservation_depth_error must be > 0")
-        _require(self.reobservation_closing_px >= 1, "reobservation_closing_px must be >= 1 (1 = none)")
-        _require(0 < self.min_silhouette_for_depth < 1, "min_silhouette_for_depth must be in (0, 1)")
+        require(self.alpha_cpa > 0, "alpha_cpa must be > 0")
+        require(self.prior_concentration > 0, "prior_concentration must be > 0 (digamma(0) = -inf)")
+        require(self.update_max_width >= 8, "update_max_width must be >= 8 pixels")
+        require(self.creation_stride >= 1, "creation_stride must be >= 1")
+        require(self.scale_factor > 0, "scale_factor must be > 0")
+        require(0 < self.initial_opacity < 1, "initial_opacity must be in (0, 1)")
+        require(self.creation_erosion_px >= 1, "creation_erosion_px must be >= 1 (1 = no erosion)")
+        require(0 < self.creation_silhouette <= 1, "creation_silhouette must be in (0, 1]")
+        require(self.creation_depth_error > 0, "creation_depth_error must be > 0")
+        require(self.reobservation_depth_error > 0, "reobservation_depth_error must be > 0")
+        require(self.reobservation_closing_px >= 1, "reobservation_closing_px must be >= 1 (1 = none)")
+        require(0 < self.min_silhouette_for_depth < 1, "min_silhouette_for_depth must be in (0, 1)")
 
 
 @dataclass(frozen=True)
@@ -209,7 +207,7 @@ class InstanceConfig:
     """*paper* Voxel edge (m) of the clustering grid, aligned with the odometry frame."""
 
     def __post_init__(self) -> None:
-        _require(self.voxel_size > 0, "voxel_size must be > 0")
+        require(self.voxel_size > 0, "voxel_size must be > 0")
 
 
 @dataclass(frozen=True)
@@ -220,33 +218,7 @@ class ScoringConfig:
     """*paper* Weight of the uncertainty in Psi (Psi is the alpha_cs-sigma lower bound)."""
 
     def __post_init__(self) -> None:
-        _require(self.alpha_cs >= 0, "alpha_cs must be >= 0")
-
-
-@dataclass(frozen=True)
-class DetectionConfig:
-    """Per-role open-vocabulary detector confidence thresholds, applied by the detector's caller."""
-
-    od_start_receptacle: float = 0.35
-    """*paper* od_a: threshold for the start (pick) receptacle class."""
-    od_object: float = 0.25
-    """*paper* od_g: threshold for the target object class (low: HELIOS filters false positives)."""
-    od_goal_receptacle: float = 0.45
-    """*paper* od_b: threshold for the goal (place) receptacle class."""
-
-    def __post_init__(self) -> None:
-        for name in ("od_start_receptacle", "od_object", "od_goal_receptacle"):
-            value = getattr(self, name)
-            _require(0 <= value <= 1, f"{name} must be in [0, 1], got {value}")
-
-    def thresholds_for(self, object_class: str, start_receptacle: str, goal_receptacle: str) -> dict[str, float]:
-        """Per-class thresholds of an episode; a class filling two roles gets the lower one
-        (HELIOS filters false positives itself but cannot recover missed detections)."""
-        out: dict[str, float] = {}
-        for name, value in ((object_class, self.od_object), (start_receptacle, self.od_start_receptacle),
-                            (goal_receptacle, self.od_goal_receptacle)):
-            out[name] = min(value, out.get(name, value))
-        return out
+        require(self.alpha_cs >= 0, "alpha_cs must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -275,14 +247,14 @@ class SearchConfig:
     searched class (HELIOS), or 50 % that class / 50 % background (the ablation)."""
 
     def __post_init__(self) -> None:
-        _require(self.alpha_d >= 0, "alpha_d must be >= 0")
-        _require(0 <= self.cs_start_receptacle <= 1, "cs_start_receptacle must be in [0, 1]")
-        _require(self.distance_unit in ("cells", "metres"), "distance_unit must be 'cells' or 'metres'")
-        _require(self.initial_frontier_ratio > 0, "initial_frontier_ratio must be > 0")
-        _require(self.frontier_calibration in ("all_candidates", "open_candidates"),
-                 "frontier_calibration must be 'all_candidates' or 'open_candidates'")
-        _require(self.information_gain in ("optimistic", "fifty_fifty"),
-                 "information_gain must be 'optimistic' or 'fifty_fifty'")
+        require(self.alpha_d >= 0, "alpha_d must be >= 0")
+        require(0 <= self.cs_start_receptacle <= 1, "cs_start_receptacle must be in [0, 1]")
+        require(self.distance_unit in ("cells", "metres"), "distance_unit must be 'cells' or 'metres'")
+        require(self.initial_frontier_ratio > 0, "initial_frontier_ratio must be > 0")
+        require(self.frontier_calibration in ("all_candidates", "open_candidates"),
+                "frontier_calibration must be 'all_candidates' or 'open_candidates'")
+        require(self.information_gain in ("optimistic", "fifty_fifty"),
+                "information_gain must be 'optimistic' or 'fifty_fifty'")
 
 
 @dataclass(frozen=True)
@@ -303,8 +275,8 @@ class DecisionConfig:
     def __post_init__(self) -> None:
         for name in ("tau_object", "tau_goal_receptacle", "cs_object", "cs_goal_receptacle"):
             value = getattr(self, name)
-            _require(0 <= value <= 1, f"{name} must be in [0, 1], got {value}")
-        _require(self.tau_increase >= 0, "tau_increase must be >= 0")
+            require(0 <= value <= 1, f"{name} must be in [0, 1], got {value}")
+        require(self.tau_increase >= 0, "tau_increase must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -322,9 +294,12 @@ class HeliosConfig:
     gaussians: GaussianConfig = field(default_factory=GaussianConfig)
     instances: InstanceConfig = field(default_factory=InstanceConfig)
     scoring: ScoringConfig = field(default_factory=ScoringConfig)
-    detection: DetectionConfig = field(default_factory=DetectionConfig)
+    detection: DetectionThresholds = field(default_factory=DetectionThresholds)
+    """Per-role detector score thresholds od_a, od_g, od_b (*paper*; defined in
+    :mod:`helios.perception.config`, applied by the agent with ``role_thresholds`` and
+    ``apply_thresholds``)."""
     search: SearchConfig = field(default_factory=SearchConfig)
     decision: DecisionConfig = field(default_factory=DecisionConfig)
 
     def __post_init__(self) -> None:
-        _require(bool(self.background_class.strip()), "background_class must be a non-empty name")
+        require(bool(self.background_class.strip()), "background_class must be a non-empty name")

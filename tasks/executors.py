@@ -23,6 +23,8 @@ import traceback
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator, Sequence
 
+from tasks.provenance import git_commit
+
 EXECUTORS = ("local", "ray")
 HEARTBEAT_S = 1.0            # executors yield None this often while nothing finishes (progress redraws)
 RAY_OBJECT_STORE_BYTES = 100 * 1024 * 1024
@@ -222,8 +224,6 @@ def _exit_text(code: int | None) -> str:
 # Ray
 # ------------------------------------------------------------------------------------------------
 def _ray_task(fn: Callable, job, driver_commit: str) -> tuple[str, Any]:
-    from tasks.trials import git_commit
-
     worker_setup()
     commit = git_commit()
     if commit != driver_commit:
@@ -271,8 +271,6 @@ class RayExecutor:
             self.workers = int(ray.cluster_resources().get("CPU", workers))
 
     def map_unordered(self, fn: Callable, jobs: Sequence) -> Iterator[Outcome | None]:
-        from tasks.trials import git_commit
-
         ray = self._ray
         remote = ray.remote(num_cpus=1, max_retries=0)(_ray_task)
         commit = git_commit()

@@ -18,7 +18,48 @@ from pathlib import Path
 from typing import Callable
 
 from tasks.episodes import Episode
-from tasks.runner import EpisodeResult, RunnerConfig, run_episode
+from tasks.metrics import EpisodeJudge, MetricsConfig
+from tasks.registry import RunContext, make_agent
+from tasks.runner import EpisodeResult, RunnerConfig, build_episode_scene, run_episode
+
+
+def start_episode_fake(pki, episode: Episode, username: str, password: str, sim_config=None,
+                       metrics: MetricsConfig | None = None, **fake_kwargs):
+    """Build ``episode``'s home (the scene ``SimEpisode.create`` builds), put Spot at its start
+    pose, start a fake Spot serving it on an ephemeral 127.0.0.1 port that accepts exactly
+    ``username``/``password``; returns its ``robots.spot.fake_spot.launch.EpisodeFake``. ``pki``:
+    a ``TestPKI`` or a folder to make one in; ``sim_config``: a ``SimBackendConfig``; ``metrics``
+    configures the judge."""
+    from robots.spot.fake_spot.certs import TestPKI, make_test_pki
+    from robots.spot.fake_spot.launch import EpisodeFake
+    from robots.spot.fake_spot.server import FakeSpot
+    from robots.spot.fake_spot.sim_robot import FakeRobotSim
+    from robots.spot.fake_spot.sim_view import FakeSimView, LockedJudge
+    from robots.spot.sim_backend import SimBackendConfig
+    from sim.spot import SpotBody
+    from sim.world import World
+
+    if not isinstance(pki, TestPKI):
+        pki = make_test_pki(pki)
+    sim_config = sim_config or SimBackendConfig()
+    world = World(sim_config.world)
+    try:
+        scene = build_episode_scene(world, episode)
+        spot = SpotBody(world, episode.start_pose)
+        sim = FakeRobotSim(world, spot, sim_config)
+        fake = FakeSpot(sim, pki, username, password, **fake_kwargs)
+        view = FakeSimView(fake)
+        judge = LockedJudge(EpisodeJudge(view, scene, episode, metrics or MetricsConfig()), fake.sim_lock)
+    except Exception:
+        world.close()
+        raise
+    try:
+        fake.start()
+    except BaseException:
+        fake.stop()
+        world.close()
+        raise
+    return EpisodeFake(fake, pki, episode, scene, view, judge)
 
 
 def run_fake_sdk_episode(agent_name: str, episode: Episode, seed: int | None = None, *,
@@ -34,9 +75,7 @@ def run_fake_sdk_episode(agent_name: str, episode: Episode, seed: int | None = N
     command line prints and records it there). Always shuts the robot down, stops the fake and
     every thread it started, also after an error or Ctrl-C.
     """
-    from robots.spot.fake_spot.launch import start_episode_fake
     from robots.spot.sdk_backend import SdkBackendConfig, SdkSpotBackend, credentials_from_env
-    from tasks.registry import make_agent
 
     user, password = credentials_from_env()
     tmp = tempfile.mkdtemp(prefix="helios-fake-spot-") if pki is None else None
@@ -49,7 +88,8 @@ def run_fake_sdk_episode(agent_name: str, episode: Episode, seed: int | None = N
             try:
                 if on_connected is not None:
                     on_connected(backend)
-                agent = make_agent(agent_name, ep, **(agent_options or {}))
+                # simulated perception is seeded by the episode's own seed; ``seed`` seeds the agent's generator
+                agent = make_agent(agent_name, RunContext.for_episode(ep), **(agent_options or {}))
                 result = run_episode(agent, ep.backend.watch(backend), episode, config, ep.judge,
                                      start_time=time.time(), seed=seed)
                 result.extra["collision_events"] = [asdict(e) for e in ep.backend.collision_events]

@@ -7,7 +7,7 @@ recorded episode gives the same numbers as a bare one. Agents may offer two opti
 ``agent.memory_bytes() -> int | Mapping[str, int]``
     Bytes of the agent's map / world model (e.g. ``HierarchicalMap.memory_bytes()``), sampled
     after every robot command. Mappings are summed; the last breakdown is kept.
-``agent.record(recorder: tools.recording.EpisodeRecorder) -> None``
+``agent.record(recorder: tasks.recording.EpisodeRecorder) -> None``
     Called after every ``act`` when the episode is recorded; log what the agent knows, e.g.
     ``recorder.log_map(self.map)`` (occupancy/value images, Gaussians, instances, frontiers),
     ``recorder.log_detections(dets, class_names)`` and ``recorder.log_path("plan", waypoints)``.

@@ -1,28 +1,118 @@
-"""Agents by name, for the command line and trial batches. Each entry builds a fresh agent for one
-simulated episode (``tasks.runner.SimEpisode``); unknown names get one error listing the valid ones."""
+"""The one agent registry: agents by name for ``tools trials`` and ``tools spot`` (the simulator, the
+fake robot and a real one). Each entry builds a fresh agent for one run from an
+:class:`AgentContext`; unknown names get one error listing the valid ones.
+
+An entry runs on one kind of run (``runs_on``):
+
+* ``EPISODE``: a task episode (``tools trials``; ``tools spot --fake --episode``). The agent
+  implements ``tasks.runner.Agent`` and ``tasks.runner.run_episode`` drives it.
+* ``DEMO``: the demo layout with a task in words (``tools spot`` on the fake or a real robot).
+  The agent is a one-shot script: ``agent.run(robot) -> tasks.scripted_demo.AgentOutcome``.
+"""
 
 from __future__ import annotations
 
-from typing import Callable
+from dataclasses import dataclass
+from typing import Callable, NamedTuple, Protocol, runtime_checkable
+
+EPISODE = "episode"
+DEMO = "demo"
+RUNS_ON = {EPISODE: "task episodes", DEMO: "the demo layout"}
 
 
 class UnknownAgentError(ValueError):
-    """An agent name is not registered."""
+    """An agent name is not registered (or its agent cannot run here)."""
 
 
-def _oracle(sim, **_options):
+@runtime_checkable
+class AgentContext(Protocol):
+    """What an agent factory receives: the one run a fresh agent is made for.
+
+    ``task``: the task in words. ``seed``: seeds the agent's own randomness (simulated perception;
+    the episode runner seeds the agent's generator separately).
+
+    A task episode brings the simulator's side of the run (``tasks.runner.SimEpisode``, or the
+    fake robot's ``EpisodeFake``): ``episode`` (``tasks.episodes.Episode``), ``world``, ``scene``
+    (``sim.scenes.home.HomeScene``; ``scene.layout.rooms`` for the simulated scorer), ``backend``
+    and ``judge`` (``tasks.metrics.EpisodeJudge``). This is ground truth, for the oracle and for
+    simulated perception: ``backend`` is the simulator's view of the robot (``SimSpotBackend``, or
+    the fake's ``FakeSimView``), never the HAL the agent drives, which ``act``/``run`` receive.
+
+    The demo layout brings ``hints`` (``tasks.scripted_demo.DemoHints``) instead, and the
+    simulator's side is None (a real robot has none). ``say`` prints an agent's progress lines.
+    """
+
+    @property
+    def task(self) -> str: ...
+
+    @property
+    def seed(self) -> int: ...
+
+    @property
+    def episode(self): ...
+
+    @property
+    def world(self): ...
+
+    @property
+    def scene(self): ...
+
+    @property
+    def backend(self): ...
+
+    @property
+    def judge(self): ...
+
+    @property
+    def hints(self): ...
+
+    @property
+    def say(self) -> Callable[[str], None]: ...
+
+
+@dataclass(frozen=True)
+class RunContext:
+    """The :class:`AgentContext` of one run (see there for the fields)."""
+
+    task: str
+    seed: int
+    episode: object = None
+    world: object = None
+    scene: object = None
+    backend: object = None
+    judge: object = None
+    hints: object = None
+    say: Callable[[str], None] = print
+
+    @classmethod
+    def for_episode(cls, sim, seed: int | None = None) -> "RunContext":
+        """The context of a simulated episode (``SimEpisode`` or ``EpisodeFake``); ``seed``
+        defaults to the episode's own seed."""
+        ep = sim.episode
+        return cls(task=ep.task, seed=ep.seed if seed is None else seed, episode=ep, world=sim.world,
+                   scene=sim.scene, backend=sim.backend, judge=sim.judge)
+
+
+class AgentEntry(NamedTuple):
+    factory: Callable           # factory(context: AgentContext, **options) -> agent
+    description: str
+    runs_on: str = EPISODE
+
+
+def _oracle(context: AgentContext, **_options):
     from tasks.oracle import OracleAgent
 
-    return OracleAgent(sim)
+    return OracleAgent(context)
 
 
 def _helios_factory(variant: str, ground_truth: bool) -> Callable:
     """Factory of one HELIOS variant with simulated (noisy or ground-truth) perception."""
 
-    def factory(sim, agent_config=None, method_config=None, perception_config=None):
+    def factory(context: AgentContext, agent_config=None, method_config=None, perception_config=None):
         from dataclasses import replace
 
-        from helios.agents import AgentConfig, HeliosAgent
+        from helios.agents.config import AgentConfig
+        from helios.agents.helios_agent import HeliosAgent
         from helios.agents.variants import VARIANTS
         from helios.config import HeliosConfig
         from sim.perception import SimPerceptionConfig, make_sim_perception
@@ -36,41 +126,67 @@ def _helios_factory(variant: str, ground_truth: bool) -> Callable:
         if search_fields:
             method_config = replace(method_config, search=replace(method_config.search, **search_fields))
         perception_config = replace(perception_config or SimPerceptionConfig(), mode="gt" if ground_truth else "noisy")
-        detector, scorer = make_sim_perception(sim.backend, seed=getattr(sim, "seed", sim.episode.seed),
-                                               config=perception_config,
-                                               rooms=sim.scene.layout.rooms)
+        detector, scorer = make_sim_perception(context.backend, seed=context.seed, config=perception_config,
+                                               rooms=context.scene.layout.rooms)
         name = variant + ("-gt" if ground_truth else "")
         return HeliosAgent(detector, scorer, agent_config, method_config, name=name)
 
     return factory
 
 
-def _helios_agents() -> dict[str, tuple[Callable, str]]:
+def _scripted_demo(context: AgentContext, **_options):
+    from tasks.scripted_demo import ScriptedDemo
+
+    if context.hints is None:
+        raise ValueError("scripted-demo runs on the demo layout: its context needs the layout's hints")
+    return ScriptedDemo(context.hints, say=context.say)
+
+
+def _helios_agents() -> dict[str, AgentEntry]:
     from helios.agents.variants import VARIANTS
 
     out = {}
     for variant, (_, _, text) in VARIANTS.items():
-        out[variant] = (_helios_factory(variant, False), text + " (simulated detector)")
-        out[variant + "-gt"] = (_helios_factory(variant, True), text + " (ground-truth semantics)")
+        out[variant] = AgentEntry(_helios_factory(variant, False), text + " (simulated detector)")
+        out[variant + "-gt"] = AgentEntry(_helios_factory(variant, True), text + " (ground-truth semantics)")
     return out
 
 
-AGENTS: dict[str, tuple[Callable, str]] = {
+# name -> AgentEntry
+AGENTS: dict[str, AgentEntry] = {
     **_helios_agents(),
-    "oracle": (_oracle, "scripted ground-truth agent: knows where everything is, acts through the HAL (the ceiling)"),
+    "oracle": AgentEntry(_oracle, "scripted ground-truth agent: knows where everything is, acts through the HAL "
+                                  "(the ceiling)"),
+    "scripted-demo": AgentEntry(_scripted_demo, "scripted pick-and-place in the demo layout (tools demo's sequence)",
+                                DEMO),
 }
 
 
-def agent_names() -> list[str]:
-    return sorted(AGENTS)
+def agent_names(runs_on: str | None = EPISODE) -> list[str]:
+    """Registered names, sorted: those that run on ``runs_on`` (``None``: all)."""
+    return sorted(name for name, entry in AGENTS.items() if runs_on is None or entry.runs_on == runs_on)
 
 
-def make_agent(name: str, sim, **options):
-    """A fresh agent for one simulated episode; ``options`` (agent_config, method_config,
-    perception_config) configure the HELIOS agents and are ignored by the oracle. A registered
-    factory is called as ``factory(sim, **options)``, so it must accept (and may ignore) them."""
-    try:
-        factory, _ = AGENTS[name]
-    except KeyError:
-        raise UnknownAgentError(f"unknown agent {name!r}; valid agents: {', '.join(agent_names())}") from None
-    return factory(sim, **options)
+def check_agent(name: str, runs_on: str | None = EPISODE) -> AgentEntry:
+    """The entry of ``name``; an :class:`UnknownAgentError` listing the valid names unless it is
+    registered and runs on ``runs_on`` (``None``: anywhere)."""
+    valid = ", ".join(agent_names(runs_on))
+    if name not in AGENTS:
+        raise UnknownAgentError(f"unknown agent {name!r}; valid agents: {valid}")
+    entry = AGENTS[name]
+    if runs_on is not None and entry.runs_on != runs_on:
+        raise UnknownAgentError(f"agent {name!r} runs on {RUNS_ON[entry.runs_on]}, not on {RUNS_ON[runs_on]}; "
+                                f"valid agents: {valid}")
+    return entry
+
+
+def make_agent(name: str, context, **options):
+    """A fresh agent for one run. ``context``: an :class:`AgentContext`; a simulated episode
+    (``SimEpisode``, ``EpisodeFake``) stands for ``RunContext.for_episode(sim)`` (the episode's own
+    seed). ``options`` (agent_config, method_config, perception_config) configure the HELIOS
+    agents and are ignored by the others: a factory is called as ``factory(context, **options)``,
+    so it must accept (and may ignore) them."""
+    entry = check_agent(name, runs_on=None)
+    if not isinstance(context, AgentContext):
+        context = RunContext.for_episode(context)
+    return entry.factory(context, **options)

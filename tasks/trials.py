@@ -25,7 +25,6 @@ import math
 import os
 import shutil
 import socket
-import subprocess
 import sys
 import tempfile
 import time
@@ -38,12 +37,13 @@ import numpy as np
 
 from helios.agents.config import AgentConfig
 from helios.config import HeliosConfig
-from helios.configuration import ConfigError, dump_yaml, from_dict, to_dict
+from helios.schema import ConfigError, dump_yaml, from_dict, load_config, read_config_file, to_dict
 from robots.spot.sim_backend import SimBackendConfig
 from sim.perception.config import SimPerceptionConfig
 from tasks.episodes import Episode
 from tasks.metrics import FAILURE_REASONS
-from tasks.registry import make_agent
+from tasks.provenance import PROVENANCE_KEYS, git_commit, package_version, provenance
+from tasks.registry import RunContext, make_agent
 from tasks.runner import RunnerConfig, run_sim_episode
 
 METRIC_KEYS = ("find_obj", "pick", "find_rec", "place", "success")
@@ -88,23 +88,8 @@ def deterministic_view(record: dict) -> dict:
     return {k: v for k, v in record.items() if k not in NONDETERMINISTIC_FIELDS}
 
 
-def git_commit() -> str:
-    try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5,
-                             cwd=Path(__file__).resolve().parent)
-        return out.stdout.strip() or "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
-def _header() -> dict:
-    from helios import __version__
-
-    return {"helios_version": __version__, "git_commit": git_commit()}
-
-
 def _config_text(config: TrialConfig) -> str:
-    return dump_yaml(_header()) + dump_yaml(config)
+    return dump_yaml(provenance()) + dump_yaml(config)
 
 
 def _write_atomic(path: Path, text: str) -> None:
@@ -120,11 +105,20 @@ def read_run_config(out: Path) -> tuple[dict, TrialConfig]:
         saved = yaml.safe_load(cfg_path.read_text()) or {}
     except (OSError, yaml.YAMLError) as exc:
         raise RunFolderError(f"cannot read {cfg_path}: {exc}") from None
-    header = {k: saved.pop(k, None) for k in ("helios_version", "git_commit")}
+    header = {k: saved.pop(k, None) for k in PROVENANCE_KEYS}
     try:
         return header, from_dict(TrialConfig, saved)
     except ConfigError as exc:
         raise RunFolderError(f"{cfg_path} is not a trial config this version can read: {exc}") from None
+
+
+def load_trial_config(path: str | Path) -> tuple[dict, TrialConfig]:
+    """A scenario file (``configs/*.yaml``) or a run folder's ``config.yaml``: its provenance
+    (``helios_version``, ``git_commit``; None where absent, as in a hand-written scenario) and the
+    trial config. Any other unknown key is a ConfigError naming the file and the key."""
+    data = read_config_file(path)
+    header = {k: data.get(k) for k in PROVENANCE_KEYS}
+    return header, load_config(TrialConfig, path, ignore=PROVENANCE_KEYS)
 
 
 def prepare_run_folder(out: Path, config: TrialConfig) -> dict[str, dict]:
@@ -207,23 +201,22 @@ def run_one(config: TrialConfig, episode: Episode, recording: str | Path | None 
     """Run one episode in simulation and return its JSON record.
 
     The agent is wrapped for memory sampling (and, with ``recording``, a rerun ``.rrd`` of the
-    episode); neither changes its numbers. ``sim.seed`` carries the episode's trial seed to the
-    agent factory (for agent-side randomness such as simulated perception).
+    episode); neither changes its numbers. The agent's context carries the episode's trial seed
+    (for agent-side randomness such as simulated perception).
     """
     from tasks.instrument import InstrumentedAgent
 
     seed = episode_seed(config.seed, episode.episode_id)
     recorder = None
     if recording is not None:
-        from tools.recording import EpisodeRecorder
+        from tasks.recording import EpisodeRecorder
 
         recorder = EpisodeRecorder(recording, recording_id=f"{config.agent}-{episode.episode_id}-s{config.seed}")
     holder: dict = {}
 
     def factory(sim):
-        sim.seed = seed
-        agent = make_agent(config.agent, sim, agent_config=config.agent_config, method_config=config.helios,
-                           perception_config=config.perception)
+        agent = make_agent(config.agent, RunContext.for_episode(sim, seed), agent_config=config.agent_config,
+                           method_config=config.helios, perception_config=config.perception)
         state = None
         if recorder is not None:
             _log_scene(recorder, sim, episode)
@@ -442,12 +435,10 @@ def _write_bytes_atomic(path: Path, data: bytes) -> None:
 
 
 def _log_invocation(out: Path, workers: int, executor: str, address: str, todo: int, commit: str) -> None:
-    from helios import __version__
-
     entry = {"time": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "host": socket.gethostname(), "pid": os.getpid(),
              "argv": sys.argv, "workers": workers, "executor": executor,
              "address": address if executor == "ray" else None, "episodes_to_run": todo,
-             "helios_version": __version__, "git_commit": commit}
+             "helios_version": package_version(), "git_commit": commit}
     append_result(out / "invocations.jsonl", entry)
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from helios.agents.config import AgentConfig, PlaceConfig
+from helios.agents.helios_agent import Phase
 from helios.agents.variants import VARIANTS
 from tasks.episodes import load_split
 from tasks.registry import AGENTS, UnknownAgentError, make_agent
@@ -70,7 +71,7 @@ def test_helios_completes_a_smoke_episode(e2e_result):
     assert not m.picked_wrong_object
     assert m.place and m.success, (m, agent.log)
     assert m.collisions == 0
-    assert agent.pick_attempts >= 1 and agent.phase == "done"
+    assert agent.pick_attempts >= 1 and agent.phase is Phase.DONE
     # the map it built is sparse: Gaussians only for detected objects of interest
     assert 0 < len(agent.map.objects) < 200_000
     assert agent.timings["plans"] > 0
@@ -127,7 +128,7 @@ def test_variants_differ_only_in_flags():
     rng = np.random.default_rng(0)
     for agent in agents.values():
         agent.reset(ep.spec, rng)
-        assert agent.phase == "start"
+        assert agent.phase is Phase.START
 
 
 def test_the_claw_and_held_object_are_blanked_from_the_depth_while_holding():
@@ -146,11 +147,11 @@ def test_the_claw_and_held_object_are_blanked_from_the_depth_while_holding():
     depth[:40, :40] = 0.08                          # the claw / a held object
     depth[:40, -40:] = 0.5                          # something real, farther away
     near_limit = agent.method.occupancy.min_depth
-    held = agent._without_self(replace(obs, depth=depth, holding=True))
+    held = agent.observer.without_self(replace(obs, depth=depth, holding=True))
     assert np.all(held.depth[:40, :40] == 0.0)
     assert np.all(held.depth[:40, -40:] == 0.5)
     assert not np.any((held.depth > 0) & (held.depth < near_limit))
-    empty = agent._without_self(replace(obs, depth=depth, holding=False))
+    empty = agent.observer.without_self(replace(obs, depth=depth, holding=False))
     assert np.all(empty.depth[:40, :40] == np.float32(0.08))
 
 

@@ -6,11 +6,12 @@ import torch
 from scipy import stats
 
 from helios.config import HeliosConfig
-from helios.maps import ClassSet, GaussianMap, GridGeometry, MapInputError, UnknownClassError
-from helios.search import (dirichlet_entropy, fifty_fifty_information_gain, information_gain,
-                           optimistic_evidence, optimistic_information_gain, predicted_object_score)
+from helios.maps import ClassSet, GridGeometry, MapInputError, UnknownClassError
+from helios.maps.gaussians import GaussianMap
+from helios.search.information import (dirichlet_entropy, fifty_fifty_information_gain, information_gain,
+                                       optimistic_evidence, optimistic_information_gain, predicted_object_score)
 from robots.transforms import look_at_camera as look_at
-from tools.bench_maps import pinhole
+from sim.synthetic_boxes import pinhole
 
 CAM = pinhole(160, 120)
 POSE = look_at([0.0, 0.0, 1.0], [2.0, 0.0, 1.0])

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from helios.config import HeliosConfig
-from helios.configuration import ConfigError, dump_yaml, from_dict, load_config, with_overrides
+from helios.schema import ConfigError, dump_yaml, from_dict, load_config, with_overrides
 from helios.maps.hierarchical import resolve_device
 
 
@@ -22,9 +22,16 @@ def test_defaults_are_the_papers_hyperparameters():
 
 
 def test_detection_thresholds_per_class_of_an_episode():
+    from helios.perception.config import DetectionThresholds, role_thresholds
+
     det = HeliosConfig().detection
-    assert det.thresholds_for("cup", "table", "counter") == {"cup": 0.25, "table": 0.35, "counter": 0.45}
-    assert det.thresholds_for("cup", "table", "table") == {"cup": 0.25, "table": 0.35}
+    assert type(det) is DetectionThresholds                      # one threshold type for the method and perception
+    assert role_thresholds(det, "cup", "table", "counter") == {"cup": 0.25, "table": 0.35, "counter": 0.45}
+    assert role_thresholds(det, "cup", "table", "table") == {"cup": 0.25, "table": 0.35}
+    cfg = with_overrides(HeliosConfig(), ["detection.od_object=0.5"])      # the YAML keys are unchanged
+    assert cfg.detection == DetectionThresholds(od_object=0.5)
+    with pytest.raises(ConfigError, match="od_goal_receptacle must be in"):
+        from_dict(HeliosConfig, {"detection": {"od_goal_receptacle": 2}})
 
 
 def test_yaml_round_trip_and_overrides(tmp_path):

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from helios.config import HeliosConfig
-from helios.configuration import with_overrides
-from helios.maps import HierarchicalMap
+from helios.schema import with_overrides
+from helios.maps.hierarchical import HierarchicalMap
 from helios.perception.detection import Detection
 from robots.hal import Observation
 from robots.transforms import look_at_camera as look_at
-from tools.bench_maps import Box, pinhole, render_boxes
+from sim.synthetic_boxes import Box, pinhole, render_boxes
 
 CAM = pinhole(160, 120)
 FLOOR = Box((-2.0, -3.0, -0.02), (5.0, 3.0, 0.0), "floor")

@@ -5,13 +5,15 @@ import pytest
 import torch
 
 from helios.config import HeliosConfig
-from helios.configuration import with_overrides
-from helios.maps import ClassSet, GaussianMap, GridGeometry, HierarchicalMap, MapInputError, UnknownClassError
+from helios.schema import with_overrides
+from helios.maps import ClassSet, GridGeometry, MapInputError, UnknownClassError
+from helios.maps.gaussians import GaussianMap
+from helios.maps.hierarchical import HierarchicalMap
 from helios.maps.labels import label_detections
 from helios.perception.detection import Detection
 from robots.hal import Observation
 from robots.transforms import look_at_camera as look_at
-from tools.bench_maps import Box, pinhole, render_boxes
+from sim.synthetic_boxes import Box, pinhole, render_boxes
 
 CAM = pinhole(160, 120)
 POSE = look_at([0.0, 0.0, 1.0], [3.0, 0.0, 0.6])

@@ -4,12 +4,13 @@ import numpy as np
 import pytest
 
 from helios.config import HeliosConfig
-from helios.maps import ClassSet, GaussianMap, GridGeometry
+from helios.maps import ClassSet, GridGeometry
+from helios.maps.gaussians import GaussianMap
 from helios.maps.instances import assign_instances
 from helios.maps.labels import label_detections
 from helios.perception.detection import Detection
 from robots.transforms import look_at_camera as look_at
-from tools.bench_maps import Box, pinhole, render_boxes
+from sim.synthetic_boxes import Box, pinhole, render_boxes
 
 
 def blob(centre, n=20, spread=0.1, seed=0):

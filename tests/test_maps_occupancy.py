@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 from helios.config import FrontierConfig, HeliosConfig, OccupancyConfig
-from helios.configuration import with_overrides
-from helios.maps import GridGeometry, HierarchicalMap, OccupancyGrid, find_frontiers
+from helios.schema import with_overrides
+from helios.maps import GridGeometry, OccupancyGrid, find_frontiers
+from helios.maps.hierarchical import HierarchicalMap
 from robots.hal import Observation
 from robots.transforms import look_at_camera as look_at
-from tools.bench_maps import Box, pinhole, render_boxes, wall
+from sim.synthetic_boxes import Box, pinhole, render_boxes, wall
 
 CAM = pinhole(320, 240)
 SMALL = OccupancyConfig(grid_size=400, origin_xy=(-3.0, -3.0))

@@ -9,7 +9,7 @@ from helios.config import OccupancyConfig, ValueMapConfig
 from helios.maps import GridGeometry, MapInputError, ValueMap
 from helios.maps.ground_view import project_to_ground
 from robots.transforms import look_at_camera as look_at
-from tools.bench_maps import Box, pinhole, render_boxes
+from sim.synthetic_boxes import Box, pinhole, render_boxes
 
 CAM = pinhole(160, 120)
 OCC = OccupancyConfig(grid_size=400, origin_xy=(-5.0, -5.0))

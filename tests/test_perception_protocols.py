@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from helios.configuration import ConfigError, dump_yaml, from_dict, load_config, to_dict, with_overrides
+from helios.schema import ConfigError, dump_yaml, from_dict, load_config, to_dict, with_overrides
 from helios.perception import (
     Detection,
     DetectionThresholds,
@@ -52,12 +52,18 @@ def test_per_role_thresholds_are_the_papers_and_a_shared_class_gets_the_lower_on
         DetectionThresholds(od_object=1.5)
 
 
-def test_helios_config_detection_section_works_with_role_thresholds():
+def test_helios_config_detection_section_is_the_threshold_type_and_filters_like_the_agent():
     from helios.config import HeliosConfig
 
-    cfg = HeliosConfig().detection
-    assert role_thresholds(cfg, "mug", "table", "counter") == role_thresholds(DetectionThresholds(), "mug", "table",
-                                                                                "counter")
+    assert HeliosConfig().detection == DetectionThresholds()
+    thresholds = role_thresholds(HeliosConfig().detection, "mug", "table", "table")
+    m = np.ones((4, 4), dtype=bool)
+    dets = [Detection(m, "mug", 0.25), Detection(m, "mug", 0.2), Detection(m, "table", 0.35), Detection(m, "table", 0.3),
+            Detection(m, "bed", 0.99), Detection(m, "bed", 1.0)]
+    # the agent's filter: classes outside the task pass only with a score of 1 (default=1.0)
+    assert apply_thresholds(dets, thresholds, default=1.0) == [d for d in dets if d.score >= thresholds.get(d.class_name, 1.0)]
+    assert [(d.class_name, d.score) for d in apply_thresholds(dets, thresholds, default=1.0)] == [
+        ("mug", 0.25), ("table", 0.35), ("bed", 1.0)]
 
 
 def test_configs_load_from_yaml_and_overrides_with_clear_errors(tmp_path):

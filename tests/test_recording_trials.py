@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helios.configuration import with_overrides
+from helios.schema import with_overrides
 from tasks import registry
 from tasks.episodes import load_split
 from tasks.oracle import OracleAgent
@@ -26,14 +26,14 @@ class MappingOracle:
 
     name = "mapping-oracle"
 
-    def __init__(self, sim, **_options):   # registry factories take config options
-        self._oracle = OracleAgent(sim)
+    def __init__(self, context, **_options):   # registry factories take config options
+        self._oracle = OracleAgent(context)
         self.map = None
         self.record_calls = 0
 
     def reset(self, task, rng):
         from helios.config import HeliosConfig
-        from helios.configuration import with_overrides
+        from helios.schema import with_overrides
         from helios.maps.hierarchical import HierarchicalMap
 
         self._oracle.reset(task, rng)
@@ -77,7 +77,8 @@ class MappingOracle:
 
 @pytest.fixture
 def mapping_agent(monkeypatch):
-    monkeypatch.setitem(registry.AGENTS, "mapping-oracle", (MappingOracle, "test double: oracle + HELIOS map"))
+    monkeypatch.setitem(registry.AGENTS, "mapping-oracle",
+                        registry.AgentEntry(MappingOracle, "test double: oracle + HELIOS map"))
     import rerun as rr
 
     rr.set_strict_mode(True)          # logging mistakes raise (and would show up as recording errors)
@@ -127,9 +128,9 @@ def test_recording_does_not_change_the_numbers(mapping_agent, tmp_path):
 
 def test_log_map_draws_gaussians_by_class_and_uncertainty(tmp_path):
     from helios.config import HeliosConfig
-    from helios.configuration import with_overrides as wo
+    from helios.schema import with_overrides as wo
     from helios.maps.hierarchical import HierarchicalMap
-    from tools.recording import BACKGROUND_RGB, PALETTE, EpisodeRecorder
+    from tasks.recording import BACKGROUND_RGB, PALETTE, EpisodeRecorder
 
     hmap = HierarchicalMap(wo(HeliosConfig(), ["occupancy.grid_size=64"]), ["mug", "table"], ["table"])
     hmap.objects.add_gaussians(np.zeros((2, 3)), 0.05, 0.5, concentrations=np.array([[1000.0, 1, 1], [1.0, 1, 1]]))

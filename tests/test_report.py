@@ -60,7 +60,7 @@ def test_report_on_two_runs_writes_the_table_pngs_and_html(tmp_path):
 
 def test_report_on_real_runs_from_the_cli(tmp_path, capsys):
     """End to end on one real (short) oracle episode, twice under different names."""
-    from helios.configuration import with_overrides
+    from helios.schema import with_overrides
     from tasks.episodes import load_split
     from tasks.trials import run_batch
     from tools.cli import main

@@ -16,7 +16,8 @@ from sim.grasping import support_body
 from sim.scenes.demo import build_demo_scene
 from sim.spot import SpotBody
 from sim.world import World
-from tools.demo import _approach_pose, run_demo
+from tasks.scripted_demo import WorldTable, approach_pose
+from tools.demo import run_demo
 
 
 def _demo_setup(seed: int = 0, **cfg):
@@ -30,7 +31,7 @@ def _demo_setup(seed: int = 0, **cfg):
 def _look_and_grasp(world, backend, scene):
     mug = scene["mug"]
     start = world.position(mug)
-    pose = _approach_pose(world, scene["pick_table"], start[:2], np.zeros(2), 0.30)
+    pose = approach_pose(WorldTable(world, scene["pick_table"]), start[:2], np.zeros(2), 0.30)
     assert backend.navigate_to(pose).success
     assert backend.gaze_at(start + [0, 0, 0.05]).success
     obs = backend.observe()
@@ -85,7 +86,7 @@ def test_release_ten_centimetres_above_a_table_leaves_the_mug_settled_on_it():
         robot = np.array(backend.spot.base_pose().as_tuple()[:2])
         d = (centre - robot) / np.linalg.norm(centre - robot)
         target_xy = centre - d * 0.15
-        assert backend.navigate_to(_approach_pose(world, scene["place_table"], target_xy, robot, 0.2)).success
+        assert backend.navigate_to(approach_pose(WorldTable(world, scene["place_table"]), target_xy, robot, 0.2)).success
         top = table.extra["top_height"]
         placed = backend.place([target_xy[0], target_xy[1], top], release_height=0.10)
         assert placed.success and not backend.holding
@@ -105,7 +106,7 @@ def test_grasping_a_mug_out_of_reach_fails_with_a_reason():
     try:
         mug = scene["mug"]
         start = world.position(mug)
-        far = _approach_pose(world, scene["pick_table"], start[:2], np.zeros(2), 1.2)
+        far = approach_pose(WorldTable(world, scene["pick_table"]), start[:2], np.zeros(2), 1.2)
         assert backend.navigate_to(far).success
         assert backend.gaze_at(start).success
         obs = backend.observe()

@@ -151,15 +151,14 @@ def test_scripted_demo_has_the_same_physical_outcome_as_the_simulator(seed):
     from sim.scenes.demo import build_demo_scene
     from sim.spot import SpotBody
     from sim.world import World
-    from tools.spot import DemoHints, physical_outcome, run_scripted_demo
+    from tasks.scripted_demo import DemoHints, ScriptedDemo, physical_outcome
 
     quiet = lambda *_: None  # noqa: E731
-    task = "Move the mug from the stool to the table"
     world = World()
     scene = build_demo_scene(world, np.random.default_rng(seed))
     sim_backend = SimSpotBackend(world, SpotBody(world, scene["robot_start"]), owns_world=False)
     try:
-        sim_agent = run_scripted_demo(sim_backend, task, DemoHints.from_facts(scene_facts(world, scene)), quiet)
+        sim_agent = ScriptedDemo(DemoHints.from_facts(scene_facts(world, scene)), say=quiet).run(sim_backend)
         sim_phys = physical_outcome(world, scene, sim_agent.place_target)
     finally:
         sim_backend.close()
@@ -168,7 +167,7 @@ def test_scripted_demo_has_the_same_physical_outcome_as_the_simulator(seed):
     demo = start_fake(seed=seed)
     backend = connect(demo, stop_fake_on_close=False)
     try:
-        sdk_agent = run_scripted_demo(backend, task, DemoHints.from_facts(demo.facts), quiet)
+        sdk_agent = ScriptedDemo(DemoHints.from_facts(demo.facts), say=quiet).run(backend)
         backend.close()
         with demo.fake.sim_lock:
             sdk_phys = physical_outcome(demo.world, demo.scene, sdk_agent.place_target)

@@ -168,7 +168,11 @@ def test_wrong_hostname(capsys, monkeypatch):
 
 @pytest.mark.parametrize("args, fragment", [
     (["127.0.0.1", "--task", "   "], "--task must not be empty"),
-    (["127.0.0.1", "--task", TASK, "--agent", "helios-v9"], "unknown agent 'helios-v9'; available: scripted-demo"),
+    (["127.0.0.1", "--task", TASK, "--agent", "helios-v9"], "unknown agent 'helios-v9'; valid agents: scripted-demo"),
+    (["127.0.0.1", "--task", TASK, "--agent", "helios"],
+     "agent 'helios' runs on task episodes, not on the demo layout; valid agents: scripted-demo"),
+    (["--fake", "--episode", "smoke-00001", "--agent", "scripted-demo"],
+     "agent 'scripted-demo' runs on the demo layout, not on task episodes; valid agents: helios"),
     (["--task", TASK], "HOSTNAME is required"),
     (["127.0.0.1", "--fake", "--task", TASK], "leave out the hostname"),
     (["127.0.0.1", "--task", TASK, "--cert", "/nonexistent/ca.pem"], "certificate file '/nonexistent/ca.pem' does not exist"),

@@ -16,11 +16,10 @@ import pytest
 
 pytest.importorskip("bosdyn.client")
 
-from robots.spot.fake_spot.launch import start_episode_fake  # noqa: E402
 from spot_fake_fixtures import (TEST_PASSWORD, TEST_USER, credentials_env, fast_config, python_threads,  # noqa: E402
                                 session_pki, wait_for_threads_to_end)
 from tasks.episodes import load_split  # noqa: E402
-from tasks.fake_sdk import run_fake_sdk_episode  # noqa: E402
+from tasks.fake_sdk import run_fake_sdk_episode, start_episode_fake  # noqa: E402
 from tasks.registry import make_agent  # noqa: E402
 from tasks.runner import run_sim_episode  # noqa: E402
 

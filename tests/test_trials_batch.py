@@ -15,7 +15,7 @@ import numpy as np
 import psutil
 import pytest
 
-from helios.configuration import with_overrides
+from helios.schema import with_overrides
 from tasks.episodes import load_split
 from tasks.trials import (NONDETERMINISTIC_FIELDS, TrialConfig, deterministic_view, read_results, run_batch,
                           run_one)

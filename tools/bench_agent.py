@@ -74,21 +74,19 @@ def run(args: argparse.Namespace) -> str:
     from helios.planning import FMMPlanner
     from helios.runtime import configure_threads
     from tasks.episodes import load_split
-    from tasks.registry import AGENTS, UnknownAgentError
+    from tasks.registry import check_agent, make_agent
     from tasks.runner import run_sim_episode
 
     configure_threads(1)
-    if args.agent_name not in AGENTS:
-        raise UnknownAgentError(f"unknown agent {args.agent_name!r}")
+    check_agent(args.agent_name)
     n_eps = 2 if args.quick else args.agent_episodes
     n_plans = 10 if args.quick else args.agent_replans
     rng = np.random.default_rng(args.seed)
     episodes = load_split("val")[:n_eps]
-    factory = AGENTS[args.agent_name][0]
     holder: dict = {}
 
     def make(sim):
-        holder["agent"] = factory(sim)
+        holder["agent"] = make_agent(args.agent_name, sim)
         return holder["agent"]
 
     rows, maps = [], []

@@ -121,8 +121,8 @@ def plot(result: dict, path: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from helios.configuration import with_overrides
-    from sim.perception.calibration import CalibrationSettings, calibrate
+    from helios.schema import with_overrides
+    from tasks.perception_calibration import CalibrationSettings, calibrate
     from sim.perception.config import SimPerceptionConfig
 
     if args.views < args.group or args.group < 1:

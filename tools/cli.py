@@ -28,7 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 def user_error_types() -> tuple[type[BaseException], ...]:
     """Exception classes that mean 'bad input', reported without a traceback."""
-    from helios.configuration import ConfigError
+    from helios.schema import ConfigError
     from helios.perception.errors import PerceptionError
     from robots.hal import HalError
     from robots.spot.urdf import UrdfError

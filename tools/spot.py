@@ -13,11 +13,12 @@ check, lease, power on, stand. Shutdown (always, also after a fault or Ctrl-C): 
 and power off, return the lease. A run folder (``--out``/name) gets the resolved backend config,
 the session log and the outcome; never credentials or tokens.
 
-Agents: on the demo scene, ``scripted-demo`` (the scripted pick-and-place of ``tools demo``, given
-the demo layout instead of a detector). ``--fake --episode ID`` instead serves a task episode's
-home and runs any agent of ``tasks.registry`` (HELIOS with its simulated detector fed the fake's
-ground truth for each SDK image) through ``tasks.fake_sdk``, scored by the simulator's judge: the
-same episode and agent code as ``tools trials`` on the sim backend, over the SDK.
+Agents come from ``tasks.registry``, the registry ``tools trials`` uses. On the demo layout:
+``scripted-demo`` (``tasks.scripted_demo``, the pick-and-place of ``tools demo``, given the demo
+layout instead of a detector). ``--fake --episode ID`` instead serves a task episode's home and
+runs any task-episode agent (HELIOS with its simulated detector fed the fake's ground truth for
+each SDK image) through ``tasks.fake_sdk``, scored by the simulator's judge: the same episode and
+agent code as ``tools trials`` on the sim backend, over the SDK.
 """
 
 from __future__ import annotations
@@ -25,194 +26,19 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import math
 import os
 import secrets
 import shutil
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
-from typing import Callable
 
-import numpy as np
-
-from robots.hal import SE2Pose
+from tasks.registry import DEMO, EPISODE, RunContext, agent_names, check_agent, make_agent
+from tasks.scripted_demo import DemoHints, physical_outcome
 
 _LOG = logging.getLogger("helios.spot")
-
-
-# ============================================================================ the scripted demo agent
-@dataclass(frozen=True)
-class TableHint:
-    """A table the scripted demo is told about (an agent would perceive it)."""
-
-    name: str
-    centre: tuple[float, float]          # odom frame, m
-    yaw: float                           # rad
-    half_extents: tuple[float, float]    # top, along its own x and y, m
-    top_height: float                    # m
-
-    def extent_along(self, d: np.ndarray) -> float:
-        """Half-width of the top along unit direction ``d`` (support function of its rectangle)."""
-        u = np.array([math.cos(self.yaw), math.sin(self.yaw)])
-        v = np.array([-math.sin(self.yaw), math.cos(self.yaw)])
-        return abs(float(d @ u)) * self.half_extents[0] + abs(float(d @ v)) * self.half_extents[1]
-
-
-@dataclass(frozen=True)
-class DemoHints:
-    """What the scripted demo knows in advance: the two tables and where the mug should be."""
-
-    pick_table: TableHint
-    place_table: TableHint
-    mug_position: tuple[float, float, float]
-
-    @staticmethod
-    def from_facts(facts: dict) -> "DemoHints":
-        """From the fake's (or the simulator's) ground truth (``launch.scene_facts``)."""
-        def table(f):
-            return TableHint(f["name"], tuple(map(float, f["centre"])), float(f["yaw"]),
-                             tuple(map(float, f["half_extents"])), float(f["top_height"]))
-        return DemoHints(table(facts["pick_table"]), table(facts["place_table"]),
-                         tuple(float(v) for v in facts["mug_position"]))
-
-    @staticmethod
-    def from_layout(start: SE2Pose) -> "DemoHints":
-        """The demo layout (``sim.scenes.demo.DemoLayout``) measured from the robot's start pose:
-        what a real robot needs when the room is set up like the demo scene."""
-        from sim.scenes.demo import DemoLayout
-
-        lay = DemoLayout()
-
-        def at(x: float, y: float) -> tuple[float, float]:
-            p = start.compose(SE2Pose(x, y, 0.0))
-            return (p.x, p.y)
-
-        pick = TableHint("table_pick", at(*lay.pick_table_xy), start.yaw, (0.4, 0.4), lay.table_height)
-        place = TableHint("table_place", at(*lay.place_table_xy), start.yaw + 0.3, (0.5, 0.35), lay.table_height)
-        mx, my = at(lay.pick_table_xy[0] - 0.22, lay.pick_table_xy[1])
-        return DemoHints(pick, place, (mx, my, lay.table_height))   # the mug stands on the table
-
-
-@dataclass
-class AgentStep:
-    name: str
-    ok: bool
-    detail: str
-    seconds: float
-
-
-@dataclass
-class AgentOutcome:
-    success: bool                      # every step succeeded (the agent's own view)
-    steps: list[AgentStep] = field(default_factory=list)
-    fault: str | None = None           # a robot fault that ended the run, if any
-    place_target: tuple[float, float, float] | None = None
-
-
-def _approach_pose(table: TableHint, target_xy: np.ndarray, robot_xy: np.ndarray, clearance: float) -> SE2Pose:
-    """A pose facing ``target_xy`` from the robot's side, ``clearance`` in front of the table edge
-    (the same geometry as ``tools.demo``)."""
-    centre = np.asarray(table.centre, dtype=float)
-    d = target_xy - robot_xy
-    d = d / np.linalg.norm(d)
-    body_front = 0.45
-    p = centre - d * (table.extent_along(d) + body_front + clearance)
-    perp = np.array([-d[1], d[0]])
-    p = p + perp * float((target_xy - centre) @ perp)
-    return SE2Pose(p[0], p[1], math.atan2(d[1], d[0]))
-
-
-def _pixel_of(obs, point) -> tuple[int, int] | None:
-    p_cam = np.linalg.inv(obs.T_world_cam) @ np.append(np.asarray(point, dtype=float), 1.0)
-    if p_cam[2] <= 0:
-        return None
-    (u, v), _ = obs.intrinsics.project(p_cam[:3])
-    u, v = int(round(float(u))), int(round(float(v)))
-    if 0 <= u < obs.intrinsics.width and 0 <= v < obs.intrinsics.height:
-        return u, v
-    return None
-
-
-def run_scripted_demo(backend, task: str, hints: DemoHints, say: Callable[[str], None] = print) -> AgentOutcome:
-    """Walk to the pick table, look at the mug, grasp it by pixel, carry it, release it 10 cm above
-    the place table (20 cm inside its near edge), stow. Only HAL calls; the one shortcut is that
-    the mug's expected position is given (no detector yet)."""
-    from robots.hal import RobotFault
-
-    out = AgentOutcome(success=False)
-
-    def step(name: str, result) -> bool:
-        ok = bool(result)
-        detail = result.message or result.reason.value
-        out.steps.append(AgentStep(name, ok, detail, float(result.duration)))
-        say(f"[spot] {len(out.steps)}. {name:<34} {'ok' if ok else 'FAILED':<6} {detail}  [{result.duration:.2f} s]")
-        return ok
-
-    mug = np.asarray(hints.mug_position, dtype=float)
-    say(f"[spot] task: {task!r} (agent scripted-demo: mug expected at ({mug[0]:.2f}, {mug[1]:.2f}); "
-        f"goal: {hints.place_table.name})")
-    try:
-        here = backend.observe().body_pose
-        robot_xy = np.array([here.x, here.y])
-        if not step("walk to the pick table", backend.navigate_to(
-                _approach_pose(hints.pick_table, mug[:2], robot_xy, 0.30))):
-            return out
-        look = mug + np.array([0.0, 0.0, 0.05])
-        if not step("look at the mug with the hand camera", backend.gaze_at(look)):
-            return out
-        obs = backend.observe()
-        pixel = _pixel_of(obs, look)
-        if pixel is None:
-            out.steps.append(AgentStep("find the mug in the image", False, "mug not in view", 0.0))
-            return out
-        if not step(f"grasp at pixel {pixel}", backend.grasp(obs, pixel)):
-            return out
-        if not step("carry pose", backend.stow_arm()):
-            return out
-        here = backend.observe().body_pose
-        robot_xy = np.array([here.x, here.y])
-        centre = np.asarray(hints.place_table.centre, dtype=float)
-        d = (centre - robot_xy) / np.linalg.norm(centre - robot_xy)
-        place_xy = centre - d * hints.place_table.extent_along(d) + d * 0.20
-        if not step("walk to the place table", backend.navigate_to(
-                _approach_pose(hints.place_table, place_xy, robot_xy, 0.20))):
-            return out
-        target = (float(place_xy[0]), float(place_xy[1]), hints.place_table.top_height)
-        out.place_target = target
-        if not step("release 10 cm above the table", backend.place(target, release_height=0.10)):
-            return out
-        step("stow the arm", backend.stow_arm())
-        out.success = all(s.ok for s in out.steps)
-    except RobotFault as exc:
-        out.fault = f"{type(exc).__name__}: {exc}"
-        say(f"[spot] robot fault: {out.fault}")
-    return out
-
-
-# name -> (callable(backend, task, hints, say) -> AgentOutcome, description). The HELIOS agent joins here.
-AGENTS: dict[str, tuple[Callable, str]] = {
-    "scripted-demo": (run_scripted_demo, "scripted pick-and-place in the demo layout (tools demo's sequence)"),
-}
-
-
-def physical_outcome(world, scene: dict, place_target=None) -> dict:
-    """Ground truth after a run in the simulator: where the mug came to rest (sim/fake only)."""
-    from sim.grasping import support_body
-
-    mug = scene["mug"]
-    world.settle([b.body_id for b in world.bodies_of_kind("object")], max_time=3.0)
-    final = world.position(mug)
-    support = support_body(world, mug)
-    resting_on = world.bodies[support].name if support is not None else None
-    settled = world.is_at_rest(mug)
-    out = {"resting_on": resting_on, "settled": bool(settled), "final_position": [float(v) for v in final],
-           "success": bool(resting_on == scene["place_table"] and settled)}
-    if place_target is not None:
-        out["offset_from_target"] = float(np.linalg.norm(final[:2] - np.asarray(place_target[:2])))
-    return out
 
 
 # ============================================================================ command line
@@ -221,8 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--task", default=None,
                         help='what to do, e.g. "Move the mug from the stool to the table" (not with --episode)')
     parser.add_argument("--agent", default=None,
-                        help=f"agent to run (demo: {', '.join(AGENTS)}, the default; with --episode: an agent of "
-                             f"`python -m tools trials`, default helios)")
+                        help=f"agent to run (demo layout: {', '.join(agent_names(DEMO))}, the default; with "
+                             f"--episode: an agent of `python -m tools trials`, default helios)")
     parser.add_argument("--episode", default=None, metavar="ID",
                         help="--fake only: serve this task episode's scene (e.g. smoke-00001) and run the agent "
                              "on it, scored like a simulated trial")
@@ -245,6 +71,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="SDK backend config overrides, e.g. --set rpc_timeout=2.0 estop_timeout=5 "
                              "(schema: robots/spot/sdk_backend.py SdkBackendConfig)")
+    parser.add_argument("--config", default=None, metavar="FILE.yaml",
+                        help="SDK backend scenario file (SdkBackendConfig YAML, e.g. configs/spot_fake.yaml or a run "
+                             "folder's config.yaml); HOSTNAME, --port, --cert, --estop, --take-lease and --set "
+                             "override it")
 
 
 class _RunLog(logging.Handler):
@@ -293,21 +123,16 @@ def _validate(args: argparse.Namespace):
             raise CliError("--episode brings its own task; leave out --task")
         if args.agent is None:
             args.agent = "helios"
-        from tasks.registry import AGENTS as EPISODE_AGENTS
-        from tasks.registry import UnknownAgentError, agent_names
-
-        if args.agent not in EPISODE_AGENTS:
-            raise UnknownAgentError(f"unknown agent {args.agent!r}; valid agents: {', '.join(agent_names())}")
+        check_agent(args.agent, EPISODE)
     else:
         if not args.task or not args.task.strip():
             raise CliError("--task must not be empty (e.g. --task \"Move the mug from the stool to the table\")")
         if args.agent is None:
             args.agent = "scripted-demo"
-        if args.agent not in AGENTS:
-            raise CliError(f"unknown agent {args.agent!r}; available: {', '.join(sorted(AGENTS))}")
+        check_agent(args.agent, DEMO)
     if args.fake and args.hostname:
         raise CliError("--fake runs against a local fake robot; leave out the hostname")
-    if not args.fake and not args.hostname:
+    if not args.fake and not args.hostname and not getattr(args, "config", None):
         raise CliError("the robot's HOSTNAME is required (or --fake for a dry run against a simulated Spot)")
     if args.port is not None and not 0 < args.port < 65536:
         raise CliError(f"--port must be within 1..65535, got {args.port}")
@@ -317,17 +142,25 @@ def run(args: argparse.Namespace) -> int:
     _validate(args)
     # grpc's C core prints its own TLS/connection diagnostics to stderr; our errors say it clearly.
     os.environ.setdefault("GRPC_VERBOSITY", "NONE")
-    from helios.configuration import dump_yaml, with_overrides
+    from helios.schema import dump_yaml, load_config, with_overrides
     from robots.spot.sdk_backend import PASSWORD_ENV, USERNAME_ENV, SdkBackendConfig, SdkSpotBackend
+    from tools.cli import CliError
 
-    base = {"port": args.port} if args.port is not None else {}
+    # defaults < --config file < flags given < --set KEY=VALUE
+    flags = {"hostname": args.hostname} if args.hostname else {}
+    if args.port is not None:
+        flags["port"] = args.port
     if args.cert is not None:
-        base["cert_path"] = args.cert
+        flags["cert_path"] = args.cert
     if args.estop is not None:
-        base["estop_mode"] = args.estop
+        flags["estop_mode"] = args.estop
     if args.take_lease:
-        base["take_lease"] = True
-    config = with_overrides(SdkBackendConfig(hostname=args.hostname or "127.0.0.1", **base), list(args.overrides))
+        flags["take_lease"] = True
+    config_file = getattr(args, "config", None)
+    base = load_config(SdkBackendConfig, config_file) if config_file else SdkBackendConfig(hostname="127.0.0.1")
+    config = with_overrides(with_overrides(base, flags), list(args.overrides))
+    if not args.fake and not config.hostname:
+        raise CliError(f"the robot's HOSTNAME is required: {config_file} sets none (or --fake for a dry run)")
 
     run_dir = Path(args.out) / (args.name or time.strftime("%Y%m%d-%H%M%S"))
     handler = _RunLog()
@@ -357,8 +190,11 @@ def run(args: argparse.Namespace) -> int:
                 hints = DemoHints.from_facts(demo.facts)
             else:
                 hints = DemoHints.from_layout(backend.observe().body_pose)
-            agent, _ = AGENTS[args.agent]
-            outcome = agent(backend, args.task, hints, print)
+            mug = hints.mug_position
+            print(f"[spot] task: {args.task!r} (agent {args.agent}: mug expected at ({mug[0]:.2f}, {mug[1]:.2f}); "
+                  f"goal: {hints.place_table.name})")
+            agent = make_agent(args.agent, RunContext(task=args.task, seed=args.seed, hints=hints, say=print))
+            outcome = agent.run(backend)
         except KeyboardInterrupt:
             print("[spot] interrupted: stopping the robot", file=sys.stderr)
             raise
@@ -416,7 +252,7 @@ def _restore_env(saved: dict[str, str | None]) -> None:
 
 def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str, password_env: str) -> int:
     """``--fake --episode``: the episode through SDK -> fake Spot -> PyBullet, scored by the judge."""
-    from helios.configuration import dump_yaml
+    from helios.schema import dump_yaml
     from tasks.episodes import load_split
     from tasks.fake_sdk import run_fake_sdk_episode
     from tools.cli import CliError
@@ -485,7 +321,7 @@ def _start_fake(args, config, user_env: str, password_env: str):
     except BaseException:
         shutil.rmtree(pki_dir, ignore_errors=True)
         raise
-    from helios.configuration import with_overrides
+    from helios.schema import with_overrides
 
     config = with_overrides(config, {"hostname": "127.0.0.1", "port": demo.port, "cert_path": str(demo.pki.ca_cert)})
     print(f"[spot] fake Spot (demo scene, seed {args.seed}) on 127.0.0.1:{demo.port}, test CA {demo.pki.ca_cert}")

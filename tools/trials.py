@@ -6,6 +6,14 @@ results, a printed OVMM-style table and ``summary.json``.
     python -m tools trials --agent oracle --episodes-file my_eval.jsonl --out runs/mine runner.max_sim_time=300
     python -m tools trials ... --executor ray --address local|auto|HOST:PORT   (pip install -e '.[ray]')
     python -m tools trials ... --record 3      (rerun recordings of the first 3 episodes)
+    python -m tools trials --config configs/val_helios.yaml --workers 2 --out runs/val/helios
+    python -m tools trials --config runs/val/helios/config.yaml --episodes 300 --out runs/val/helios
+
+Scenario files: ``--config FILE.yaml`` loads a trial config (schema ``tasks.trials.TrialConfig``;
+examples in ``configs/``), then ``--agent``/``--split``/``--episodes-file``/``--episodes``/``--seed``
+override it where given, then ``KEY=VALUE`` overrides. A run folder's ``config.yaml`` is such a
+file (its ``helios_version``/``git_commit`` header is provenance, checked and otherwise ignored):
+fed back with the same ``--out`` it resumes that run.
 
 Re-running the same command continues an interrupted batch (finished episodes are skipped); the
 number of workers, the executor and recording may change between runs without changing a number.
@@ -24,11 +32,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from tasks.registry import agent_names
     from tools.progress import MODES
 
-    parser.add_argument("--agent", default="oracle", help=f"agent: {', '.join(agent_names())}")
-    parser.add_argument("--split", default="smoke", help=f"episode split: {', '.join(SPLITS)}")
-    parser.add_argument("--episodes-file", default="", help="JSONL episode file (overrides --split)")
-    parser.add_argument("--episodes", type=int, default=20, help="number of episodes (from the start of the split)")
-    parser.add_argument("--seed", type=int, default=0, help="master seed (per-episode seeds derive from it)")
+    parser.add_argument("--config", default=None, metavar="FILE.yaml",
+                        help="scenario file: a trial config (e.g. configs/smoke.yaml, or a run folder's config.yaml); "
+                             "the flags below and KEY=VALUE override it")
+    parser.add_argument("--agent", default=None, help=f"agent (default oracle): {', '.join(agent_names())}")
+    parser.add_argument("--split", default=None, help=f"episode split (default smoke): {', '.join(SPLITS)}")
+    parser.add_argument("--episodes-file", default=None, help="JSONL episode file (overrides --split)")
+    parser.add_argument("--episodes", type=int, default=None,
+                        help="number of episodes from the start of the split (default 20)")
+    parser.add_argument("--seed", type=int, default=None, help="master seed (per-episode seeds derive from it; default 0)")
     parser.add_argument("--out", default="", help="run folder (default: runs/<agent>_<split>_s<seed>)")
     parser.add_argument("--workers", type=int, default=1,
                         help="episodes in parallel: local worker processes, or Ray CPUs with --address local")
@@ -44,13 +56,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="config overrides, e.g. runner.max_sim_time=300 sim.camera.width=640")
 
 
-def resolve_config(args: argparse.Namespace):
-    from helios.configuration import with_overrides
-    from tasks.trials import TrialConfig
+# flags that set a TrialConfig field (argparse dest = field name); None = not given
+CONFIG_FLAGS = ("agent", "split", "episodes_file", "episodes", "seed")
 
-    base = TrialConfig(agent=args.agent, split=args.split, episodes_file=args.episodes_file,
-                       episodes=args.episodes, seed=args.seed)
-    return with_overrides(base, list(args.overrides))
+
+def resolve_config(args: argparse.Namespace):
+    """Defaults < ``--config`` file < flags given on the command line < ``KEY=VALUE`` overrides."""
+    from helios.schema import with_overrides
+    from tasks.trials import TrialConfig, load_trial_config
+
+    base = TrialConfig()
+    if getattr(args, "config", None):
+        header, base = load_trial_config(args.config)
+        _check_provenance(args.config, header)
+    flags = {name: getattr(args, name) for name in CONFIG_FLAGS if getattr(args, name, None) is not None}
+    return with_overrides(with_overrides(base, flags), list(args.overrides))
+
+
+def _check_provenance(path: str, header: dict) -> None:
+    """A run folder's config.yaml names the version and commit that made it: say when they differ."""
+    from tasks.provenance import git_commit, package_version
+
+    made = {"helios_version": header.get("helios_version"), "git_commit": header.get("git_commit")}
+    now = {"helios_version": package_version(), "git_commit": git_commit()}
+    differ = [k for k in made if made[k] not in (None, "unknown") and now[k] != "unknown" and made[k] != now[k]]
+    if differ:
+        print(f"warning: {path} was written by helios {made['helios_version']} at commit "
+              f"{str(made['git_commit'])[:10]}; this is {now['helios_version']} at {now['git_commit'][:10]}: "
+              f"the same config may not give the same numbers", file=sys.stderr)
 
 
 def select_episodes(config):
@@ -71,7 +104,7 @@ def default_out(config) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tasks.registry import agent_names
+    from tasks.registry import check_agent
     from tasks.trials import (METRIC_NAMES, BatchReport, EpisodeSetupError, metrics_table_rows, read_results,
                               run_batch, summarize)
     from tools.cli import CliError
@@ -79,8 +112,7 @@ def run(args: argparse.Namespace) -> int:
     from tools.tables import format_markdown, format_table
 
     config = resolve_config(args)
-    if config.agent not in agent_names():
-        raise CliError(f"unknown agent {config.agent!r}; valid agents: {', '.join(agent_names())}")
+    check_agent(config.agent)
     if args.workers < 1:
         raise CliError(f"--workers must be >= 1, got {args.workers}")
     if args.record < 0:

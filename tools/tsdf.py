@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from helios.configuration import with_overrides
+    from helios.schema import with_overrides
     from robots.spot.sim_backend import SimBackendConfig
     from tasks.episodes import load_episodes, load_split
     from tasks.oracle import OracleAgent

@@ -1,10 +1,8 @@
-"""HELIOS agents: the full method and the paper's ablations as flags on one code path
-(:mod:`helios.agents.helios_agent`; named variants in :mod:`helios.agents.variants`)."""
+"""HELIOS agents: the full method and the paper's ablations as flags on one code path.
 
-from helios._lazy import lazy_getattr
-
-# imported on first use: the agent pulls in torch and the map, the command line needs only names
-_LAZY = {"AgentConfig": "config", "PlaceConfig": "config", "ReachConfig": "config", "ViewConfig": "config",
-         "HeliosAgent": "helios_agent", "VARIANTS": "variants"}
-__getattr__ = lazy_getattr(__name__, _LAZY)
-__all__ = sorted(_LAZY)
+Rooms: :mod:`~helios.agents.helios_agent` (phase machine and decision), :mod:`~helios.agents.observer`,
+:mod:`~helios.agents.body`, :mod:`~helios.agents.pick`, :mod:`~helios.agents.place`,
+:mod:`~helios.agents.candidates`; settings in :mod:`~helios.agents.config`, named variants in
+:mod:`~helios.agents.variants`. Nothing is exported here: the command line lists the variant names
+without importing torch and the map, so import from the module you need.
+"""

@@ -13,11 +13,7 @@ from typing import Literal
 
 from helios.planning.fmm import PlannerConfig
 from helios.search.gaze_points import GazeConfig
-
-
-def _require(condition: bool, message: str) -> None:
-    if not condition:
-        raise ValueError(message)
+from helios.schema import require
 
 
 @dataclass(frozen=True)
@@ -66,8 +62,8 @@ class ViewConfig:
     camera pose of hypothetical views (information gain, predicted scores)."""
 
     def __post_init__(self) -> None:
-        _require(bool(self.look_yaws_deg) and bool(self.start_look_yaws_deg), "look yaw lists must not be empty")
-        _require(self.look_distance > 0.3, "look_distance must be > 0.3 m")
+        require(bool(self.look_yaws_deg) and bool(self.start_look_yaws_deg), "look yaw lists must not be empty")
+        require(self.look_distance > 0.3, "look_distance must be > 0.3 m")
 
 
 @dataclass(frozen=True)
@@ -96,7 +92,7 @@ class ReachConfig:
     """Goal radius of that step (m)."""
 
     def __post_init__(self) -> None:
-        _require(self.arm_reach > 0 and self.band >= 0 and self.n_angles >= 4, "invalid reach settings")
+        require(self.arm_reach > 0 and self.band >= 0 and self.n_angles >= 4, "invalid reach settings")
 
 
 @dataclass(frozen=True)
@@ -122,9 +118,9 @@ class PlaceConfig:
     """The approach aims at the receptacle's nearest footprint point moved this far (m) inwards."""
 
     def __post_init__(self) -> None:
-        _require(self.mode in ("drop", "improved"), f"place mode must be 'drop' or 'improved', got {self.mode!r}")
-        _require(0 <= self.improved_height <= self.drop_height <= 1.0, "need 0 <= improved_height <= drop_height <= 1")
-        _require(self.region[0] < self.region[1] and self.region[2] < self.region[3], "place region must be x0<x1, y0<y1")
+        require(self.mode in ("drop", "improved"), f"place mode must be 'drop' or 'improved', got {self.mode!r}")
+        require(0 <= self.improved_height <= self.drop_height <= 1.0, "need 0 <= improved_height <= drop_height <= 1")
+        require(self.region[0] < self.region[1] and self.region[2] < self.region[3], "place region must be x0<x1, y0<y1")
 
 
 @dataclass(frozen=True)
@@ -169,9 +165,33 @@ class AgentConfig:
     place: PlaceConfig = field(default_factory=PlaceConfig)
 
     def __post_init__(self) -> None:
-        _require(self.variant in ("helios", "no_global", "trusting"),
+        require(self.variant in ("helios", "no_global", "trusting"),
                  f"variant must be helios, no_global or trusting, got {self.variant!r}")
-        _require(self.max_pick_attempts >= 0, "max_pick_attempts must be >= 0 (0 = unlimited)")
-        _require(self.max_looks_per_candidate >= 0 and self.max_failures_per_candidate >= 1,
+        require(self.max_pick_attempts >= 0, "max_pick_attempts must be >= 0 (0 = unlimited)")
+        require(self.max_looks_per_candidate >= 0 and self.max_failures_per_candidate >= 1,
                  "need max_looks_per_candidate >= 0 and max_failures_per_candidate >= 1")
-        _require(self.frontier_reach > 0 and self.gaze_goal_radius > 0, "radii must be > 0")
+        require(self.frontier_reach > 0 and self.gaze_goal_radius > 0, "radii must be > 0")
+
+    @property
+    def flags(self) -> "VariantFlags":
+        """The variant as the typed switches the one code path reads."""
+        return VariantFlags.of(self.variant)
+
+
+@dataclass(frozen=True)
+class VariantFlags:
+    """What a variant switches on or off, so the agent reads typed flags, never variant names.
+
+    ``object_map``: the Gaussian layer with Psi decisions and gaze points (HELIOS); without it
+    the agent keeps 2D maps only and trusts the first detection of the object / goal receptacle
+    (the trusting baseline). ``pick_objective``: how the pick phase chooses between candidate pick
+    locations and frontiers (:class:`helios.search.objective.GlobalObjective` modes)."""
+
+    object_map: bool
+    pick_objective: Literal["objective", "prefer_candidates", "frontiers_only"]
+
+    @staticmethod
+    def of(variant: str) -> "VariantFlags":
+        return {"helios": VariantFlags(True, "objective"),
+                "no_global": VariantFlags(True, "prefer_candidates"),
+                "trusting": VariantFlags(False, "frontiers_only")}[variant]

@@ -1,4 +1,5 @@
-"""Where to let go of the object: the paper's drop heuristic and the improved place.
+"""The place skill: walk to where the arm reaches the goal receptacle's top, look at it, choose
+where to let go (the paper's drop heuristic, or the improved place) and release there.
 
 The paper (Sec. Results): "dropping the object above the highest detected point in a region in
 front of the agent"; it names place as a major failure cause (objects roll off because nothing
@@ -13,6 +14,10 @@ adjusts the release). ``improved`` keeps the same detected surface but
 
 The grasp's roll is kept (the HAL's ``place`` turns the hand only about the vertical), so a
 side-grasped object arrives upright.
+
+Where the release point comes from, in order: the receptacle's detection in the place view
+(eroded, see ``PlaceConfig.mask_erosion_px``); else whatever the camera sees near the mapped top
+height; else the map's estimate of the top itself.
 """
 
 from __future__ import annotations
@@ -22,7 +27,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from helios.agents.config import PlaceConfig
+from helios.agents.body import Body
+from helios.agents.config import AgentConfig, PlaceConfig
+from helios.agents.geometry import backproject
+from helios.agents.observer import Observer
+from helios.agents.skill import SkillOutcome
+from helios.agents.target import Target
+from robots.hal import RobotBackend
 from robots.transforms import invert_transform
 
 
@@ -31,6 +42,40 @@ class PlaceTarget:
     point: np.ndarray          # (3,) world point on the surface
     release_height: float      # m above ``point`` for the bottom of the object
     n_points: int              # surface points it was chosen from
+
+
+def place(robot: RobotBackend, body: Body, observer: Observer, target: Target, config: AgentConfig) -> SkillOutcome:
+    """One place attempt onto ``target`` (the goal receptacle); the arm is stowed afterwards."""
+    cfg, reach = config.place, config.reach
+    fp = np.asarray(target.footprint_xy, dtype=float)
+    here = body.xy()
+    nearest = fp[int(np.argmin(np.linalg.norm(fp - here, axis=1)))]
+    inward = fp.mean(axis=0) - nearest
+    n = float(np.linalg.norm(inward))
+    spot = nearest + (inward / n * min(cfg.approach_inset, n) if n > 1e-6 else 0.0)
+    surface = np.array([spot[0], spot[1], target.top])
+    failed = body.approach(robot, surface + [0.0, 0.0, reach.place_lift], "place")
+    if failed:
+        return SkillOutcome(False, failed)
+    body.face(robot, surface)
+    if not body.gaze(robot, surface).success:
+        return SkillOutcome(False, "cannot look at the place point from the place pose")
+    obs = body.observe(robot)
+    mask = observer.matching_mask(obs, target, observer.goal_class)
+    chosen = None
+    if mask is not None:
+        inner = ndimage.binary_erosion(mask, iterations=cfg.mask_erosion_px) if cfg.mask_erosion_px else mask
+        chosen = choose_place_point(backproject(obs, inner), obs.T_world_body, cfg)
+    if chosen is None:   # not detected in this frame: what the camera sees near the mapped top
+        pts = backproject(obs, stride=2)
+        chosen = choose_place_point(pts[np.abs(pts[:, 2] - target.top) < 0.1], obs.T_world_body, cfg)
+    if chosen is None:
+        chosen = PlaceTarget(surface, cfg.drop_height if cfg.mode == "drop" else cfg.improved_height, 0)
+        body.log.append("place: no detected surface in front; using the map's estimate")
+    res = robot.place(chosen.point, release_height=chosen.release_height)
+    body.log.append(f"place on {target.key} at {np.round(chosen.point, 2).tolist()}: {res.reason.value} {res.message}")
+    body.stow(robot)
+    return SkillOutcome(res.success, "" if res.success else f"place failed ({res.reason.value})", attempted=True)
 
 
 def region_points(points_world: np.ndarray, T_world_body: np.ndarray, cfg: PlaceConfig) -> np.ndarray:

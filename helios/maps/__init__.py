@@ -1,16 +1,17 @@
 """HELIOS's hierarchical map: occupancy + frontiers, value maps, object Gaussians, instances.
 
-Names are imported on first use, so light users (the planner needs only ``GridGeometry``) do not
-load torch."""
+The package exports the torch-free layers. The torch-based ones are imported from their modules
+(``helios.maps.hierarchical.HierarchicalMap``, ``helios.maps.gaussians.GaussianMap``,
+``helios.maps.renderer.render_gaussians``), so light users (the planner needs only
+``GridGeometry``, the oracle agent only the planner) do not load torch."""
 
-from helios._lazy import lazy_getattr
+from helios.maps.classes import ClassSet, UnknownClassError
+from helios.maps.frontiers import Frontier, find_frontiers
+from helios.maps.grid import GridGeometry
+from helios.maps.inputs import MapInputError
+from helios.maps.instances import Instance
+from helios.maps.occupancy import OccupancyGrid
+from helios.maps.value_map import ValueMap
 
-_LAZY = {
-    "ClassSet": "classes", "UnknownClassError": "classes", "Frontier": "frontiers", "find_frontiers": "frontiers",
-    "GaussianMap": "gaussians", "GaussianUpdate": "gaussians", "RenderedImages": "gaussians", "GridGeometry": "grid",
-    "HierarchicalMap": "hierarchical", "MapUpdate": "hierarchical", "MapInputError": "inputs",
-    "Instance": "instances", "OccupancyGrid": "occupancy", "Rendering": "renderer",
-    "render_gaussians": "renderer", "ValueMap": "value_map",
-}
-__getattr__ = lazy_getattr(__name__, _LAZY)
-__all__ = sorted(_LAZY)
+__all__ = ["ClassSet", "Frontier", "GridGeometry", "Instance", "MapInputError", "OccupancyGrid", "UnknownClassError",
+           "ValueMap", "find_frontiers"]

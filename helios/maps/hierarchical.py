@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from helios.config import HeliosConfig
-from helios.configuration import ConfigError
+from helios.schema import ConfigError
 from helios.maps.classes import ClassSet
 from helios.maps.frontiers import Frontier, find_frontiers
 from helios.maps.gaussians import GaussianMap, GaussianUpdate

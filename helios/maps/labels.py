@@ -14,6 +14,7 @@ import numpy as np
 
 from helios.maps.classes import ClassSet
 from helios.maps.inputs import MapInputError, check_image_mask
+from helios.perception.config import passes_threshold
 from helios.perception.detection import Detection
 
 
@@ -41,7 +42,7 @@ def label_detections(detections: Sequence[Detection], classes: ClassSet, shape: 
             raise MapInputError(f"detections[{k}] is a {type(det).__name__}, not a Detection")
         cls = classes.index(det.class_name)
         mask = check_image_mask(det.mask, shape, f"detections[{k}].mask ({det.class_name!r})")
-        if det.score >= thresholds.get(det.class_name, -np.inf) and mask.any():
+        if passes_threshold(det, thresholds, default=-np.inf) and mask.any():
             checked.append((det.score, cls, mask))
     labels = np.full(shape, classes.background_index, dtype=np.int64)
     objects = np.zeros(shape, dtype=bool)

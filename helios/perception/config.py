@@ -2,23 +2,21 @@
 where the real models' weights live. Simulator-side parameters (how the simulated detector errs)
 are in ``sim.perception.config``; nothing here knows about the simulator.
 
-Field names of :class:`DetectionThresholds` match ``helios.config.DetectionConfig`` so either can
-be handed to :func:`role_thresholds`.
+:class:`DetectionThresholds` is the one threshold type of the project: it is also the
+``detection`` section of :class:`helios.config.HeliosConfig` (YAML keys ``helios.detection.*``).
+:func:`role_thresholds` turns it into per-class thresholds of one task and :func:`apply_thresholds`
+is the one place detections are filtered by score.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Iterable, Literal, Mapping, Protocol
+from typing import Iterable, Literal, Mapping
 
 from helios.perception.detection import Detection
 from helios.perception.prompts import VALUE_PROMPT_TEMPLATE
-
-
-def _require(condition: bool, message: str) -> None:
-    if not condition:
-        raise ValueError(message)
+from helios.schema import require
 
 
 @dataclass(frozen=True)
@@ -36,18 +34,13 @@ class DetectionThresholds:
     def __post_init__(self) -> None:
         for name in ("od_start_receptacle", "od_object", "od_goal_receptacle"):
             value = getattr(self, name)
-            _require(isinstance(value, (int, float)) and 0.0 <= value <= 1.0, f"{name} must be in [0, 1], got {value}")
+            require(isinstance(value, (int, float)) and 0.0 <= value <= 1.0, f"{name} must be in [0, 1], got {value}")
 
 
-class _HasThresholds(Protocol):
-    od_start_receptacle: float
-    od_object: float
-    od_goal_receptacle: float
-
-
-def role_thresholds(thresholds: _HasThresholds, object_class: str, start_receptacle: str,
+def role_thresholds(thresholds: DetectionThresholds, object_class: str, start_receptacle: str,
                     goal_receptacle: str) -> dict[str, float]:
-    """Class name -> threshold for one task; a class filling two roles gets the lower threshold."""
+    """Class name -> threshold for one task; a class filling two roles gets the lower threshold
+    (HELIOS filters false positives itself but cannot recover missed detections)."""
     out: dict[str, float] = {}
     for name, value in ((object_class, thresholds.od_object), (start_receptacle, thresholds.od_start_receptacle),
                         (goal_receptacle, thresholds.od_goal_receptacle)):
@@ -55,16 +48,18 @@ def role_thresholds(thresholds: _HasThresholds, object_class: str, start_recepta
     return out
 
 
+def passes_threshold(detection: Detection, thresholds: Mapping[str, float], default: float | None = None) -> bool:
+    """Whether ``detection.score`` reaches its class's threshold (``default`` for classes missing
+    from ``thresholds``; with ``default=None`` such a class never passes)."""
+    t = thresholds.get(detection.class_name, default)
+    return t is not None and detection.score >= t
+
+
 def apply_thresholds(detections: Iterable[Detection], thresholds: Mapping[str, float],
                      default: float | None = None) -> list[Detection]:
-    """Detections whose score reaches their class's threshold. Classes missing from ``thresholds``
-    use ``default``; with ``default=None`` they are dropped."""
-    out = []
-    for det in detections:
-        t = thresholds.get(det.class_name, default)
-        if t is not None and det.score >= t:
-            out.append(det)
-    return out
+    """The detections, in order, that pass :func:`passes_threshold`. The agent keeps only the
+    task's classes: ``apply_thresholds(dets, role_thresholds(...), default=1.0)``."""
+    return [det for det in detections if passes_threshold(det, thresholds, default)]
 
 
 @dataclass(frozen=True)
@@ -88,9 +83,9 @@ class ModelConfig:
     (OWLv2 gives boxes, the map wants masks). 0 = use the whole box."""
 
     def __post_init__(self) -> None:
-        _require(0.0 <= self.detector_min_score <= 1.0, f"detector_min_score must be in [0, 1], got {self.detector_min_score}")
-        _require(math.isfinite(self.depth_mask_tolerance) and self.depth_mask_tolerance >= 0,
-                 f"depth_mask_tolerance must be >= 0 m, got {self.depth_mask_tolerance}")
+        require(0.0 <= self.detector_min_score <= 1.0, f"detector_min_score must be in [0, 1], got {self.detector_min_score}")
+        require(math.isfinite(self.depth_mask_tolerance) and self.depth_mask_tolerance >= 0,
+                f"depth_mask_tolerance must be >= 0 m, got {self.depth_mask_tolerance}")
 
 
 @dataclass(frozen=True)
@@ -103,5 +98,5 @@ class PerceptionConfig:
     models: ModelConfig = field(default_factory=ModelConfig)
 
     def __post_init__(self) -> None:
-        _require(self.value_prompt.count("{}") == 1,
-                 f"value_prompt needs exactly one '{{}}' for the category, got {self.value_prompt!r}")
+        require(self.value_prompt.count("{}") == 1,
+                f"value_prompt needs exactly one '{{}}' for the category, got {self.value_prompt!r}")

@@ -1,16 +1,12 @@
 """HELIOS search: information gain of candidate views, the global objective, gaze points and the
-pick/place decision rule (names imported on first use)."""
+pick/place decision rule.
 
-from helios._lazy import lazy_getattr
+The package exports the torch-free parts; information gain (torch) is imported from
+``helios.search.information``, so importing the package does not load torch."""
 
-_LAZY = {
-    "PredictedScore": "information", "dirichlet_entropy": "information", "fifty_fifty_information_gain": "information",
-    "information_gain": "information", "optimistic_evidence": "information",
-    "optimistic_information_gain": "information", "predicted_object_score": "information",
-    "views_information_gain": "information",
-    "GlobalObjective": "objective", "CandidateLocation": "objective", "FrontierOption": "objective", "Choice": "objective",
-    "GazeConfig": "gaze_points", "GazePoint": "gaze_points",
-    "Verdict": "decisions", "decide": "decisions",
-}
-__getattr__ = lazy_getattr(__name__, _LAZY)
-__all__ = sorted(_LAZY)
+from helios.search.decisions import Verdict, decide
+from helios.search.gaze_points import GazeConfig, GazePoint
+from helios.search.objective import CandidateLocation, Choice, FrontierOption, GlobalObjective
+
+__all__ = ["CandidateLocation", "Choice", "FrontierOption", "GazeConfig", "GazePoint", "GlobalObjective", "Verdict",
+           "decide"]

@@ -1,6 +1,6 @@
 """Every parameter of the simulated open-vocabulary detector and image-text scorer, in one frozen
 dataclass with documented defaults (schema for YAML / ``key=value`` overrides through
-``helios.configuration``). Randomness is not configured here: the detector and scorer take the
+``helios.schema``). Randomness is not configured here: the detector and scorer take the
 episode's seed, and every draw is a hash of (seed, object, viewpoint bin or frame), never a global
 generator.
 
@@ -16,10 +16,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
-
-def _require(condition: bool, message: str) -> None:
-    if not condition:
-        raise ValueError(message)
+from helios.schema import require
 
 
 def _default_category_difficulty() -> dict[str, float]:
@@ -153,25 +150,25 @@ class SimPerceptionConfig:
                  "mask_jitter", "min_score")
         for name in probs:
             v = getattr(self, name)
-            _require(math.isfinite(v) and 0.0 <= v <= 1.0, f"{name} must be in [0, 1], got {v}")
+            require(math.isfinite(v) and 0.0 <= v <= 1.0, f"{name} must be in [0, 1], got {v}")
         positive = ("area_half", "area_slope", "distance_half_object", "distance_half_receptacle", "distance_width",
                     "visible_half", "visible_half_receptacle", "visible_width", "foreshortening_half", "foreshortening_width", "part_size",
                     "scorer_saturation_object", "scorer_saturation_receptacle")
         for name in positive:
             v = getattr(self, name)
-            _require(math.isfinite(v) and v > 0, f"{name} must be > 0, got {v}")
-        _require(self.azimuth_bins >= 1, f"azimuth_bins must be >= 1, got {self.azimuth_bins}")
+            require(math.isfinite(v) and v > 0, f"{name} must be > 0, got {v}")
+        require(self.azimuth_bins >= 1, f"azimuth_bins must be >= 1, got {self.azimuth_bins}")
         for edges in ("elevation_edges_deg", "distance_edges"):
             e = getattr(self, edges)
-            _require(all(a < b for a, b in zip(e, e[1:])), f"{edges} must be increasing, got {e}")
-        _require(len(self.bad_view_distance_scale) == len(self.distance_edges) + 1,
-                 f"bad_view_distance_scale needs {len(self.distance_edges) + 1} values (one per distance bin)")
-        _require(len(self.bad_view_elevation_scale) == len(self.elevation_edges_deg) + 1,
-                 f"bad_view_elevation_scale needs {len(self.elevation_edges_deg) + 1} values (one per elevation bin)")
-        _require(all(v >= 0 for v in (*self.bad_view_distance_scale, *self.bad_view_elevation_scale,
-                                      *self.category_difficulty.values())), "bad-view multipliers must be >= 0")
-        _require(self.score_logit_std >= 0 and self.score_quality_gain >= 0, "score spreads must be >= 0")
-        _require(self.min_pixels >= 1 and self.gt_min_pixels >= 1, "min_pixels and gt_min_pixels must be >= 1")
-        _require(self.mask_morph_px >= 0 and self.mask_shift_px >= 0, "mask noise sizes must be >= 0")
-        _require(self.lookalike_weight_extra >= 0 and self.scorer_lookalike_gain >= 0, "weights must be >= 0")
-        _require(self.scorer_noise >= 0, "scorer_noise must be >= 0")
+            require(all(a < b for a, b in zip(e, e[1:])), f"{edges} must be increasing, got {e}")
+        require(len(self.bad_view_distance_scale) == len(self.distance_edges) + 1,
+                f"bad_view_distance_scale needs {len(self.distance_edges) + 1} values (one per distance bin)")
+        require(len(self.bad_view_elevation_scale) == len(self.elevation_edges_deg) + 1,
+                f"bad_view_elevation_scale needs {len(self.elevation_edges_deg) + 1} values (one per elevation bin)")
+        require(all(v >= 0 for v in (*self.bad_view_distance_scale, *self.bad_view_elevation_scale,
+                                     *self.category_difficulty.values())), "bad-view multipliers must be >= 0")
+        require(self.score_logit_std >= 0 and self.score_quality_gain >= 0, "score spreads must be >= 0")
+        require(self.min_pixels >= 1 and self.gt_min_pixels >= 1, "min_pixels and gt_min_pixels must be >= 1")
+        require(self.mask_morph_px >= 0 and self.mask_shift_px >= 0, "mask noise sizes must be >= 0")
+        require(self.lookalike_weight_extra >= 0 and self.scorer_lookalike_gain >= 0, "weights must be >= 0")
+        require(self.scorer_noise >= 0, "scorer_noise must be >= 0")

@@ -1,5 +1,6 @@
-"""Start a fake Spot in the demo scene (two tables and a mug), for tests and ``tools spot --fake``,
-or in a task episode's procedural home, to run an episode through the SDK (``tasks.fake_sdk``)."""
+"""Start a fake Spot in the demo scene (two tables and a mug), for tests and ``tools spot --fake``.
+A fake in a task episode's procedural home (:class:`EpisodeFake`) is started by
+``tasks.fake_sdk.start_episode_fake``: building an episode's scene and judge is the tasks' job."""
 
 from __future__ import annotations
 
@@ -81,8 +82,9 @@ def start_demo_fake(pki: TestPKI | str | Path, username: str | None = None, pass
 
 @dataclass
 class EpisodeFake(_RunningFake):
-    """A running fake Spot in an episode's scene. Shaped like ``tasks.runner.SimEpisode``
-    (``episode``, ``world``, ``scene``, ``backend``, ``judge``) so the agent registry and the judge
+    """A running fake Spot in an episode's scene (made by ``tasks.fake_sdk.start_episode_fake``).
+    Shaped like ``tasks.runner.SimEpisode`` (``episode``, ``world``, ``scene``, ``backend``,
+    ``judge``) so the agent registry and the judge
     take it unchanged; but ``backend`` is the simulator side of the SDK observations
     (:class:`FakeSimView`: for simulated perception and the judge), not the HAL an agent drives:
     that is an ``SdkSpotBackend`` connected to ``port``, wrapped by ``backend.watch``."""
@@ -93,36 +95,3 @@ class EpisodeFake(_RunningFake):
     scene: object                    # sim.scenes.home.HomeScene
     backend: FakeSimView
     judge: LockedJudge               # tasks.metrics.EpisodeJudge, run under the fake's sim_lock
-
-
-def start_episode_fake(pki: TestPKI | str | Path, episode, username: str, password: str,
-                       sim_config: SimBackendConfig | None = None, metrics=None, **fake_kwargs) -> EpisodeFake:
-    """Build ``episode``'s home (the scene ``SimEpisode.create`` builds), put Spot at its start
-    pose, start a fake Spot serving it on an ephemeral 127.0.0.1 port that accepts exactly
-    ``username``/``password``. ``metrics`` (``tasks.metrics.MetricsConfig``) configures the judge."""
-    from sim.spot import SpotBody
-    from sim.world import World
-    from tasks.metrics import EpisodeJudge, MetricsConfig
-    from tasks.runner import build_episode_scene
-
-    if not isinstance(pki, TestPKI):
-        pki = make_test_pki(pki)
-    sim_config = sim_config or SimBackendConfig()
-    world = World(sim_config.world)
-    try:
-        scene = build_episode_scene(world, episode)
-        spot = SpotBody(world, episode.start_pose)
-        sim = FakeRobotSim(world, spot, sim_config)
-        fake = FakeSpot(sim, pki, username, password, **fake_kwargs)
-        view = FakeSimView(fake)
-        judge = LockedJudge(EpisodeJudge(view, scene, episode, metrics or MetricsConfig()), fake.sim_lock)
-    except Exception:
-        world.close()
-        raise
-    try:
-        fake.start()
-    except BaseException:
-        fake.stop()
-        world.close()
-        raise
-    return EpisodeFake(fake, pki, episode, scene, view, judge)

@@ -1,5 +1,5 @@
-"""Typed configuration: frozen dataclasses are the schema; YAML files and ``key=value`` overrides
-fill them in; unknown keys and ill-typed values are errors that name the offending key.
+"""Configuration machinery (not a config tree itself): frozen dataclasses are the schema; YAML
+files and ``key=value`` overrides fill them in; unknown keys and ill-typed values are errors that name the offending key.
 
 Every config tree in the project (method hyper-parameters, simulator, robot motion limits, trial
 settings) is a frozen dataclass built with these helpers, so a run's resolved configuration can be
@@ -22,6 +22,13 @@ T = TypeVar("T")
 
 class ConfigError(ValueError):
     """A configuration value or key is invalid. The message names the key path."""
+
+
+def require(condition: bool, message: str) -> None:
+    """Validation step of a config dataclass's ``__post_init__``: raise ``ValueError(message)``
+    unless ``condition`` holds (:func:`from_dict` reports it as a ConfigError naming the section)."""
+    if not condition:
+        raise ValueError(message)
 
 
 def _type_name(tp: Any) -> str:
@@ -191,21 +198,39 @@ def with_overrides(cfg: T, overrides: Iterable[str] | Mapping[str, Any]) -> T:
     return from_dict(type(cfg), merge(to_dict(cfg), patch))
 
 
-def load_config(cls: type[T], path: str | Path | None = None, overrides: Iterable[str] = ()) -> T:
-    """Defaults, then a YAML file (if given), then ``key=value`` overrides."""
+def read_config_file(path: str | Path) -> dict:
+    """The top-level mapping of a YAML config file; errors name the file."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"config file {str(p)!r} does not exist")
+    try:
+        loaded = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"config file {str(p)!r} is not valid YAML: {exc}") from exc
+    if loaded is not None and not isinstance(loaded, Mapping):
+        raise ConfigError(f"config file {str(p)!r} must hold a mapping at the top level, "
+                          f"not a {type(loaded).__name__}")
+    return dict(loaded or {})
+
+
+def load_config(cls: type[T], path: str | Path | None = None, overrides: Iterable[str] = (),
+                ignore: Iterable[str] = ()) -> T:
+    """Defaults, then a YAML file (if given; a scenario file), then ``key=value`` overrides.
+
+    ``ignore`` names top-level keys the file may hold that are not part of the schema (a run
+    folder's provenance: version, git commit); they are dropped. Any other unknown key, or a bad
+    value, is a ConfigError naming the file and the key."""
     data: dict = {}
     if path is not None:
-        p = Path(path)
-        if not p.is_file():
-            raise ConfigError(f"config file {str(p)!r} does not exist")
+        data = read_config_file(path)
+        for key in ignore:
+            data.pop(key, None)
         try:
-            loaded = yaml.safe_load(p.read_text())
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"config file {str(p)!r} is not valid YAML: {exc}") from exc
-        if loaded is not None and not isinstance(loaded, Mapping):
-            raise ConfigError(f"config file {str(p)!r} must hold a mapping at the top level")
-        data = dict(loaded or {})
-    cfg = from_dict(cls, data)
+            cfg = from_dict(cls, data)
+        except ConfigError as exc:
+            raise ConfigError(f"config file {str(path)!r}: {exc}") from None
+    else:
+        cfg = from_dict(cls, data)
     return with_overrides(cfg, overrides)
 
 

@@ -30,6 +30,8 @@ from sim.perception.config import SimPerceptionConfig
 from sim.perception.detector import SimDetector
 from sim.perception.views import ViewSampling, random_view
 from sim.scenes.catalog import ALL_CATEGORIES, OBJECT_CATEGORIES, RECEPTACLE_CATEGORIES
+from tasks.episodes import load_split
+from tasks.runner import SimEpisode
 
 DISTANCE_EDGES = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0)
 
@@ -86,9 +88,6 @@ def calibrate(settings: CalibrationSettings = CalibrationSettings(),
               thresholds: DetectionThresholds = DetectionThresholds(),
               progress: Callable[[str], None] | None = print) -> dict:
     """Run the measurement (``settings.views`` rendered views in all) and return the numbers."""
-    from tasks.episodes import load_split
-    from tasks.runner import SimEpisode
-
     rng = np.random.default_rng(settings.seed)
     episodes = load_split(settings.split)
     chosen, seen = [], set()

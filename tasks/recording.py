@@ -117,10 +117,6 @@ class EpisodeRecorder:
         self.rec.log(f"world/scene/{name}", self.rr.Boxes3D(centers=centers, half_sizes=half_sizes, labels=labels,
                                                            colors=colors), static=static)
 
-    def log_points(self, name: str, points, colors=None, radius: float = 0.01) -> None:
-        self.rec.log(f"world/{name}", self.rr.Points3D(np.asarray(points, dtype=np.float32), colors=colors,
-                                                      radii=radius))
-
     # ------------------------------------------------------------------ an agent's map
     def log_map(self, hmap: Any, frontiers: bool = True, max_gaussians: int = 20000,
                 image_interval: float = 1.0) -> None:

@@ -7,7 +7,7 @@ from typing import Literal
 
 import pytest
 
-from helios.configuration import ConfigError, dump_yaml, from_dict, load_config, to_dict, with_overrides
+from helios.schema import ConfigError, dump_yaml, from_dict, load_config, to_dict, with_overrides
 
 
 @dataclass(frozen=True)

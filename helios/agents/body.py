@@ -1,0 +1,289 @@
+"""The robot's body as the agent knows it: where it stands, where the arm points, and how it moves.
+
+Every move goes through here: plan with FMM^2 on the agent's own occupancy map, walk the
+waypoints, mark what the body swept as free and what it bumped into as an obstacle, look around
+with the hand camera, gaze at a point, and check that the arm has room before it swings (Spot's
+elbow sweeps ~0.34 m round the shoulder, and the map only knows what the camera has seen).
+Nothing here decides *where* to go; the agent and the skills do.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+from typing import Sequence
+
+import numpy as np
+
+from helios.agents.config import AgentConfig
+from helios.agents.geometry import approach_poses
+from helios.agents.observer import Observer
+from helios.planning.fmm import FMMPlanner, PlanResult
+from helios.planning.footprint import FootprintChecker
+from helios.search.gaze_points import GazePoint
+from robots.hal import CommandResult, Observation, Reason, RobotBackend, SE2Pose
+from robots.transforms import wrap_angle
+
+MAX_GAZE_YAW = math.radians(105)
+"""The hand camera can be pointed this far to the side of the body heading."""
+
+
+class Body:
+    """Pose and arm state of one episode, and the motions built from HAL commands.
+
+    ``log`` and ``timings`` are shared with the agent (one episode log; planning seconds)."""
+
+    def __init__(self, config: AgentConfig, planner: FMMPlanner, observer: Observer, log: list[str],
+                 timings: Counter):
+        self.config = config
+        self.planner = planner
+        self.observer = observer
+        self.log = log
+        self.timings = timings
+        self.pose: SE2Pose | None = None
+        self.body_height = 0.5
+        self.arm_stowed = False
+        self.arm_direction: float | None = None     # world yaw the hand camera points along
+        self.last_plan: PlanResult | None = None
+
+    @property
+    def map(self):
+        return self.observer.map
+
+    def xy(self) -> np.ndarray:
+        return np.array([self.pose.x, self.pose.y])
+
+    def observe(self, robot: RobotBackend) -> Observation:
+        """A frame into the map (see :meth:`Observer.observe`); the body pose comes with it."""
+        obs = self.observer.observe(robot)
+        self.pose = obs.body_pose
+        self.body_height = float(obs.T_world_body[2, 3])
+        return obs
+
+    def stow(self, robot: RobotBackend) -> None:
+        robot.stow_arm()
+        self.arm_stowed, self.arm_direction = True, None
+
+    # ================================================================== walking
+    def checker(self) -> FootprintChecker:
+        occ = self.map.occupancy
+        unknown = ~occ.explored if self.config.planner.unknown_is_obstacle else None
+        return FootprintChecker(self.config.planner.footprint, self.map.geometry, occ.obstacle, occ.max_height, unknown)
+
+    def plan(self, goals, radius: float, yaws=None, horizon: float | None = None) -> PlanResult:
+        occ = self.map.occupancy
+        t0 = time.perf_counter()
+        plan = self.planner.plan(self.map.geometry, occ.obstacle, occ.explored, self.pose, goals, radius, yaws,
+                                 occ.max_height, horizon, occ.explored_bounds)
+        self.timings["planning"] += time.perf_counter() - t0
+        self.timings["plans"] += 1
+        self.last_plan = plan
+        return plan
+
+    def execute(self, robot: RobotBackend, plan: PlanResult) -> bool:
+        """Walk a plan's waypoints (arm stowed first); on a stop, remember what was bumped."""
+        if not self.arm_stowed:
+            self.stow(robot)
+        start = self.xy()
+        res = robot.navigate_to(plan.waypoints[-1], via=plan.waypoints[:-1])
+        self.pose = res.final_pose if res.final_pose is not None else robot.observe().body_pose
+        self._mark_swept(start, plan, res.success)
+        if not res.success:
+            self.log.append(f"walk stopped: {res.reason.value} {res.message}")
+            if res.collided:
+                self._mark_bump(plan)
+        return bool(res.success)
+
+    def _mark_swept(self, start: np.ndarray, plan: PlanResult, completed: bool) -> None:
+        """Where the body walked is free space, whether or not the camera ever saw the floor there."""
+        pts = [start] + [np.array([w.x, w.y]) for w in plan.waypoints]
+        if not completed:   # stopped early: only up to where it stands now
+            here = self.xy()
+            k = int(np.argmin([np.linalg.norm(p - here) for p in pts]))
+            pts = pts[:k] + [here]
+        samples = [pts[0]]
+        for a, b in zip(pts[:-1], pts[1:]):
+            n = max(1, int(np.linalg.norm(b - a) / 0.15))
+            samples += [a + (b - a) * t for t in np.linspace(1.0 / n, 1.0, n)]
+        self.map.occupancy.mark_seen(np.array(samples), self.config.planner.footprint.body[3])
+
+    def _mark_bump(self, plan: PlanResult) -> None:
+        """The walk ran into something the map does not show: put an obstacle just beyond the
+        footprint in the direction the body was moving, so the next plan goes around it."""
+        here = np.array([self.pose.x, self.pose.y])
+        for wp in plan.waypoints:
+            step = np.array([wp.x, wp.y]) - here
+            dist = float(np.linalg.norm(step))
+            if dist > 0.02:
+                d = step / dist
+                body = self.config.planner.footprint.body
+                c, s = math.cos(self.pose.yaw), math.sin(self.pose.yaw)
+                local = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])   # direction in the body frame
+                half = body[1] if local[0] > 0 else -body[0]
+                side = body[3]
+                extent = min(half / max(abs(local[0]), 1e-6), side / max(abs(local[1]), 1e-6))
+                self.map.occupancy.mark_obstacle(here + d * (extent + 0.12), 0.12)
+                self.log.append(f"bumped into something near ({here[0] + d[0] * extent:.2f}, {here[1] + d[1] * extent:.2f})")
+                return
+
+    def go(self, robot: RobotBackend, goals: np.ndarray, radius: float, yaws=None) -> tuple[bool, int]:
+        """Plan-walk-look until within ``radius`` of one of ``goals`` (and facing its yaw)."""
+        for _ in range(self.config.max_walk_chunks):
+            plan = self.plan(goals, radius, yaws)
+            if not plan.success:
+                self.log.append(f"no path: {plan.reason}")
+                return False, -1
+            if not plan.waypoints:
+                return True, plan.goal_index
+            if not self.execute(robot, plan):
+                return False, -1
+            if plan.reaches_goal:
+                return True, plan.goal_index
+            self.look(robot, (0.0,))   # see what lies ahead (far and near) before the next stretch
+        return False, -1
+
+    def approach(self, robot: RobotBackend, point, what: str) -> str | None:
+        """Walk to a free standing pose from which the arm reaches ``point`` (most comfortable
+        first). None when there, else why not (``what`` names the action: "grasp", "place")."""
+        poses = approach_poses(np.asarray(point, dtype=float), self.config.reach, self.checker())
+        if not len(poses):
+            return f"no free standing pose to {what} from"
+        ok, _ = self.go(robot, poses[:, :2], self.config.gaze_goal_radius, poses[:, 2])
+        return None if ok else f"could not reach a {what} pose"
+
+    def face(self, robot: RobotBackend, point) -> None:
+        """Turn on the spot towards ``point`` if it lies well to the side (a goal pose is reached
+        within a radius, and its final turn may have been blocked)."""
+        direction = math.atan2(point[1] - self.pose.y, point[0] - self.pose.x)
+        if abs(wrap_angle(direction - self.pose.yaw)) > self.config.view.face_tolerance:
+            self.go(robot, self.xy()[None], self.config.gaze_goal_radius, [direction])
+
+    # ================================================================== looking
+    def view_from(self, robot: RobotBackend, gp: GazePoint) -> bool:
+        """Walk to a gaze point and take its view (False if it cannot be reached or looked from)."""
+        ok, _ = self.go(robot, np.array([[gp.pose.x, gp.pose.y]]), self.config.gaze_goal_radius, gp.pose.yaw)
+        if not ok:
+            return False
+        direction = math.atan2(gp.look_at[1] - self.pose.y, gp.look_at[0] - self.pose.x)
+        if abs(wrap_angle(direction - self.pose.yaw)) > MAX_GAZE_YAW:
+            self.log.append("gaze point: could not turn to face the object")
+            return False
+        if not self.make_room(robot) or not self.arm_clear(direction):
+            self.log.append("gaze point: the arm has no room to look from here")
+            return False
+        if not self.gaze(robot, gp.look_at).success:
+            return False
+        self.observe(robot)
+        return True
+
+    def look(self, robot: RobotBackend, yaws_deg: Sequence[float], facing: float | None = None,
+             near_yaws_deg: Sequence[float] = (0.0,)) -> None:
+        """Point the hand camera in several directions and observe each (plus the near floor)."""
+        view = self.config.view
+        if not self.make_room(robot):
+            return
+        base = self.pose.yaw if facing is None else facing
+        for deg in sorted(yaws_deg, key=abs):     # front first: each view reveals walls for the next
+            a = base + math.radians(deg)
+            if abs(wrap_angle(a - self.pose.yaw)) > MAX_GAZE_YAW:
+                continue
+            if not self.arm_clear(a):
+                continue
+            point = [self.pose.x + view.look_distance * math.cos(a), self.pose.y + view.look_distance * math.sin(a),
+                     view.look_height]
+            res = self.gaze(robot, point)
+            if res.success:
+                self.observe(robot)
+        for deg in sorted(near_yaws_deg, key=abs) if view.near_look_distance > 0 else ():
+            a = base + math.radians(deg)      # the floor close by, which the far views miss
+            if abs(wrap_angle(a - self.pose.yaw)) > MAX_GAZE_YAW or not self.arm_clear(a):
+                continue
+            res = self.gaze(robot, [self.pose.x + view.near_look_distance * math.cos(a),
+                                    self.pose.y + view.near_look_distance * math.sin(a), 0.0])
+            if res.success:
+                self.observe(robot)
+
+    def look_all_around(self, robot: RobotBackend) -> None:
+        """The start's look pattern: wide far views plus the near floor on three sides."""
+        view = self.config.view
+        self.look(robot, view.start_look_yaws_deg, near_yaws_deg=view.start_near_yaws_deg)
+
+    def gaze(self, robot: RobotBackend, point) -> CommandResult:
+        """Point the hand camera at a world point (the arm leaves its stowed/carry pose)."""
+        res = robot.gaze_at(point)
+        self.arm_stowed = False
+        self.arm_direction = math.atan2(point[1] - self.pose.y, point[0] - self.pose.x)
+        if not res.success:
+            self.log.append(f"gaze failed: {res.reason.value} {res.message}")
+            if res.reason is Reason.COLLISION:   # the arm met something the map lacks: remember it
+                view = self.config.view
+                reach = view.elbow_radius
+                sx = self.pose.x + view.shoulder_ahead * math.cos(self.pose.yaw)
+                sy = self.pose.y + view.shoulder_ahead * math.sin(self.pose.yaw)
+                self.map.occupancy.mark_obstacle((sx + reach * math.cos(self.arm_direction),
+                                                  sy + reach * math.sin(self.arm_direction)), 0.1, height=1.5)
+        return res
+
+    # ================================================================== arm room
+    def _shoulder(self, x: float, y: float, yaw: float) -> tuple[float, float]:
+        ahead = self.config.view.shoulder_ahead
+        return x + ahead * math.cos(yaw), y + ahead * math.sin(yaw)
+
+    def elbow_clear(self, x: float, y: float, yaw: float) -> bool:
+        """No tall obstacle within ``elbow_radius`` of the shoulder: moving the arm at all swings
+        its links up to 0.34 m round the shoulder, on any side (measured along gaze moves in sim)."""
+        view = self.config.view
+        sx, sy = self._shoulder(x, y, yaw)
+        ring = np.linspace(0.0, 2 * math.pi, 32, endpoint=False)
+        rr = np.linspace(0.1, view.elbow_radius, 4)
+        disc = np.stack([sx + np.outer(rr, np.cos(ring)), sy + np.outer(rr, np.sin(ring))], axis=-1).reshape(-1, 2)
+        rows, cols = self.map.geometry.world_to_cell(disc)
+        occ = self.map.occupancy
+        return not bool((occ.obstacle[rows, cols] & (occ.max_height[rows, cols] > view.arm_swing_height)).any())
+
+    def arm_clear(self, direction: float) -> bool:
+        """The arm can point the camera in ``direction`` (world yaw): the elbow has room, and no
+        tall obstacle lies on the arc the hand sweeps from where it points now (out to
+        ``arm_swing_radius`` from the shoulder). Far to the side, unseen cells count as blocked too
+        (a wall the camera has not looked at yet)."""
+        view = self.config.view
+        if not self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw):
+            return False
+        sx, sy = self._shoulder(self.pose.x, self.pose.y, self.pose.yaw)
+        now = self.pose.yaw if self.arm_direction is None else self.arm_direction
+        sweep = float(wrap_angle(direction - now))
+        lo, hi = min(0.0, sweep) - 0.3, max(0.0, sweep) + 0.3
+        angles = now + np.linspace(lo, hi, max(7, int((hi - lo) / 0.1) + 1))
+        r, a = np.meshgrid(np.linspace(0.1, view.arm_swing_radius, 10), angles)
+        pts = np.stack([sx + r * np.cos(a), sy + r * np.sin(a)], axis=-1).reshape(-1, 2)
+        side = np.abs(wrap_angle(a.reshape(-1) - self.pose.yaw)) > math.radians(75)
+        rows, cols = self.map.geometry.world_to_cell(pts)
+        occ = self.map.occupancy
+        blocked = occ.obstacle[rows, cols] & (occ.max_height[rows, cols] > view.arm_swing_height)
+        blocked |= side & ~occ.explored[rows, cols]
+        return not bool(blocked.any())
+
+    def make_room(self, robot: RobotBackend) -> bool:
+        """Before looking around: if a wall or a tall piece of furniture is too close for the arm,
+        step straight away from it (at the current heading) to the nearest pose where the elbow
+        has room. False if there is none within ``make_room_distance``."""
+        if self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw):
+            return True
+        x, y, yaw = self.pose.x, self.pose.y, self.pose.yaw
+        checker = self.checker().clear_under(self.pose)
+        c, s = math.cos(yaw), math.sin(yaw)
+        limit = self.config.view.make_room_distance
+        offsets = [(dx, dy) for dx in np.arange(-limit, limit + 1e-9, 0.1) for dy in np.arange(-limit, limit + 1e-9, 0.1)
+                   if 0 < math.hypot(dx, dy) <= limit + 1e-9]
+        for dx, dy in sorted(offsets, key=lambda o: math.hypot(*o)):
+            nx, ny = x + dx * c - dy * s, y + dx * s + dy * c
+            if self.elbow_clear(nx, ny, yaw) and checker.segment_free(x, y, nx, ny, yaw):
+                if not self.arm_stowed:
+                    self.stow(robot)
+                res = robot.navigate_to(SE2Pose(nx, ny, yaw))
+                self.pose = res.final_pose if res.final_pose is not None else robot.observe().body_pose
+                self.log.append(f"made room for the arm: stepped ({dx:+.1f}, {dy:+.1f}) m")
+                return bool(res.success) and self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw)
+        self.log.append("no room for the arm to look around here")
+        return False

@@ -1,0 +1,88 @@
+"""One agent registry (``tasks.registry``) for ``tools trials`` and ``tools spot``: every entry is
+described and builds its agent from an ``AgentContext``; unknown names get one error listing the
+valid ones, from either command."""
+
+from __future__ import annotations
+
+import pytest
+
+from robots.hal import SE2Pose
+from tasks import registry
+from tasks.episodes import load_split
+from tasks.registry import (AGENTS, DEMO, EPISODE, RUNS_ON, AgentContext, RunContext, UnknownAgentError, agent_names,
+                            check_agent, make_agent)
+from tasks.runner import SimEpisode
+from tasks.scripted_demo import DemoHints, ScriptedDemo
+from tools.cli import build_parser, main
+
+
+@pytest.fixture(scope="module")
+def sim():
+    sim = SimEpisode.create(load_split("smoke")[0])
+    yield sim
+    sim.close()
+
+
+def test_every_entry_is_described_and_runs_somewhere():
+    for name, entry in AGENTS.items():
+        assert isinstance(entry, registry.AgentEntry), name
+        assert entry.description.strip(), f"{name} has no description"
+        assert entry.runs_on in RUNS_ON, name
+    assert sorted(agent_names(EPISODE) + agent_names(DEMO)) == agent_names(None) == sorted(AGENTS)
+    assert "helios" in agent_names(EPISODE) and "oracle" in agent_names(EPISODE)
+    assert agent_names(DEMO) == ["scripted-demo"]
+
+
+def test_every_episode_agent_is_built_from_a_context(sim):
+    context = RunContext.for_episode(sim, seed=7)
+    assert isinstance(context, AgentContext) and context.seed == 7 and context.episode is sim.episode
+    for name in agent_names(EPISODE):
+        agent = make_agent(name, context)
+        assert agent.name == name and callable(agent.reset) and callable(agent.act)
+
+
+def test_the_context_seed_reaches_simulated_perception(sim, monkeypatch):
+    import sim.perception as sim_perception
+
+    seeds = []
+    real = sim_perception.make_sim_perception
+    monkeypatch.setattr(sim_perception, "make_sim_perception",
+                        lambda backend, seed, **kw: seeds.append(seed) or real(backend, seed, **kw))
+    make_agent("helios", RunContext.for_episode(sim, seed=12345))
+    make_agent("helios-gt", sim)                       # a simulated episode alone: its own seed
+    assert seeds == [12345, sim.episode.seed]
+
+
+def test_the_scripted_demo_is_built_from_the_demo_layout():
+    hints = DemoHints.from_layout(SE2Pose(0.0, 0.0, 0.0))
+    agent = make_agent("scripted-demo", RunContext(task="Move the mug from the stool to the table", seed=0,
+                                                   hints=hints, say=lambda _: None))
+    assert isinstance(agent, ScriptedDemo) and agent.hints is hints
+
+
+def test_unknown_or_misplaced_names_are_one_error_listing_the_valid_ones():
+    with pytest.raises(UnknownAgentError, match=r"^unknown agent 'nope'; valid agents: helios, .*oracle"):
+        check_agent("nope")
+    with pytest.raises(UnknownAgentError, match=r"^unknown agent 'nope'; valid agents: scripted-demo$"):
+        check_agent("nope", DEMO)
+    with pytest.raises(UnknownAgentError, match="runs on the demo layout, not on task episodes"):
+        check_agent("scripted-demo", EPISODE)
+    with pytest.raises(UnknownAgentError, match="unknown agent 'nope'; valid agents: .*scripted-demo"):
+        make_agent("nope", None)
+
+
+def test_trials_and_spot_list_and_check_the_same_registry(capsys):
+    import tools.spot
+
+    assert not hasattr(tools.spot, "AGENTS")
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices
+    helps = {cmd: next(a.help for a in sub[cmd]._actions if a.dest == "agent") for cmd in ("trials", "spot")}
+    assert ", ".join(agent_names(EPISODE)) in helps["trials"]
+    assert ", ".join(agent_names(DEMO)) in helps["spot"]
+
+    expected = f"error: unknown agent 'nope'; valid agents: {', '.join(agent_names(EPISODE))}"
+    assert main(["trials", "--agent", "nope"]) == 2
+    assert capsys.readouterr().err.strip() == expected
+    assert main(["spot", "--fake", "--episode", "smoke-00001", "--agent", "nope"]) == 2
+    assert capsys.readouterr().err.strip() == expected
