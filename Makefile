@@ -23,11 +23,12 @@ run: setup
 demo: setup
 	$(PY) -m tools demo --out runs/demo $(ARGS)
 
-# The paper's ablation tables on val, plus the improved place: each agent and its -gt twin on the
-# first N episodes (seed 0, 2 workers; resumable, and a larger N extends the runs), then one
-# report on the episodes all runs share (one scenario file per agent: configs/val_<agent>.yaml).
-# About 20-30 min per agent for N=200 on the 2-core machine (4-5 h for all 10).
-COMPARE ?= helios helios-no-global trusting helios-5050 helios-place helios-gt helios-no-global-gt trusting-gt helios-5050-gt helios-place-gt
+# The paper's ablation table on val: HELIOS, w/o global objective, trusting, 50-50 IG, two -gt
+# twins and HELIOS under the earlier readings, on the first N episodes (seed 0, 2 workers;
+# resumable, and a larger N extends the runs), then one report on the episodes all runs share
+# (one scenario file per run: configs/val_<run>.yaml; more runs: COMPARE="helios helios-place ...").
+# About 20-30 min per run for N=200 on the 2-core machine.
+COMPARE ?= helios helios-no-global trusting helios-5050 helios-gt trusting-gt helios-earlier
 N ?= 200
 compare: setup
 	for a in $(COMPARE); do \

@@ -233,8 +233,16 @@ class SearchConfig:
     """Unit of dist() in the objective. The paper gives alpha_d = 0.001 without a unit; its
     planner works on 2.5 cm cells (as home-robot's does), and only per-cell distances give the
     term any weight against IG summed over hundreds of Gaussians. See helios.search.objective."""
+    initial_frontier_calibration: Literal["current_frontiers", "fixed_ratio"] = "current_frontiers"
+    """F0 before any frontier has been chosen, where the paper's F' is empty (it does not say):
+    ``current_frontiers`` (our reading) lets the frontiers on offer stand in for F', so the same
+    V0/F0 ratio prices them against the candidates from the first decision on;
+    ``fixed_ratio`` uses ``initial_frontier_ratio`` (raw value-map scores; with it every candidate
+    outranks every frontier until one is chosen, which made HELIOS coincide with the
+    w/o-global ablation for everything seen during and soon after the start scan)."""
     initial_frontier_ratio: float = 1.0
-    """F0 used before any frontier has been chosen (nothing to calibrate it with yet)."""
+    """F0 when there is nothing to calibrate it with: no candidate seen yet, or no frontier with a
+    value above ``min_frontier_value``, or ``initial_frontier_calibration = "fixed_ratio"``."""
     min_frontier_value: float = 1e-3
     """Chosen frontiers whose value-map score was below this are left out of the F0 average."""
     frontier_calibration: Literal["all_candidates", "open_candidates"] = "all_candidates"
@@ -244,7 +252,12 @@ class SearchConfig:
     with "all_candidates" the largest instance ever seen sets F0 for the rest of the episode."""
     information_gain: Literal["optimistic", "fifty_fifty"] = "optimistic"
     """*paper* Measurement assumption of IG: every hypothetical view labels the candidate as the
-    searched class (HELIOS), or 50 % that class / 50 % background (the ablation)."""
+    searched class (HELIOS), or 50 % that class / 50 % background (the ablation). The same
+    assumption predicts Psi' for the decision rule (``DecisionConfig.view_prediction``)."""
+    frontier_choice: Literal["highest_value", "value_minus_distance"] = "highest_value"
+    """How a search with no candidates to weigh (the trusting agent; every agent's place phase)
+    picks a frontier: *paper* the one with the highest value-map score (ties to the nearest), or
+    the objective's frontier term F(f) F0 - alpha_d dist(f) with F0 = 1 (our earlier reading)."""
 
     def __post_init__(self) -> None:
         require(self.alpha_d >= 0, "alpha_d must be >= 0")
@@ -253,6 +266,10 @@ class SearchConfig:
         require(self.initial_frontier_ratio > 0, "initial_frontier_ratio must be > 0")
         require(self.frontier_calibration in ("all_candidates", "open_candidates"),
                 "frontier_calibration must be 'all_candidates' or 'open_candidates'")
+        require(self.initial_frontier_calibration in ("current_frontiers", "fixed_ratio"),
+                "initial_frontier_calibration must be 'current_frontiers' or 'fixed_ratio'")
+        require(self.frontier_choice in ("highest_value", "value_minus_distance"),
+                "frontier_choice must be 'highest_value' or 'value_minus_distance'")
         require(self.information_gain in ("optimistic", "fifty_fifty"),
                 "information_gain must be 'optimistic' or 'fifty_fifty'")
 
@@ -271,12 +288,25 @@ class DecisionConfig:
     """*paper* cs_g: class score for an object to be a candidate target object."""
     cs_goal_receptacle: float = 0.3
     """*paper* cs_b: class score for an object to be a candidate goal receptacle."""
+    candidate_class: Literal["most_likely", "score_only"] = "most_likely"
+    """*paper* A candidate of class c (start receptacle, target object, goal receptacle) is an
+    instance "whose class is" c: its most likely class is c and its class score reaches cs
+    (``most_likely``); ``score_only`` drops the first test (our earlier reading)."""
+    view_prediction: Literal["follow_information_gain", "optimistic"] = "follow_information_gain"
+    """How Psi' is predicted for "take another view?": under the same measurement assumption as
+    IG (``SearchConfig.information_gain``: the optimistic best case for HELIOS, the expectation
+    over {class, background} for the 50-50 ablation), or always optimistic (our earlier reading,
+    under which the 50-50 ablation changed only the start-receptacle IG)."""
 
     def __post_init__(self) -> None:
         for name in ("tau_object", "tau_goal_receptacle", "cs_object", "cs_goal_receptacle"):
             value = getattr(self, name)
             require(0 <= value <= 1, f"{name} must be in [0, 1], got {value}")
         require(self.tau_increase >= 0, "tau_increase must be >= 0")
+        require(self.candidate_class in ("most_likely", "score_only"),
+                "candidate_class must be 'most_likely' or 'score_only'")
+        require(self.view_prediction in ("follow_information_gain", "optimistic"),
+                "view_prediction must be 'follow_information_gain' or 'optimistic'")
 
 
 @dataclass(frozen=True)

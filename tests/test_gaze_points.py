@@ -86,8 +86,8 @@ def test_contour_points_keep_the_standoff_from_the_footprint():
 # ------------------------------------------------------------------------------------ free poses
 def test_gaze_points_around_a_table_in_open_space():
     g, fp = table_grid()
-    pts = g.gaze(fp)
-    cfg = GazeConfig()
+    cfg = GazeConfig(outer_rings="always")
+    pts = g.gaze(fp, config=cfg)
     total = sum(len(contour_points(fp, s, cfg.spacing, cfg.min_points)) for s in cfg.standoffs)
     assert len(pts) == total                                  # nothing in the way: every ring point
     assert_valid(pts, g, fp.mean(axis=0))
@@ -191,8 +191,44 @@ def test_the_instance_itself_never_blocks_its_view():
     g = Grid().box(*TABLE, 1.5)                               # a cabinet: its own cells are tall
     rows, cols = np.nonzero(g.obstacle)
     fp = GEO.cell_to_world(rows, cols)
-    pts = g.gaze(fp, top=1.5)
+    pts = g.gaze(fp, top=1.5, config=GazeConfig(outer_rings="always"))
     assert len(pts) == sum(len(contour_points(fp, s, 0.6, 8)) for s in GazeConfig().standoffs)
+
+
+def test_an_open_inner_ring_yields_no_outer_points():
+    """One ring with fallback (the default): nothing in the way, so only the inner ring."""
+    g, fp = table_grid()
+    cfg = GazeConfig()
+    assert cfg.outer_rings == "fallback"
+    pts = g.gaze(fp)
+    inner = contour_points(fp, cfg.standoffs[0], cfg.spacing, cfg.min_points)
+    assert len(pts) == len(inner)
+    got = np.array([[p.pose.x, p.pose.y] for p in pts])
+    np.testing.assert_allclose(got, inner, atol=1e-9)
+
+
+def test_a_blocked_inner_point_is_replaced_by_outer_ones():
+    """A box on the inner ring's +x point: that direction falls back to the outer ring's points
+    nearest to it in angle, and no other outer point appears."""
+    g, fp = table_grid()
+    cfg = GazeConfig()
+    inner = contour_points(fp, cfg.standoffs[0], cfg.spacing, cfg.min_points)
+    outer = contour_points(fp, cfg.standoffs[1], cfg.spacing, cfg.min_points)
+    x, y = inner[0]                                           # (1.4, 0): on the +x side
+    g.box(0.85, 1.0, -0.1, 0.1, 0.3)    # under the front of a body standing there; low: the view is clear
+    pts = g.gaze(fp)
+    got = np.array([[p.pose.x, p.pose.y] for p in pts])
+    assert not np.any(np.hypot(got[:, 0] - x, got[:, 1] - y) < 1e-6)
+    middle = fp.mean(axis=0)
+    ang = lambda xy: np.arctan2(xy[:, 1] - middle[1], xy[:, 0] - middle[0])   # noqa: E731
+    inner_dirs, outer_dirs = ang(inner), ang(outer)
+    sector = np.argmin(np.abs(np.angle(np.exp(1j * (outer_dirs[:, None] - inner_dirs[None, :])))), axis=1)
+    expected_outer = outer[sector == 0]                       # the outer points of the +x direction
+    assert len(expected_outer) >= 1
+    from_outer = got[len(inner) - 1:]
+    np.testing.assert_allclose(from_outer, expected_outer, atol=1e-9)
+    np.testing.assert_allclose(got[:len(inner) - 1], inner[1:], atol=1e-9)
+    assert_valid(pts, g, middle)
 
 
 def test_line_of_sight():

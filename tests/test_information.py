@@ -97,3 +97,37 @@ def test_unknown_class_and_instance_are_clear_errors():
         optimistic_information_gain(gmap, iid, "knife", CAM, POSE)
     with pytest.raises(MapInputError, match="no instance with id 99"):
         optimistic_information_gain(gmap, 99, "cup", CAM, POSE)
+
+
+def test_fifty_fifty_prediction_can_send_the_agent_elsewhere_where_the_optimistic_one_looks():
+    """The decision rule's Psi' under each measurement assumption, on a hand-built instance
+    (Dirichlet (8, 1, 8) over cup / table / other on every Gaussian: Psi 0.35). Optimistic: the view says
+    "cup" and Psi' clears Psi + tau_inc, so take another view. 50-50: the expectation over the view
+    saying "cup" or "other", which does not clear it, so search elsewhere."""
+    from helios.search.decisions import Verdict, decide
+
+    gmap, iid = blob_map([8.0, 1.0, 8.0])
+    opt = predicted_object_score(gmap, iid, "cup", CAM, POSE, assumption="optimistic")
+    half = predicted_object_score(gmap, iid, "cup", CAM, POSE, assumption="fifty_fifty")
+    # by hand: the same evidence added to "cup" or to "other", scores averaged
+    idx, delta = optimistic_evidence(gmap, iid, CAM, POSE)
+    gamma = gmap.concentrations[torch.as_tensor(idx)].clone()
+    alpha_cs = gmap.scoring.alpha_cs
+
+    def psi_after(col):
+        g = gamma.clone()
+        g[:, col] += delta
+        total = g.sum(dim=1)
+        mean = g[:, 0] / total
+        std = torch.sqrt(mean * (1 - mean) / (total + 1))
+        return float(mean.mean() - alpha_cs * std.mean())
+
+    background = gmap.classes.background_index
+    assert opt.predicted_psi == pytest.approx(psi_after(0), rel=1e-9)
+    assert half.predicted_psi == pytest.approx(0.5 * (psi_after(0) + psi_after(background)), rel=1e-9)
+    assert half.psi == pytest.approx(opt.psi)
+    tau, tau_inc = 0.5, 0.05
+    assert decide(opt.psi, opt.predicted_psi, tau, tau_inc) is Verdict.LOOK
+    assert decide(half.psi, half.predicted_psi, tau, tau_inc) is Verdict.IGNORE
+    with pytest.raises(ValueError, match="assumption"):
+        predicted_object_score(gmap, iid, "cup", CAM, POSE, assumption="pessimistic")

@@ -77,8 +77,8 @@ def test_prefers_a_frontier_over_a_saturated_candidate():
     choice = obj.choose(robot, [saturated], [f])
     assert choice.kind == "frontier" and choice.index == 2
     assert choice.value == pytest.approx(0.05 * 100 - 0.001 * 240)
-    # even with the uncalibrated ratio (1) a positive frontier beats a zero-IG candidate
-    fresh = objective()
+    # under the earlier reading of F0 before any frontier (a fixed ratio of 1), too
+    fresh = objective(initial_frontier_calibration="fixed_ratio")
     choice = fresh.choose(robot, [cand(5, (0.5, 0.0), 0.9, 0.0)], [front((6.0, 0.0), 0.5, key=2)])
     assert choice.kind == "frontier"
 
@@ -157,7 +157,7 @@ def test_frontier_ratio_in_metres():
 
 
 def test_initial_frontier_ratio_is_used_until_calibrated():
-    obj = objective(initial_frontier_ratio=7.0)
+    obj = objective(initial_frontier_ratio=7.0, initial_frontier_calibration="fixed_ratio")
     assert obj.frontier_ratio() == pytest.approx(7.0)
     obj.remember([cand(1, (0.0, 0.0), 1.0, 10.0)])
     assert obj.frontier_ratio() == pytest.approx(7.0)
@@ -192,3 +192,47 @@ def test_open_candidates_calibration_scales_frontiers_to_the_candidates_still_in
     assert results["open_candidates"] == (pytest.approx(800.0), "candidate")
     with pytest.raises(Exception, match="frontier_calibration"):
         SearchConfig(frontier_calibration="latest")
+
+
+def test_before_the_first_frontier_the_frontiers_on_offer_calibrate_f0():
+    """F' is empty before any frontier has been chosen. Our reading: the frontiers on offer stand
+    in for it. A: S0 IG0 = 0.8 * 100 = 80 at the origin; frontiers f1 = (1, 0) value 0.5 and
+    f2 = (0, 2) value 0.25 (40 and 80 cells away):
+    F0 = ((80 - 0.04) / 0.5 + (80 - 0.08) / 0.25) / 2 = 479.76."""
+    a = cand(1, (0.0, 0.0), 0.8, 100.0)
+    f1, f2 = front((1.0, 0.0), 0.5, key=1), front((0.0, 2.0), 0.25, key=2)
+    obj = objective()
+    expected = ((80 - 0.001 * 40) / 0.5 + (80 - 0.001 * 80) / 0.25) / 2
+    obj.remember([a])
+    assert not obj.calibrated
+    assert obj.frontier_ratio([1], [f1, f2]) == pytest.approx(expected, rel=1e-12)
+    # the frontier 1 m away is now worth 0.5 * 479.76 - 0.04 = 239.84, more than the candidate
+    # (80 - 0.001 * 40 = 79.96 from (1, 0)): HELIOS may explore before searching what it saw
+    choice = obj.choose((1.0, 0.0), [a], [f1, f2])
+    assert choice.kind == "frontier" and choice.index == 1
+    assert choice.value == pytest.approx(0.5 * expected - 0.0, rel=1e-9)
+    # the earlier reading (F0 = 1 until a frontier is chosen) searches the candidate instead,
+    # exactly as the w/o-global ablation does
+    old = objective(initial_frontier_calibration="fixed_ratio")
+    assert old.choose((1.0, 0.0), [a], [f1, f2]).kind == "candidate"
+    assert GlobalObjective(SearchConfig(), CELL, "prefer_candidates").choose((1.0, 0.0), [a], [f1, f2]).kind == "candidate"
+    # once a frontier is chosen, the paper's formula takes over (the chosen one, not those on offer)
+    obj.note_frontier_chosen(f2)
+    assert obj.calibrated
+    assert obj.frontier_ratio([1], [f1, f2]) == pytest.approx((80 - 0.001 * 80) / 0.25, rel=1e-12)
+
+
+def test_frontiers_only_takes_the_highest_value_frontier():
+    """The trusting agent and the place phase: "the frontier with the highest value" (paper),
+    however far; ties go to the nearest. The earlier reading subtracted a distance penalty."""
+    near = front((1.0, 0.0), 0.30, key=1)
+    far = front((40.0, 0.0), 0.31, key=2)        # 39 m farther: -1.56 under the old penalty
+    tie = front((3.0, 0.0), 0.31, key=3)
+    obj = objective("frontiers_only")
+    choice = obj.choose((0.0, 0.0), [], [near, far])
+    assert choice.kind == "frontier" and choice.index == 2 and choice.value == pytest.approx(0.31)
+    assert obj.choose((0.0, 0.0), [], [near, far, tie]).index == 3
+    assert obj.choose((0.0, 0.0), [cand(1, (0.5, 0.0), 1.0, 1e6)], [near]).kind == "frontier"
+    assert obj.choose((0.0, 0.0), [], []) is None
+    old = objective("frontiers_only", frontier_choice="value_minus_distance")
+    assert old.choose((0.0, 0.0), [], [near, far]).index == 1

@@ -1,10 +1,13 @@
 """Candidates: what the agent may act on, built from the map (HELIOS) or from detections it
 trusts (the trusting baseline).
 
-A target-object candidate is an instance whose class score reaches cs_g and (for HELIOS) rests on
-a start-receptacle candidate, since the task says "move X *from* Y"; a goal-receptacle candidate
-is an instance whose score reaches cs_b. Candidates are ordered by Psi, best first, which is the
-order the paper's decision rule examines them in.
+A candidate of class c is an instance "whose class is" c (the paper's sets A, G, B): its most
+likely class is c and its class score S_c reaches the role's threshold (cs_a for the start
+receptacle, cs_g for the target object, cs_b for the goal receptacle); ``DecisionConfig.
+candidate_class = "score_only"`` drops the first test. A target-object candidate must also rest on
+a start-receptacle candidate (``AgentConfig.require_start_support``), since the task says "move X
+*from* Y". Candidates are ordered by Psi, best first, which is the order the paper's decision
+rule examines them in.
 """
 
 from __future__ import annotations
@@ -20,6 +23,13 @@ from helios.config import HeliosConfig
 from helios.maps.instances import Instance
 
 
+def is_candidate(inst: Instance, cls: str, threshold: float, method: HeliosConfig) -> bool:
+    """The instance counts as a candidate of class ``cls`` (see the module doc)."""
+    if inst.class_scores.get(cls, 0.0) < threshold:
+        return False
+    return method.decision.candidate_class == "score_only" or inst.class_name == cls
+
+
 def candidate_targets(observer: Observer, cls: str, config: AgentConfig, method: HeliosConfig,
                       failures: Counter) -> list[Target]:
     """Candidates for the object (or goal receptacle) class, best Psi first; candidates that
@@ -31,7 +41,7 @@ def candidate_targets(observer: Observer, cls: str, config: AgentConfig, method:
     out = []
     for inst in observer.instances():
         key = ("instance", inst.id)
-        if inst.class_scores.get(cls, 0.0) < cs or failures[key] >= config.max_failures_per_candidate:
+        if not is_candidate(inst, cls, cs, method) or failures[key] >= config.max_failures_per_candidate:
             continue
         if cls == observer.object_class and config.require_start_support and \
                 not rests_on_start_receptacle(observer, inst, config, method):
@@ -45,7 +55,7 @@ def rests_on_start_receptacle(observer: Observer, obj: Instance, config: AgentCo
     """The object candidate rests on (or right next to) a start-receptacle candidate."""
     cs = method.search.cs_start_receptacle
     for inst in observer.instances():
-        if inst.id == obj.id or inst.class_scores.get(observer.start_class, 0.0) < cs:
+        if inst.id == obj.id or not is_candidate(inst, observer.start_class, cs, method):
             continue
         d = np.min(np.linalg.norm(inst.footprint_xy - obj.centre[:2], axis=1))
         if d <= config.support_radius:

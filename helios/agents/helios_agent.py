@@ -41,7 +41,7 @@ from typing import Sequence
 import numpy as np
 
 from helios.agents.body import Body
-from helios.agents.candidates import candidate_targets
+from helios.agents.candidates import candidate_targets, is_candidate
 from helios.agents.config import AgentConfig
 from helios.agents.geometry import predicted_camera
 from helios.agents.observer import Observer
@@ -67,6 +67,16 @@ class Phase(Enum):
     PICK = "pick"
     PLACE = "place"
     DONE = "done"
+
+
+ACTIVITIES = ("start_scan", "exploration", "local_search", "pick", "carry", "place")
+"""What an ``act`` can be doing: the start scan; exploring frontiers (rescue and revisits too);
+local search of a candidate pick location or an extra view of a target candidate; the pick skill;
+carrying the object while searching for the goal receptacle (its extra views too); the place skill."""
+
+DECISION_COUNTS = ("global_with_candidates", "chose_candidate_before_f0", "chose_frontier_before_f0",
+                   "chose_candidate_after_f0", "chose_frontier_after_f0", "extra_views_object",
+                   "extra_views_goal", "gaze_point_visits")
 
 
 @dataclass
@@ -121,10 +131,15 @@ class HeliosAgent:
         self.last_frontier: np.ndarray | None = None
         self._logged = 0
         self.decisions = 0
+        self.activity = "start_scan"
+        """What the latest ``act`` did, one of ``ACTIVITIES`` (the runner times each)."""
+        self.stats: Counter = Counter()   # decision counts, see decision_stats()
+        self.local_search_sizes: list[int] = []
 
     def act(self, robot: RobotBackend) -> bool:
         self.decisions += 1
         if self.phase is Phase.START:
+            self.activity = "start_scan"
             self._initial_scan(robot)
             self.phase = Phase.PICK
             return False
@@ -172,6 +187,15 @@ class HeliosAgent:
             recorder.log_text(line)
         self._logged = len(self.log)
 
+    def decision_stats(self) -> dict:
+        """What the agent decided this episode, for the trial report: global decisions made with
+        open candidates and how many chose a candidate or a frontier before / after F0 was
+        calibrated on a chosen frontier, extra views the Psi' rule asked for, and the gaze
+        points of each local search (planned) and visited."""
+        out = {k: int(self.stats.get(k, 0)) for k in DECISION_COUNTS}
+        out["local_search_sizes"] = list(self.local_search_sizes)
+        return out
+
     # ================================================================== the decision
     def _pick_step(self, robot: RobotBackend) -> None:
         limit = self.config.max_pick_attempts
@@ -180,6 +204,7 @@ class HeliosAgent:
             return
         target, verdict, view = self._judge_targets(self.object_class)
         if verdict is Verdict.ACT:
+            self.activity = "pick"
             outcome = pick(robot, self.body, self.observer, target, self.config)
             self.pick_attempts += outcome.attempted
             if outcome.ok:
@@ -188,24 +213,32 @@ class HeliosAgent:
                 self._fail(target, outcome.reason)
             return
         if verdict is Verdict.LOOK:
+            self.activity = "local_search"
+            self.stats["extra_views_object"] += 1
             self._take_view(robot, target, view)
             return
         if self.local is not None:
+            self.activity = "local_search"
             self._continue_local_search(robot)
             return
         choice, frontiers = self._global_choice()
         if choice is None:
+            self.activity = "exploration"
             if not self._rescue(robot) and not self._revisit(robot, self.start_class):
                 self._finish("nothing left to search for the object")
         elif choice.kind == "candidate":
+            self.activity = "local_search"
             self._start_local_search(choice.index)
             self._continue_local_search(robot)
         else:
+            self.activity = "exploration"
             self._explore(robot, frontiers[choice.index], self.pick_objective)
 
     def _place_step(self, robot: RobotBackend) -> None:
         target, verdict, view = self._judge_targets(self.goal_class)
+        self.activity = "carry"
         if verdict is Verdict.ACT:
+            self.activity = "place"
             outcome = place(robot, self.body, self.observer, target, self.config)
             if outcome.ok:
                 self._finish("placed")
@@ -213,6 +246,7 @@ class HeliosAgent:
                 self._fail(target, outcome.reason)
             return
         if verdict is Verdict.LOOK:
+            self.stats["extra_views_goal"] += 1
             self._take_view(robot, target, view)
             return
         options = self._frontier_options(self.goal_class)
@@ -250,12 +284,14 @@ class HeliosAgent:
         return None, Verdict.IGNORE, None
 
     def _best_view(self, t: Target, cls: str) -> tuple[GazePoint | None, float | None]:
-        """The gaze point whose view would give the highest Psi' (optimistic)."""
+        """The gaze point whose view would give the highest Psi' (under ``view_prediction``)."""
         best, best_psi = None, None
+        assumption = "optimistic" if self.method.decision.view_prediction == "optimistic" \
+            else self.method.search.information_gain
         for gp in self._gaze_points_of(t.instance_id):
             T = predicted_camera(gp.pose, gp.look_at, self.body.body_height, self.config.view)
             p = predicted_object_score(self.map.objects, t.instance_id, cls, self.observer.last_obs.intrinsics,
-                                       T).predicted_psi
+                                       T, assumption=assumption).predicted_psi
             if best_psi is None or p > best_psi:
                 best, best_psi = gp, p
         return best, best_psi
@@ -286,7 +322,7 @@ class HeliosAgent:
             cs = self.method.search.cs_start_receptacle
             intr = self.observer.last_obs.intrinsics
             for inst in self.observer.instances():
-                if inst.id in self.visited or inst.class_scores.get(self.start_class, 0.0) < cs:
+                if inst.id in self.visited or not is_candidate(inst, self.start_class, cs, self.method):
                     continue
                 views = self._gaze_points_of(inst.id)
                 if not views:
@@ -296,7 +332,12 @@ class HeliosAgent:
                                             self.method.search.information_gain)
                 cands.append(CandidateLocation(inst.id, inst.centre, inst.class_scores[self.start_class], ig))
         frontiers = self._frontier_options(self.start_class)
-        return self.pick_objective.choose(self.body.xy(), cands, frontiers), frontiers
+        calibrated = self.pick_objective.calibrated
+        choice = self.pick_objective.choose(self.body.xy(), cands, frontiers)
+        if cands and choice is not None:
+            self.stats["global_with_candidates"] += 1
+            self.stats[f"chose_{choice.kind}_{'after' if calibrated else 'before'}_f0"] += 1
+        return choice, frontiers
 
     def _frontier_options(self, layer: str) -> list[FrontierOption]:
         out = []
@@ -389,10 +430,12 @@ class HeliosAgent:
             order.append(views.pop(i))
             here = np.array([order[-1].pose.x, order[-1].pose.y])
         self.local = _LocalSearch(instance_id, order)
+        self.local_search_sizes.append(len(order))
         self.log.append(f"local search of instance {instance_id}: {len(order)} gaze points")
 
     def _continue_local_search(self, robot: RobotBackend) -> None:
         gp = self.local.queue.pop(0)
+        self.stats["gaze_point_visits"] += 1
         self.body.view_from(robot, gp)
         if not self.local.queue:
             self.visited.add(self.local.instance_id)

@@ -88,11 +88,17 @@ class PredictedScore:
 
 
 def predicted_object_score(gmap: GaussianMap, instance_id: int, target_class: str,
-                           intrinsics: CameraIntrinsics, T_world_cam: np.ndarray, views: int = 1) -> PredictedScore:
-    """Psi'_o after ``views`` optimistic views from the pose (paper App., 'Once the target object
-    has been detected'): S', U' from the updated copy of the concentrations."""
+                           intrinsics: CameraIntrinsics, T_world_cam: np.ndarray, views: int = 1,
+                           assumption: str = "optimistic") -> PredictedScore:
+    """Psi'_o after ``views`` views from the pose (paper App., 'Once the target object has been
+    detected'): S', U' from the updated copy of the concentrations. ``optimistic``: the paper's
+    best case, every view labels the instance ``target_class``; ``fifty_fifty``: the expectation
+    over the views labelling it ``target_class`` or background, 1/2 each (the 50-50 ablation's
+    assumption carried into the decision rule)."""
     if views < 0:
         raise ValueError(f"views must be >= 0, got {views}")
+    if assumption not in ("optimistic", "fifty_fifty"):
+        raise ValueError(f"unknown measurement assumption {assumption!r}")
     cls = gmap.classes.index(target_class)
     idx, delta = optimistic_evidence(gmap, instance_id, intrinsics, T_world_cam)
     gamma = gmap.concentrations[torch.as_tensor(idx, device=gmap.device)]
@@ -107,6 +113,11 @@ def predicted_object_score(gmap: GaussianMap, instance_id: int, target_class: st
 
     s0, u0, p0 = score(gamma)
     s1, u1, p1 = score(after)
+    if assumption == "fifty_fifty":
+        against = gamma.clone()
+        against[:, gmap.classes.background_index] += views * delta
+        s2, u2, p2 = score(against)
+        s1, u1, p1 = 0.5 * (s1 + s2), 0.5 * (u1 + u2), 0.5 * (p1 + p2)
     return PredictedScore(s0, u0, p0, s1, u1, p1)
 
 
