@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from helios.perception.config import DetectionThresholds
-from helios.schema import require
+from helios.schema import require, require_range
 
 
 @dataclass(frozen=True)
@@ -59,6 +59,14 @@ class OccupancyConfig:
         require(0 <= self.min_depth < self.max_depth, "need 0 <= min_depth < max_depth")
         require(self.depth_stride >= 1, "depth_stride must be >= 1")
         require(0 < self.visibility_bin_deg <= 10, "visibility_bin_deg must be in (0, 10]")
+        require_range(self, "cell_size", 0.0, 1.0, lo_open=True)
+        require_range(self, "grid_size", 8, 20000)          # cells a side: 20000^2 bytes is 400 MB per layer
+        require(self.origin_xy is None or all(abs(v) <= 1e4 for v in self.origin_xy),
+                "origin_xy must lie within 10 km of the odometry origin")
+        require_range(self, "obstacle_min_height obstacle_max_height", 0.0, 10.0)
+        require_range(self, "obstacle_min_hits", 1, 1000)
+        require_range(self, "min_depth max_depth", 0.0, 100.0)
+        require_range(self, "depth_stride", 1, 64)
 
 
 @dataclass(frozen=True)
@@ -84,6 +92,9 @@ class FrontierConfig:
         require(self.obstacle_clearance >= 0, "obstacle_clearance must be >= 0")
         require(self.fill_holes_area >= 0, "fill_holes_area must be >= 0")
         require(self.value_radius > 0, "value_radius must be > 0")
+        require_range(self, "min_size obstacle_clearance", 0.0, 100.0)
+        require_range(self, "fill_holes_area", 0.0, 1e4)
+        require_range(self, "value_radius", 0.0, 100.0, lo_open=True)
 
 
 @dataclass(frozen=True)
@@ -129,6 +140,9 @@ class RenderConfig:
         require(0 < self.transmittance_min < 1, "transmittance_min must be in (0, 1)")
         require(self.blur_px2 >= 0, "blur_px2 must be >= 0")
         require(self.max_radius_px >= 1, "max_radius_px must be >= 1")
+        require_range(self, "near", 0.0, 10.0, lo_open=True)
+        require_range(self, "blur_px2", 0.0, 100.0)
+        require_range(self, "max_radius_px", 1, 4096)
 
 
 @dataclass(frozen=True)
@@ -197,6 +211,12 @@ class GaussianConfig:
         require(self.reobservation_depth_error > 0, "reobservation_depth_error must be > 0")
         require(self.reobservation_closing_px >= 1, "reobservation_closing_px must be >= 1 (1 = none)")
         require(0 < self.min_silhouette_for_depth < 1, "min_silhouette_for_depth must be in (0, 1)")
+        require_range(self, "alpha_cpa scale_factor", 0.0, 1000.0, lo_open=True)
+        require_range(self, "prior_concentration", 0.0, 1e6, lo_open=True)
+        require_range(self, "update_max_width", 8, 4096)
+        require_range(self, "creation_stride", 1, 64)
+        require_range(self, "creation_erosion_px reobservation_closing_px", 1, 100)
+        require_range(self, "creation_depth_error reobservation_depth_error", 0.0, 10.0, lo_open=True)
 
 
 @dataclass(frozen=True)
@@ -208,6 +228,7 @@ class InstanceConfig:
 
     def __post_init__(self) -> None:
         require(self.voxel_size > 0, "voxel_size must be > 0")
+        require_range(self, "voxel_size", 0.0, 10.0, lo_open=True)
 
 
 @dataclass(frozen=True)
@@ -219,6 +240,7 @@ class ScoringConfig:
 
     def __post_init__(self) -> None:
         require(self.alpha_cs >= 0, "alpha_cs must be >= 0")
+        require_range(self, "alpha_cs", 0.0, 100.0)
 
 
 @dataclass(frozen=True)
@@ -261,6 +283,8 @@ class SearchConfig:
 
     def __post_init__(self) -> None:
         require(self.alpha_d >= 0, "alpha_d must be >= 0")
+        require_range(self, "min_frontier_value", 0.0, 1.0)
+        require_range(self, "initial_frontier_ratio", 0.0, 1e9, lo_open=True)
         require(0 <= self.cs_start_receptacle <= 1, "cs_start_receptacle must be in [0, 1]")
         require(self.distance_unit in ("cells", "metres"), "distance_unit must be 'cells' or 'metres'")
         require(self.initial_frontier_ratio > 0, "initial_frontier_ratio must be > 0")

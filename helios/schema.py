@@ -24,11 +24,63 @@ class ConfigError(ValueError):
     """A configuration value or key is invalid. The message names the key path."""
 
 
+class ConfigValueError(ConfigError):
+    """A value a config dataclass's own check refused (:func:`require`, :func:`require_range`); a
+    ConfigError (so a command line reports it in one line) that :func:`from_dict` prefixes with the
+    config section."""
+
+
+def shorten(text: object, limit: int = 120) -> str:
+    """``text`` as one line of at most ``limit`` characters: long user input (a 10,000-character
+    task string, a binary file's first line) is cut in the middle so error messages stay readable."""
+    s = " ".join(str(text).split("\n"))
+    if len(s) <= limit:
+        return s
+    keep = max(8, limit - 30)
+    return f"{s[:keep * 2 // 3]}...({len(s) - keep} more characters)...{s[len(s) - keep // 3:]}"
+
+
+def short_repr(value: object, limit: int = 120) -> str:
+    """``repr(value)`` shortened with :func:`shorten`."""
+    return shorten(repr(value), limit)
+
+
+def finite(*values: float) -> bool:
+    """All values are finite numbers (for ``require`` in config checks)."""
+    return all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values)
+
+
+def require_range(obj: object, names: str, lo: float | None = None, hi: float | None = None, *,
+                  lo_open: bool = False, hi_open: bool = False) -> None:
+    """Validation step of a config dataclass's ``__post_init__``: each field in ``names`` (space
+    separated) is a finite number within [lo, hi] (``lo_open``/``hi_open``: the bound is excluded;
+    None: unbounded); otherwise ``ValueError`` naming the field, its range and its value."""
+    for name in names.split():
+        v = getattr(obj, name)
+        ok = finite(v) and (lo is None or (v > lo if lo_open else v >= lo)) and (
+            hi is None or (v < hi if hi_open else v <= hi))
+        if not ok:
+            if lo is not None and hi is not None:
+                rng = f"in {'(' if lo_open else '['}{_num(lo)}, {_num(hi)}{')' if hi_open else ']'}"
+            elif lo is not None:
+                rng = f"{'>' if lo_open else '>='} {_num(lo)}"
+            else:
+                rng = f"{'<' if hi_open else '<='} {_num(hi)}"
+            raise ConfigValueError(f"{name} must be {rng}, got {short_repr(v, 40)}")
+
+
+def _num(v: float) -> str:
+    """A bound as people write it: 4294967295, 1000000, 0.001, 3.14159."""
+    if isinstance(v, int) or (float(v).is_integer() and abs(v) < 1e16):
+        return str(int(v))
+    return f"{v:.6g}"
+
+
 def require(condition: bool, message: str) -> None:
-    """Validation step of a config dataclass's ``__post_init__``: raise ``ValueError(message)``
-    unless ``condition`` holds (:func:`from_dict` reports it as a ConfigError naming the section)."""
+    """Validation step of a config dataclass's ``__post_init__``: raise ``ConfigValueError(message)``
+    (a ValueError) unless ``condition`` holds (:func:`from_dict` reports it naming the section)."""
     if not condition:
-        raise ValueError(message)
+        raise ConfigValueError(message)
 
 
 def _type_name(tp: Any) -> str:
@@ -52,10 +104,10 @@ def _coerce(value: Any, tp: Any, path: str) -> Any:
                 return _coerce(value, arg, path)
             except ConfigError as exc:
                 errors.append(str(exc))
-        raise ConfigError(f"{path}: {value!r} matches none of {[_type_name(a) for a in args]}")
+        raise ConfigError(f"{path}: {short_repr(value)} matches none of {[_type_name(a) for a in args]}")
     if origin is typing.Literal:
         if value not in args:
-            raise ConfigError(f"{path}: {value!r} is not one of {list(args)}")
+            raise ConfigError(f"{path}: {short_repr(value)} is not one of {list(args)}")
         return value
     if dataclasses.is_dataclass(tp):
         if isinstance(value, tp):
@@ -65,7 +117,7 @@ def _coerce(value: Any, tp: Any, path: str) -> Any:
         return from_dict(tp, value, path)
     if origin in (tuple, list):
         if isinstance(value, (str, bytes)) or not isinstance(value, Iterable):
-            raise ConfigError(f"{path}: expected a list, got {value!r}")
+            raise ConfigError(f"{path}: expected a list, got {short_repr(value)}")
         items = list(value)
         if origin is tuple and args and args[-1] is not Ellipsis:
             if len(items) != len(args):
@@ -77,33 +129,38 @@ def _coerce(value: Any, tp: Any, path: str) -> Any:
         return tuple(out) if origin is tuple else out
     if origin in (dict, Mapping) or tp in (dict,):
         if not isinstance(value, Mapping):
-            raise ConfigError(f"{path}: expected a mapping, got {value!r}")
+            raise ConfigError(f"{path}: expected a mapping, got {short_repr(value)}")
         kt, vt = args if args else (Any, Any)
         return {_coerce(k, kt, path): _coerce(v, vt, f"{path}.{k}") for k, v in value.items()}
     if tp is bool:
         if isinstance(value, bool):
             return value
-        raise ConfigError(f"{path}: expected true/false, got {value!r}")
+        raise ConfigError(f"{path}: expected true/false, got {short_repr(value)}")
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             if isinstance(value, float) and value.is_integer():
                 return int(value)
-            raise ConfigError(f"{path}: expected an integer, got {value!r}")
+            raise ConfigError(f"{path}: expected an integer, got {short_repr(value)}")
         return value
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{path}: expected a number, got {value!r}")
-        value = float(value)
+            raise ConfigError(f"{path}: expected a number, got {short_repr(value)}")
+        try:
+            value = float(value)
+        except OverflowError:                    # an int too large for a float
+            raise ConfigError(f"{path}: {short_repr(value, 40)} is too large") from None
         if math.isnan(value):
             raise ConfigError(f"{path}: NaN is not a valid value")
+        if math.isinf(value):
+            raise ConfigError(f"{path}: {value} is not a valid value (numbers must be finite)")
         return value
     if tp is str:
         if not isinstance(value, str):
-            raise ConfigError(f"{path}: expected a string, got {value!r}")
+            raise ConfigError(f"{path}: expected a string, got {short_repr(value)}")
         return value
     if isinstance(tp, type) and isinstance(value, tp):
         return value
-    raise ConfigError(f"{path}: cannot interpret {value!r} as {_type_name(tp)}")
+    raise ConfigError(f"{path}: cannot interpret {short_repr(value)} as {_type_name(tp)}")
 
 
 def _field_types(cls: type) -> dict[str, Any]:
@@ -120,17 +177,20 @@ def from_dict(cls: type[T], data: Mapping[str, Any] | None, path: str = "") -> T
         where = f"{path}." if path else ""
         raise ConfigError(
             f"unknown config key{'s' if len(unknown) > 1 else ''} "
-            f"{', '.join(repr(where + k) for k in unknown)}; valid keys here: {', '.join(sorted(types_))}")
+            f"{', '.join(short_repr(where + str(k), 60) for k in unknown[:5])}"
+            f"{f' (and {len(unknown) - 5} more)' if len(unknown) > 5 else ''}; valid keys here: {', '.join(sorted(types_))}")
     kwargs = {}
     for name, tp in types_.items():
         if name in data:
             kwargs[name] = _coerce(data[name], tp, f"{path}.{name}" if path else name)
     try:
         return cls(**kwargs)
+    except ConfigValueError as exc:
+        raise ConfigError(f"{path or cls.__name__}: {shorten(exc, 300)}") from None
     except ConfigError:
         raise
     except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{path or cls.__name__}: {exc}") from exc
+        raise ConfigError(f"{path or cls.__name__}: {shorten(exc, 300)}") from None
 
 
 def to_dict(cfg: Any) -> Any:
@@ -152,13 +212,14 @@ def _set_path(tree: dict, dotted: str, value: Any, cls: type) -> None:
         if types_ is None or key not in types_:
             here = ".".join(keys[:i]) or "<root>"
             valid = ", ".join(sorted(types_)) if types_ else "(none: not a config section)"
-            raise ConfigError(f"unknown config key {dotted!r} (no {key!r} under {here}; valid: {valid})")
+            raise ConfigError(f"unknown config key {short_repr(dotted, 80)} (no {short_repr(key, 60)} under "
+                              f"{shorten(here, 60)}; valid: {valid})")
         if i == len(keys) - 1:
             node[key] = value
         else:
             child_tp = types_[key]
             if not dataclasses.is_dataclass(child_tp):
-                raise ConfigError(f"config key {'.'.join(keys[:i + 1])!r} is a value, not a section")
+                raise ConfigError(f"config key {short_repr('.'.join(keys[:i + 1]), 80)} is a value, not a section")
             node = node.setdefault(key, {})
             node_cls = child_tp
 
@@ -168,15 +229,16 @@ def parse_overrides(overrides: Iterable[str]) -> list[tuple[str, Any]]:
     out = []
     for item in overrides:
         if "=" not in item:
-            raise ConfigError(f"override {item!r} is not of the form key=value")
+            raise ConfigError(f"override {short_repr(item)} is not of the form key=value")
         key, raw = item.split("=", 1)
         key = key.strip()
         if not key:
-            raise ConfigError(f"override {item!r} has an empty key")
+            raise ConfigError(f"override {short_repr(item)} has an empty key")
         try:
             value = yaml.safe_load(raw) if raw.strip() else ""
         except yaml.YAMLError as exc:
-            raise ConfigError(f"override {item!r}: cannot parse value ({exc})") from exc
+            raise ConfigError(f"override {short_repr(item)}: cannot parse value "
+                              f"({shorten(getattr(exc, 'problem', None) or exc, 100)})") from None
         out.append((key, value))
     return out
 
@@ -201,16 +263,46 @@ def with_overrides(cfg: T, overrides: Iterable[str] | Mapping[str, Any]) -> T:
 def read_config_file(path: str | Path) -> dict:
     """The top-level mapping of a YAML config file; errors name the file."""
     p = Path(path)
+    name = short_repr(str(p))
+    if p.is_dir():
+        raise ConfigError(f"config file {name} is a directory, not a YAML file")
     if not p.is_file():
-        raise ConfigError(f"config file {str(p)!r} does not exist")
-    try:
-        loaded = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"config file {str(p)!r} is not valid YAML: {exc}") from exc
+        raise ConfigError(f"config file {name} does not exist")
+    loaded = yaml_load_text(read_text(p, f"config file {name}"), f"config file {name}", ConfigError)
     if loaded is not None and not isinstance(loaded, Mapping):
         raise ConfigError(f"config file {str(p)!r} must hold a mapping at the top level, "
                           f"not a {type(loaded).__name__}")
     return dict(loaded or {})
+
+
+def read_text(path: str | Path, what: str, error: type[Exception] = ConfigError) -> str:
+    """A text file's contents, which must be UTF-8; otherwise ``error`` naming ``what`` and where
+    the first bad byte is (never a UnicodeDecodeError traceback)."""
+    try:
+        data = Path(path).read_bytes()
+    except IsADirectoryError:
+        raise error(f"{what} is a directory, not a file") from None
+    except OSError as exc:
+        raise error(f"cannot read {what}: {exc.strerror or exc}") from None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise error(f"{what} is not UTF-8 text (byte 0x{data[exc.start]:02x} on line {line}); "
+                    f"is it the right file?") from None
+
+
+def yaml_load_text(text: str, what: str, error: type[Exception] = ConfigError):
+    """``yaml.safe_load`` whose errors are one line naming ``what`` and the line."""
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or type(exc).__name__
+        raise error(f"{what} is not valid YAML{where}: {shorten(problem, 100)}") from None
+    except (ValueError, TypeError, RecursionError) as exc:     # e.g. a date out of range
+        raise error(f"{what} is not valid YAML: {shorten(exc, 100)}") from None
 
 
 def load_config(cls: type[T], path: str | Path | None = None, overrides: Iterable[str] = (),
@@ -228,7 +320,7 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: Iterabl
         try:
             cfg = from_dict(cls, data)
         except ConfigError as exc:
-            raise ConfigError(f"config file {str(path)!r}: {exc}") from None
+            raise ConfigError(f"config file {short_repr(str(path))}: {exc}") from None
     else:
         cfg = from_dict(cls, data)
     return with_overrides(cfg, overrides)

@@ -14,6 +14,7 @@ from typing import Literal
 
 import numpy as np
 
+from helios.schema import require, require_range
 from robots.hal import CameraIntrinsics
 from sim.world import World
 
@@ -29,6 +30,12 @@ class CameraConfig:
     far: float = 10.0                # m; OVMM's depth range
     max_range: float = 10.0          # m; depth beyond this reads 0 (no return)
     renderer: Literal["tiny", "egl"] = "tiny"   # EGL (Mesa/llvmpipe or GPU) pays off only at >= 640x480
+
+    def __post_init__(self) -> None:
+        require_range(self, "width height", 16, 4096)    # pixels: below 16 nothing is recognisable
+        require_range(self, "near", 0.001, 1.0)
+        require_range(self, "far max_range", 0.0, 1000.0, lo_open=True)
+        require(self.near < self.far, f"near ({self.near}) must be < far ({self.far})")
 
 
 @dataclass

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from helios.schema import require_range
 from robots.hal import Observation
 from robots.transforms import invert_transform, pose_to_transform, transform_to_pose
 from sim.world import FURNITURE, GROUND, OBJECT, STRUCTURE, World
@@ -36,6 +37,14 @@ class GraspConfig:
     side_gap: float = 0.002           # m between the fixed jaw's inner face and the object
     min_floor_clearance: float = 0.008  # m between the jaws' lower edge and the supporting surface
     release_retreat: float = 0.12     # m the hand backs off (and rises) after letting go
+
+    def __post_init__(self) -> None:
+        require_range(self, "open_angle", -math.pi, 0.0, hi_open=True)
+        require_range(self, "close_force close_speed close_time hold_force", 0.0, 1e4, lo_open=True)
+        require_range(self, "slip_distance search_radius", 0.0, 1.0, lo_open=True)
+        require_range(self, "approach_pitch", -math.pi / 2, math.pi / 2)
+        require_range(self, "lift_height approach_back approach_up depth_past_hinge side_gap min_floor_clearance "
+                            "release_retreat", 0.0, 1.0)
 
 
 @dataclass(frozen=True)

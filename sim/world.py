@@ -20,6 +20,7 @@ from typing import Iterable
 
 import numpy as np
 
+from helios.schema import require_range
 from robots.transforms import pose_to_transform
 
 
@@ -30,6 +31,11 @@ class PhysicsConfig:
     gravity: float = -9.81                # m/s^2 along z
     enable_sleeping: bool = True          # resting objects cost (almost) nothing per step
 
+    def __post_init__(self) -> None:
+        require_range(self, "timestep", 1e-5, 0.1)
+        require_range(self, "solver_iterations", 1, 10000)
+        require_range(self, "gravity", -100.0, 100.0)
+
 
 @dataclass(frozen=True)
 class SettleConfig:
@@ -39,6 +45,11 @@ class SettleConfig:
     angular_speed: float = 5e-2   # rad/s
     consecutive_steps: int = 50
     max_time: float = 5.0         # s of simulated time before giving up
+
+    def __post_init__(self) -> None:
+        require_range(self, "linear_speed angular_speed", 0.0, 100.0, lo_open=True)
+        require_range(self, "consecutive_steps", 1, 100000)
+        require_range(self, "max_time", 0.0, 3600.0, lo_open=True)
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Iterable
@@ -29,6 +30,16 @@ SPLITS = ("smoke", "val", "train")
 
 class DatasetError(ValueError):
     """An episode file or record is invalid; the message names the file and line."""
+
+
+MIN_HOME_SIZE, MAX_HOME_SIZE = 6.0, 40.0     # m, the footprint sides a home can be generated with
+_ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
+
+
+def _short(value) -> str:
+    from helios.schema import short_repr
+
+    return short_repr(value, 100)
 
 
 @dataclass(frozen=True)
@@ -94,7 +105,7 @@ def episode_from_dict(d: dict, where: str) -> Episode:
     if not isinstance(d, dict):
         raise DatasetError(f"{where}: expected a JSON object, got {type(d).__name__}")
     if d.get("schema_version") != SCHEMA_VERSION:
-        raise DatasetError(f"{where}: schema_version {d.get('schema_version')!r} is not supported "
+        raise DatasetError(f"{where}: schema_version {_short(d.get('schema_version'))} is not supported "
                            f"(this version reads {SCHEMA_VERSION}); regenerate the file with `python -m tools episodes generate`")
     missing = sorted(set(_FIELDS) - set(d))
     if missing:
@@ -107,7 +118,13 @@ def episode_from_dict(d: dict, where: str) -> Episode:
             raise DatasetError(f"{where}: field {key!r} must be {tp.__name__}, got {type(d[key]).__name__}")
     scene = d["scene"]
     if not isinstance(scene.get("seed"), int) or set(scene) - {"seed", "min_size", "max_size"}:
-        raise DatasetError(f"{where}: field 'scene' must be {{seed: int, min_size, max_size}}, got {scene!r}")
+        raise DatasetError(f"{where}: field 'scene' must be {{seed: int, min_size, max_size}}, got {_short(scene)}")
+    sizes = [scene.get("min_size", SceneRef.min_size), scene.get("max_size", SceneRef.max_size)]
+    if isinstance(scene["seed"], bool) or not 0 <= scene["seed"] < 2 ** 63 or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in sizes) or not (
+            MIN_HOME_SIZE <= sizes[0] <= sizes[1] <= MAX_HOME_SIZE):
+        raise DatasetError(f"{where}: field 'scene' needs a seed >= 0 and {MIN_HOME_SIZE:g} <= min_size <= max_size "
+                           f"<= {MAX_HOME_SIZE:g} (m), got {_short(scene)}")
     try:
         spec = parse_task(d["task"])
     except TaskSpecError as exc:
@@ -117,11 +134,14 @@ def episode_from_dict(d: dict, where: str) -> Episode:
         raise DatasetError(f"{where}: the task string disagrees with the category fields")
     start = d["robot_start"]
     if len(start) != 3 or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in start):
-        raise DatasetError(f"{where}: robot_start must be 3 finite numbers [x, y, yaw], got {start!r}")
+        raise DatasetError(f"{where}: robot_start must be 3 finite numbers [x, y, yaw], got {_short(start)}")
     if not d["goal_receptacles"] or not all(isinstance(g, str) and g for g in d["goal_receptacles"]):
         raise DatasetError(f"{where}: goal_receptacles must be a non-empty list of instance names")
+    if not _ID.fullmatch(d["episode_id"]):
+        raise DatasetError(f"{where}: episode_id {_short(d['episode_id'])} must be 1-100 letters, digits, '-', '_' "
+                           f"or '.' (it names files, e.g. recordings)")
     if d["split"] != "" and not d["episode_id"].startswith(d["split"]):
-        raise DatasetError(f"{where}: episode_id {d['episode_id']!r} does not belong to split {d['split']!r}")
+        raise DatasetError(f"{where}: episode_id {_short(d['episode_id'])} does not belong to split {_short(d['split'])}")
     return Episode(episode_id=d["episode_id"], split=d["split"], scene=SceneRef(**scene), task=d["task"],
                    object_category=d["object_category"], start_receptacle_category=d["start_receptacle_category"],
                    goal_receptacle_category=d["goal_receptacle_category"], target_object=d["target_object"],
@@ -132,27 +152,33 @@ def episode_from_dict(d: dict, where: str) -> Episode:
 
 def load_episodes(path: str | Path) -> list[Episode]:
     """Read and validate a JSONL episode file; the first bad line raises DatasetError."""
+    from helios.schema import read_text, short_repr
+
     p = Path(path)
+    if p.is_dir():
+        raise DatasetError(f"episode file {short_repr(str(p))} is a directory")
     if not p.is_file():
-        raise DatasetError(f"episode file {str(p)!r} does not exist")
+        raise DatasetError(f"episode file {short_repr(str(p))} does not exist")
     episodes, seen = [], set()
-    with p.open("r", encoding="utf-8") as fh:
-        for lineno, line in enumerate(fh, 1):
-            if not line.strip():
-                continue
-            where = f"{p}:{lineno}"
-            try:
-                d = json.loads(line)
-            except json.JSONDecodeError as exc:
-                raise DatasetError(f"{where}: not valid JSON ({exc.msg} at column {exc.colno}); "
-                                   f"the file may be truncated or corrupted") from None
-            ep = episode_from_dict(d, where)
-            if ep.episode_id in seen:
-                raise DatasetError(f"{where}: duplicate episode_id {ep.episode_id!r}")
-            seen.add(ep.episode_id)
-            episodes.append(ep)
+    text = read_text(p, f"episode file {short_repr(str(p))}", DatasetError)
+    for lineno, line in enumerate(text.split("\n"), 1):
+        if not line.strip():
+            continue
+        where = f"{p}:{lineno}"
+        try:
+            d = json.loads(line)
+        except json.JSONDecodeError as exc:
+            raise DatasetError(f"{where}: not valid JSON ({exc.msg} at column {exc.colno}); "
+                               f"the file may be truncated or corrupted") from None
+        except RecursionError:
+            raise DatasetError(f"{where}: not valid JSON (nested too deeply)") from None
+        ep = episode_from_dict(d, where)
+        if ep.episode_id in seen:
+            raise DatasetError(f"{where}: duplicate episode_id {_short(ep.episode_id)}")
+        seen.add(ep.episode_id)
+        episodes.append(ep)
     if not episodes:
-        raise DatasetError(f"episode file {str(p)!r} holds no episodes")
+        raise DatasetError(f"episode file {short_repr(str(p))} holds no episodes")
     return episodes
 
 
@@ -168,7 +194,7 @@ def save_episodes(episodes: Iterable[Episode], path: str | Path) -> None:
 
 def split_path(name: str) -> Path:
     if name not in SPLITS:
-        raise DatasetError(f"unknown split {name!r}; valid splits: {', '.join(SPLITS)} "
+        raise DatasetError(f"unknown split {_short(name)}; valid splits: {', '.join(SPLITS)} "
                            f"(or pass --episodes-file FILE)")
     return DATA_DIR / f"{name}.jsonl"
 

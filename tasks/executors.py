@@ -28,10 +28,86 @@ from tasks.provenance import git_commit
 EXECUTORS = ("local", "ray")
 HEARTBEAT_S = 1.0            # executors yield None this often while nothing finishes (progress redraws)
 RAY_OBJECT_STORE_BYTES = 100 * 1024 * 1024
+# Every wait on the network or another process is bounded (seconds):
+RAY_CONNECT_TIMEOUT_S = 10.0    # for a Ray head at HOST:PORT to accept a connection
+WORKER_START_TIMEOUT_S = 120.0  # for a spawned worker process to import the code and report ready
 
 
 class ExecutorError(RuntimeError):
-    """The executor cannot be set up (bad name, Ray missing or unreachable)."""
+    """The executor cannot be set up (bad name, Ray missing or unreachable, a worker that does not start)."""
+
+
+def parse_address(address: str) -> tuple[str, int] | None:
+    """``local``/``auto`` -> None; ``HOST:PORT`` or ``ray://HOST:PORT`` -> (host, port); anything
+    else is an ExecutorError saying what a valid address looks like."""
+    import ipaddress
+    import re
+
+    from helios.schema import short_repr
+
+    if address in ("local", "auto"):
+        return None
+    text = address[len("ray://"):] if address.startswith("ray://") else address
+    bad = ExecutorError(f"--address {short_repr(address, 80)} is not 'local', 'auto' or HOST:PORT "
+                        f"(e.g. 10.0.0.5:6379 or ray://head.example.org:10001)")
+    m = re.fullmatch(r"\[(?P<v6>[0-9A-Fa-f:.]+)\]:(?P<port6>\d{1,5})|(?P<host>[^:\s/]+):(?P<port>\d{1,5})", text)
+    if not m:
+        raise bad
+    host = m.group("v6") or m.group("host")
+    port = int(m.group("port6") or m.group("port"))
+    if not 1 <= port <= 65535:
+        raise ExecutorError(f"--address {short_repr(address, 80)}: port {port} is outside 1..65535")
+    if m.group("v6") or re.fullmatch(r"[\d.]+", host):
+        try:
+            ipaddress.ip_address(host)
+        except ValueError:
+            raise ExecutorError(f"--address {short_repr(address, 80)}: {host!r} is not a valid IP address") from None
+    elif len(host) > 253 or not all(re.fullmatch(r"[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?", label)
+                                    for label in host.rstrip(".").split(".")):
+        raise ExecutorError(f"--address {short_repr(address, 80)}: {short_repr(host, 60)} is not a valid host name")
+    return host, port
+
+
+def _bounded(fn: Callable, timeout: float):
+    """``fn()`` in a daemon thread: ("ok", value), ("error", exception) or ("timeout", None)."""
+    box: dict = {}
+
+    def target() -> None:
+        try:
+            box["ok"] = fn()
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller
+            box["error"] = exc
+
+    t = threading.Thread(target=target, name="helios-bounded-wait", daemon=True)
+    t.start()
+    t.join(timeout)
+    if t.is_alive():
+        return "timeout", None
+    return ("ok", box["ok"]) if "ok" in box else ("error", box.get("error"))
+
+
+def check_address(address: str, timeout: float | None = None) -> None:
+    """A Ray address that names a head which answers: the syntax (:func:`parse_address`), then a
+    TCP connection within ``timeout`` seconds (default :data:`RAY_CONNECT_TIMEOUT_S`, name lookup
+    included), so an unreachable cluster is one clear error instead of a hang."""
+    import socket
+
+    target = parse_address(address)
+    if target is None:
+        return
+    timeout = RAY_CONNECT_TIMEOUT_S if timeout is None else timeout
+    host, port = target
+
+    def connect() -> None:
+        socket.create_connection((host, port), timeout=timeout).close()
+
+    status, value = _bounded(connect, timeout)
+    if status == "timeout" or isinstance(value, (socket.timeout, TimeoutError)):
+        raise ExecutorError(f"no answer from the Ray cluster at {host}:{port} within {timeout:g} s; "
+                            f"check the address and that the head node is running")
+    if status == "error":
+        why = getattr(value, "strerror", None) or str(value) or type(value).__name__
+        raise ExecutorError(f"cannot reach the Ray cluster at {host}:{port}: {why}")
 
 
 @dataclass(frozen=True)
@@ -101,6 +177,10 @@ def _worker_loop(conn, parent_pid: int) -> None:
     _die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)    # Ctrl-C reaches the whole group; the parent decides
     worker_setup()
+    try:
+        conn.send(("ready",))                       # the parent bounds how long it waits for this
+    except (BrokenPipeError, OSError):
+        return
     while True:
         try:
             msg = conn.recv()
@@ -124,6 +204,16 @@ class _Worker:
         self.process.start()
         child.close()
         self.job: int | None = None
+        self.started_at = time.monotonic()
+        self.ready = False
+
+    def receive(self):
+        """The next message, with the ready handshake consumed: an outcome tuple, or None."""
+        msg = self.conn.recv()
+        if isinstance(msg, tuple) and msg == ("ready",):
+            self.ready = True
+            return None
+        return msg
 
 
 class ProcessExecutor:
@@ -157,6 +247,11 @@ class ProcessExecutor:
         for w in self._pool:
             assign(w)
         while running:
+            late = [w for w in self._pool if not w.ready and w.process.is_alive()
+                    and time.monotonic() - w.started_at > WORKER_START_TIMEOUT_S and not w.conn.poll()]
+            if late:
+                raise ExecutorError(f"a worker process did not start within {WORKER_START_TIMEOUT_S:g} s (it never "
+                                    f"reported ready); is the machine overloaded? try fewer --workers")
             ready = wait([w.conn for w in self._pool if w.job is not None]
                          + [w.process.sentinel for w in self._pool if w.job is not None], timeout=HEARTBEAT_S)
             if not ready:
@@ -168,8 +263,12 @@ class ProcessExecutor:
                 outcome = None
                 if w.conn in ready or w.conn.poll():
                     try:
-                        index, status, value = w.conn.recv()
-                        outcome = Outcome(index, status, value)
+                        msg = w.receive()
+                        if msg is not None:
+                            index, status, value = msg
+                            outcome = Outcome(index, status, value)
+                        elif w.process.is_alive():
+                            continue
                     except (EOFError, OSError):
                         w.process.join(timeout=1.0)     # the pipe closed: the process is exiting
                 if outcome is None and not w.process.is_alive():
@@ -240,6 +339,7 @@ class RayExecutor:
 
     def __init__(self, address: str = "local", workers: int = 2):
         os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")   # never phone home
+        check_address(address)          # before importing Ray: a bad or dead address fails fast
         if address == "local":
             # Ray resolves "localhost" to the machine's routable address unless clusters are off.
             os.environ["RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"] = "0"
@@ -268,7 +368,11 @@ class RayExecutor:
             raise ExecutorError(f"cannot connect to the Ray cluster at {address!r}: {exc}") from None
         self._owned = True
         if address != "local":
-            self.workers = int(ray.cluster_resources().get("CPU", workers))
+            self.workers = int(ray.cluster_resources().get("CPU", 0))
+            if self.workers < 1:
+                self.close()
+                raise ExecutorError(f"the Ray cluster at {address!r} has no CPUs to run episodes on; "
+                                    f"start worker nodes first")
 
     def map_unordered(self, fn: Callable, jobs: Sequence) -> Iterator[Outcome | None]:
         ray = self._ray

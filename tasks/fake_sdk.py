@@ -65,15 +65,19 @@ def start_episode_fake(pki, episode: Episode, username: str, password: str, sim_
 def run_fake_sdk_episode(agent_name: str, episode: Episode, seed: int | None = None, *,
                          config: RunnerConfig = RunnerConfig(), backend_config=None, sim_config=None,
                          pki=None, agent_options: dict | None = None,
-                         on_connected: Callable | None = None) -> EpisodeResult:
+                         on_connected: Callable | None = None, wrap_agent: Callable | None = None,
+                         fake_options: dict | None = None) -> EpisodeResult:
     """Start a fake Spot on ``episode``'s scene, connect an SDK backend to it, run a fresh
     ``agent_name`` agent (``tasks.registry``) through ``tasks.runner.run_episode`` and score it.
 
     ``backend_config``: an ``SdkBackendConfig`` whose timeouts and modes to use (host, port and
     CA are the fake's). ``pki``: a ``TestPKI`` or a folder to make one in (default: a throwaway
     one, removed afterwards). ``on_connected(backend)`` is called once the robot stands (the
-    command line prints and records it there). Always shuts the robot down, stops the fake and
-    every thread it started, also after an error or Ctrl-C.
+    command line prints and records it there). ``agent_options`` go to the agent's factory (e.g.
+    ``perception=(detector, scorer)``: real models instead of the simulated detector);
+    ``wrap_agent(agent, ep)`` may wrap the agent (instrumentation, recording); ``fake_options`` go
+    to ``FakeSpot`` (e.g. ``time_scale``). Always shuts the robot down, stops the fake and every
+    thread it started, also after an error or Ctrl-C.
     """
     from robots.spot.sdk_backend import SdkBackendConfig, SdkSpotBackend, credentials_from_env
 
@@ -81,7 +85,8 @@ def run_fake_sdk_episode(agent_name: str, episode: Episode, seed: int | None = N
     tmp = tempfile.mkdtemp(prefix="helios-fake-spot-") if pki is None else None
     pki = pki if pki is not None else tmp
     try:
-        ep = start_episode_fake(pki, episode, user, password, sim_config=sim_config, metrics=config.metrics)
+        ep = start_episode_fake(pki, episode, user, password, sim_config=sim_config, metrics=config.metrics,
+                                **(fake_options or {}))
         try:
             backend = SdkSpotBackend(replace(backend_config or SdkBackendConfig(), hostname="127.0.0.1",
                                              port=ep.port, cert_path=str(ep.pki.ca_cert)))
@@ -90,6 +95,8 @@ def run_fake_sdk_episode(agent_name: str, episode: Episode, seed: int | None = N
                     on_connected(backend)
                 # simulated perception is seeded by the episode's own seed; ``seed`` seeds the agent's generator
                 agent = make_agent(agent_name, RunContext.for_episode(ep), **(agent_options or {}))
+                if wrap_agent is not None:
+                    agent = wrap_agent(agent, ep)
                 result = run_episode(agent, ep.backend.watch(backend), episode, config, ep.judge,
                                      start_time=time.time(), seed=seed)
                 result.extra["collision_events"] = [asdict(e) for e in ep.backend.collision_events]

@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from helios.schema import require_range
 from robots.hal import Observation
 from sim.camera import decode_body_ids
 from sim.world import FURNITURE
@@ -43,6 +44,14 @@ class MetricsConfig:
     stability_steps: int = 50         # consecutive at-rest physics steps for Place (OVMM: 50)
     final_settle_time: float = 5.0    # s of simulated time the judge waits for a released object
     held_clip: float = 0.30           # m, near plane of the FindRec check view (clips the held object)
+
+    def __post_init__(self) -> None:
+        require_range(self, "find_radius rec_radius", 0.0, 100.0, lo_open=True)
+        require_range(self, "min_coverage", 0.0, 1.0, lo_open=True)
+        require_range(self, "surface_tolerance", 0.0, 1.0, lo_open=True)
+        require_range(self, "stability_steps", 1, 100000)
+        require_range(self, "final_settle_time", 0.0, 3600.0)
+        require_range(self, "held_clip", 0.0, 5.0)
 
 
 @dataclass

@@ -15,6 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, NamedTuple, Protocol, runtime_checkable
 
+from helios.schema import short_repr
+
 EPISODE = "episode"
 DEMO = "demo"
 RUNS_ON = {EPISODE: "task episodes", DEMO: "the demo layout"}
@@ -97,6 +99,9 @@ class AgentEntry(NamedTuple):
     factory: Callable           # factory(context: AgentContext, **options) -> agent
     description: str
     runs_on: str = EPISODE
+    # Runs on a real robot: needs no ground truth (an EPISODE agent then takes real perception,
+    # ``perception=(detector, scorer)``; a DEMO agent takes the layout hints).
+    real_robot: bool = False
 
 
 def _oracle(context: AgentContext, **_options):
@@ -108,7 +113,11 @@ def _oracle(context: AgentContext, **_options):
 def _helios_factory(variant: str, ground_truth: bool) -> Callable:
     """Factory of one HELIOS variant with simulated (noisy or ground-truth) perception."""
 
-    def factory(context: AgentContext, agent_config=None, method_config=None, perception_config=None):
+    def factory(context: AgentContext, agent_config=None, method_config=None, perception_config=None,
+                perception=None):
+        """``perception``: a (detector, scorer) pair (e.g. ``tasks.hardware.load_robot_perception``:
+        OWLv2 and CLIP from local weights) used instead of the simulated detector; the only way
+        to run on a real robot."""
         from dataclasses import replace
 
         from helios.agents.config import AgentConfig
@@ -125,10 +134,18 @@ def _helios_factory(variant: str, ground_truth: bool) -> Callable:
         method_config = method_config or HeliosConfig()
         if search_fields:
             method_config = replace(method_config, search=replace(method_config.search, **search_fields))
+        name = variant + ("-gt" if ground_truth else "")
+        if perception is not None:
+            if ground_truth:
+                raise UnknownAgentError(f"{name} uses ground-truth semantics; with real perception run {variant}")
+            detector, scorer = perception
+            return HeliosAgent(detector, scorer, agent_config, method_config, name=name)
+        if context.backend is None or context.scene is None:
+            raise UnknownAgentError(f"{name} with simulated perception needs the simulator (a task episode); on a "
+                                    f"real robot give it real perception")
         perception_config = replace(perception_config or SimPerceptionConfig(), mode="gt" if ground_truth else "noisy")
         detector, scorer = make_sim_perception(context.backend, seed=context.seed, config=perception_config,
                                                rooms=context.scene.layout.rooms)
-        name = variant + ("-gt" if ground_truth else "")
         return HeliosAgent(detector, scorer, agent_config, method_config, name=name)
 
     return factory
@@ -147,7 +164,8 @@ def _helios_agents() -> dict[str, AgentEntry]:
 
     out = {}
     for variant, (_, _, text) in VARIANTS.items():
-        out[variant] = AgentEntry(_helios_factory(variant, False), text + " (simulated detector)")
+        out[variant] = AgentEntry(_helios_factory(variant, False), text + " (simulated detector, or real "
+                                                                          "perception on a robot)", real_robot=True)
         out[variant + "-gt"] = AgentEntry(_helios_factory(variant, True), text + " (ground-truth semantics)")
     return out
 
@@ -158,7 +176,7 @@ AGENTS: dict[str, AgentEntry] = {
     "oracle": AgentEntry(_oracle, "scripted ground-truth agent: knows where everything is, acts through the HAL "
                                   "(the ceiling)"),
     "scripted-demo": AgentEntry(_scripted_demo, "scripted pick-and-place in the demo layout (tools demo's sequence)",
-                                DEMO),
+                                DEMO, real_robot=True),
 }
 
 
@@ -167,15 +185,32 @@ def agent_names(runs_on: str | None = EPISODE) -> list[str]:
     return sorted(name for name, entry in AGENTS.items() if runs_on is None or entry.runs_on == runs_on)
 
 
+def robot_agent_names() -> list[str]:
+    """Agents that can run on a real robot (sorted)."""
+    return sorted(name for name, entry in AGENTS.items() if entry.real_robot)
+
+
+def check_robot_agent(name: str) -> AgentEntry:
+    """The entry of ``name`` if it can run on a real robot; UnknownAgentError listing those that can."""
+    valid = ", ".join(robot_agent_names())
+    if name not in AGENTS:
+        raise UnknownAgentError(f"unknown agent {short_repr(name, 80)}; valid agents: {valid}")
+    entry = AGENTS[name]
+    if not entry.real_robot:
+        raise UnknownAgentError(f"agent {name!r} needs the simulator's ground truth and cannot run on a real robot; "
+                                f"agents for a robot: {valid}")
+    return entry
+
+
 def check_agent(name: str, runs_on: str | None = EPISODE) -> AgentEntry:
     """The entry of ``name``; an :class:`UnknownAgentError` listing the valid names unless it is
     registered and runs on ``runs_on`` (``None``: anywhere)."""
     valid = ", ".join(agent_names(runs_on))
     if name not in AGENTS:
-        raise UnknownAgentError(f"unknown agent {name!r}; valid agents: {valid}")
+        raise UnknownAgentError(f"unknown agent {short_repr(name, 80)}; valid agents: {valid}")
     entry = AGENTS[name]
     if runs_on is not None and entry.runs_on != runs_on:
-        raise UnknownAgentError(f"agent {name!r} runs on {RUNS_ON[entry.runs_on]}, not on {RUNS_ON[runs_on]}; "
+        raise UnknownAgentError(f"agent {short_repr(name, 80)} runs on {RUNS_ON[entry.runs_on]}, not on {RUNS_ON[runs_on]}; "
                                 f"valid agents: {valid}")
     return entry
 

@@ -27,6 +27,12 @@ class RunnerConfig:
     max_sim_time: float = 600.0        # s of robot time per episode (the paper stops hardware runs at 10 min)
     metrics: MetricsConfig = MetricsConfig()
 
+    def __post_init__(self) -> None:
+        from helios.schema import require_range
+
+        require_range(self, "max_commands", 1, 10_000_000)
+        require_range(self, "max_sim_time", 0.0, 1e6, lo_open=True)     # s; 1e6 s is 11 days
+
 
 class EpisodeLimitReached(Exception):
     """Raised inside the agent when the episode's command or time budget is used up."""
@@ -125,11 +131,17 @@ def run_episode(agent: Agent, backend: RobotBackend, episode: Episode, config: R
     seed = episode.seed if seed is None else seed
     rng = np.random.default_rng(seed)
     error = None
+    clock = _ActivityClock(agent, robot)
+    reset_done = False
     try:
         agent.reset(episode.spec, rng)
+        reset_done = True
         done = False
         while not done:
-            done = agent.act(robot)
+            try:
+                done = agent.act(robot)
+            finally:                   # also an act cut short by the budget or an exception
+                clock.tick()
     except EpisodeLimitReached:
         pass
     except RobotFault as exc:
@@ -137,9 +149,44 @@ def run_episode(agent: Agent, backend: RobotBackend, episode: Episode, config: R
     except Exception as exc:  # an agent bug must not take the batch down; keep the trace for the log
         error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=8)}"
     metrics = judge.finalize(robot.limit_hit) if judge is not None else None
+    extra: dict = {}
+    if clock.totals is not None:
+        extra["activity_time"] = clock.totals
+    decision_stats = getattr(agent, "decision_stats", None)
+    if reset_done and callable(decision_stats):
+        try:
+            extra["decisions"] = decision_stats()
+        except Exception as exc:  # a faulty hook is reported with the episode, never fatal
+            error = (error + "\n" if error else "") + f"decision_stats: {type(exc).__name__}: {exc}"
     return EpisodeResult(episode_id=episode.episode_id, task=episode.task, agent=agent.name, seed=seed,
                          metrics=metrics, commands=robot.commands, sim_time=robot.elapsed,
-                         wall_time=time.perf_counter() - wall0, limit_hit=robot.limit_hit, error=error)
+                         wall_time=time.perf_counter() - wall0, limit_hit=robot.limit_hit, error=error,
+                         extra=extra)
+
+
+class _ActivityClock:
+    """Simulated seconds per activity, for agents that name what each ``act`` did in an optional
+    ``activity`` attribute (HELIOS: ``helios.agents.helios_agent.ACTIVITIES``). After every act,
+    the robot time that act took (``MonitoredBackend.elapsed`` before and after, so the sim clock
+    only) goes to the activity the agent names then; time before the first act (the agent's
+    ``reset``) goes to the first. ``totals`` stays None for agents without ``activity``; otherwise
+    its values sum to the episode's ``sim_time``."""
+
+    def __init__(self, agent, robot: MonitoredBackend):
+        self._agent = agent
+        self._robot = robot
+        self._last = 0.0                   # elapsed at the end of the previous act
+        self.totals: dict[str, float] | None = None
+
+    def tick(self) -> None:
+        activity = getattr(self._agent, "activity", None)
+        if not isinstance(activity, str):
+            return
+        now = self._robot.elapsed
+        if self.totals is None:
+            self.totals = {}
+        self.totals[activity] = self.totals.get(activity, 0.0) + (now - self._last)
+        self._last = now
 
 
 # ------------------------------------------------------------------------------------------------

@@ -13,6 +13,7 @@ import re
 from dataclasses import dataclass
 from typing import Iterable
 
+from helios.schema import short_repr
 from sim.scenes.catalog import OBJECT_CATEGORIES, RECEPTACLE_CATEGORIES
 
 _PATTERN = re.compile(r"^\s*move\s+(?P<obj>.+?)\s+from\s+(?P<start>.+?)\s+to\s+(?P<goal>.+?)\s*\.?\s*$", re.IGNORECASE)
@@ -51,9 +52,11 @@ def _normalise(phrase: str) -> str:
 def _check(name: str, valid: Iterable[str], role: str, task: str) -> None:
     valid = tuple(valid)
     if name not in valid:
-        close = difflib.get_close_matches(name, valid, n=1)
+        close = difflib.get_close_matches(name, valid, n=1) if len(name) <= 100 else []
         hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise TaskSpecError(f"unknown {role} {name!r} in task {task!r}{hint}; valid {role}s: {', '.join(valid)}")
+        # the task is quoted only when it adds something to the name (and both are shortened)
+        context = f" in task {short_repr(task, 100)}" if len(task) <= 200 else ""
+        raise TaskSpecError(f"unknown {role} {short_repr(name, 80)}{context}{hint}; valid {role}s: {', '.join(valid)}")
 
 
 def parse_task(text: str) -> TaskSpec:
@@ -62,9 +65,9 @@ def parse_task(text: str) -> TaskSpec:
         raise TaskSpecError("empty task; expected \"Move <object> from <start receptacle> to <goal receptacle>\"")
     m = _PATTERN.match(text)
     if not m:
-        raise TaskSpecError(f"malformed task {text!r}; expected \"Move <object> from <start receptacle> to "
+        raise TaskSpecError(f"malformed task {short_repr(text, 100)}; expected \"Move <object> from <start receptacle> to "
                             f"<goal receptacle>\", e.g. \"Move the mug from the stool to the table\"")
     parts = {k: _normalise(v) for k, v in m.groupdict().items()}
     if any(" from " in f" {v} " or " to " in f" {v} " for v in parts.values()):
-        raise TaskSpecError(f"malformed task {text!r}: 'from' and 'to' must each appear exactly once")
+        raise TaskSpecError(f"malformed task {short_repr(text, 100)}: 'from' and 'to' must each appear exactly once")
     return TaskSpec(parts["obj"], parts["start"], parts["goal"])

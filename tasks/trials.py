@@ -20,6 +20,7 @@ from its executor (``tasks.executors``: in-process, local processes, Ray) and ap
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -37,7 +38,8 @@ import numpy as np
 
 from helios.agents.config import AgentConfig
 from helios.config import HeliosConfig
-from helios.schema import ConfigError, dump_yaml, from_dict, load_config, read_config_file, to_dict
+from helios.schema import (ConfigError, dump_yaml, from_dict, load_config, read_config_file, read_text, require,
+                           require_range, shorten, to_dict, yaml_load_text)
 from robots.spot.sim_backend import SimBackendConfig
 from sim.perception.config import SimPerceptionConfig
 from tasks.episodes import Episode
@@ -49,6 +51,10 @@ from tasks.runner import RunnerConfig, run_sim_episode
 METRIC_KEYS = ("find_obj", "pick", "find_rec", "place", "success")
 METRIC_NAMES = {"find_obj": "FindObj", "pick": "Pick", "find_rec": "FindRec", "place": "Place", "success": "SR"}
 NONDETERMINISTIC_FIELDS = ("wall_time", "memory", "recording")
+FINGERPRINT_FIELD = "config_fingerprint"     # in every record: config_fingerprint() of the config that made it
+DAMAGED_FILE = "episodes.damaged.jsonl"      # damaged lines of episodes.jsonl, moved here by a resume
+# Files of a run folder (a directory in their place is one clear error, never a traceback).
+FOLDER_FILES = ("config.yaml", "episodes.jsonl", "summary.json", "invocations.jsonl", ".lock", DAMAGED_FILE)
 
 
 @dataclass(frozen=True)
@@ -68,13 +74,23 @@ class TrialConfig:
     helios: HeliosConfig = field(default_factory=HeliosConfig)
     perception: SimPerceptionConfig = field(default_factory=SimPerceptionConfig)
 
+    def __post_init__(self) -> None:
+        require(bool(self.agent.strip()), "agent must be a non-empty name")
+        require_range(self, "episodes", 1, 10_000_000)
+        require_range(self, "seed", 0, 2 ** 32 - 1)     # numpy seeds are non-negative
+
 
 class RunFolderError(ValueError):
     """The run folder holds results of a different configuration, is in use, or is unreadable."""
 
 
 class EpisodeSetupError(RuntimeError):
-    """An episode failed outside the agent (building the scene, making the agent): the batch stops."""
+    """An episode failed outside the agent (building the scene, making the agent): the batch stops.
+    The message is one line; ``trace`` holds the worker's traceback."""
+
+    def __init__(self, message: str, trace: str = ""):
+        super().__init__(message)
+        self.trace = trace
 
 
 def episode_seed(master_seed: int, episode_id: str) -> int:
@@ -88,8 +104,21 @@ def deterministic_view(record: dict) -> dict:
     return {k: v for k, v in record.items() if k not in NONDETERMINISTIC_FIELDS}
 
 
-def _config_text(config: TrialConfig) -> str:
+def _config_text(config: TrialConfig | dict) -> str:
     return dump_yaml(provenance()) + dump_yaml(config)
+
+
+def config_fingerprint(config: TrialConfig | dict) -> str:
+    """A short hash of a trial configuration (a TrialConfig, or a run folder's config.yaml as
+    loaded), without its provenance (version, commit) and without ``episodes`` (extending a run
+    keeps its fingerprint). Every record carries the fingerprint of the configuration that made
+    it, so a folder whose records disagree with its config.yaml (edited, replaced or deleted) is
+    recognised."""
+    d = dict(to_dict(config)) if not isinstance(config, dict) else dict(config)
+    for key in (*PROVENANCE_KEYS, "episodes"):
+        d.pop(key, None)
+    text = json.dumps(d, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 def _write_atomic(path: Path, text: str) -> None:
@@ -98,16 +127,23 @@ def _write_atomic(path: Path, text: str) -> None:
 
 def read_run_config(out: Path) -> tuple[dict, TrialConfig]:
     """The header (``helios_version``, ``git_commit``) and the trial config saved in a run folder."""
-    import yaml
+    header, _, config = _read_saved_config(Path(out))
+    return header, config
 
-    cfg_path = Path(out) / "config.yaml"
-    try:
-        saved = yaml.safe_load(cfg_path.read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise RunFolderError(f"cannot read {cfg_path}: {exc}") from None
+
+def _read_saved_config(out: Path) -> tuple[dict, dict, TrialConfig]:
+    """A run folder's config.yaml: header, the body as written (for its fingerprint) and the trial
+    config; one-line RunFolderError when it is not a readable trial config."""
+    cfg_path = out / "config.yaml"
+    what = f"{cfg_path}"
+    saved = yaml_load_text(read_text(cfg_path, what, RunFolderError), what, RunFolderError)
+    if saved is None:
+        saved = {}
+    if not isinstance(saved, dict):
+        raise RunFolderError(f"{cfg_path} is damaged: it holds a {type(saved).__name__}, not a trial config")
     header = {k: saved.pop(k, None) for k in PROVENANCE_KEYS}
     try:
-        return header, from_dict(TrialConfig, saved)
+        return header, saved, from_dict(TrialConfig, saved)
     except ConfigError as exc:
         raise RunFolderError(f"{cfg_path} is not a trial config this version can read: {exc}") from None
 
@@ -121,24 +157,88 @@ def load_trial_config(path: str | Path) -> tuple[dict, TrialConfig]:
     return header, load_config(TrialConfig, path, ignore=PROVENANCE_KEYS)
 
 
-def prepare_run_folder(out: Path, config: TrialConfig) -> dict[str, dict]:
+def check_folder_layout(out: Path, record: int = 0) -> None:
+    """One clear RunFolderError when ``out`` cannot be a run folder: a file in its place or in a
+    parent's, or a directory where one of its files belongs. Reads only."""
+    out = Path(out)
+    for parent in [out, *out.parents]:
+        if parent.exists() or parent.is_symlink():
+            if not parent.is_dir():
+                where = "" if parent == out else f" ({str(parent)!r} is a file)"
+                raise RunFolderError(f"run folder {shorten(repr(str(out)))} cannot be made: "
+                                     f"{'it is a file' if parent == out else 'a parent is not a directory'}{where}")
+            break
+    if not out.is_dir():
+        return
+    for name in FOLDER_FILES:
+        if (out / name).is_dir():
+            raise RunFolderError(f"run folder {str(out)!r} is damaged: {name} is a directory, where a file belongs; "
+                                 f"move it away (or use another --out)")
+    if record and (out / "recordings").exists() and not (out / "recordings").is_dir():
+        raise RunFolderError(f"run folder {str(out)!r}: recordings is a file, where the recordings folder belongs")
+
+
+def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | None" = None,
+                       dry_run: bool = False) -> dict[str, dict]:
     """Create or reopen a run folder; returns the episodes already finished (by id).
 
-    Reopening checks the saved config is the same (results of different configs never mix) and
-    drops a torn last line left by a kill in the middle of a write. The one allowed difference is
-    a larger ``episodes``: episodes are a prefix of the split and each one's seed depends only on
-    (seed, episode id), so a 100-episode run extended to 200 gives exactly the numbers of a fresh
-    200-episode run; config.yaml is then rewritten with the new count.
+    Reopening checks that the configuration is the one that made the results (results of
+    different configs never mix): config.yaml must equal ``config``, and every record's
+    fingerprint must match config.yaml (or, with config.yaml missing or unreadable, ``config``).
+    The one allowed difference is a larger ``episodes``: episodes are a prefix of the split and
+    each one's seed depends only on (seed, episode id), so a 100-episode run extended to 200 gives
+    exactly the numbers of a fresh 200-episode run; config.yaml then records the new count. A
+    folder that holds no results takes the new configuration.
+
+    Damaged lines of episodes.jsonl (a torn last line after a kill, or any line that is not a
+    valid record) are moved to ``episodes.damaged.jsonl``, never deleted; their episodes run
+    again. All checks happen before anything is written. ``report`` (a BatchReport) receives the
+    fingerprint new records get, the saved commit and notes on what was repaired. ``dry_run``: only
+    the checks (a command line refuses a folder before it creates or locks anything).
     """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    check_folder_layout(out)
+    if dry_run and not out.is_dir():
+        return {}
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RunFolderError(f"cannot create run folder {str(out)!r}: {exc.strerror or exc}") from None
+    notes: list[str] = []
+    scan = scan_results(out / "episodes.jsonl")
+    fps = {r.get(FINGERPRINT_FIELD) for r in scan.records.values()}
+    known = fps - {None}
     cfg_path = out / "config.yaml"
-    if cfg_path.exists():
-        _, saved_cfg = read_run_config(out)
-        if saved_cfg != config:
+    current = config_fingerprint(config)
+    folder_fp, new_config_text, saved_commit, damaged_config = current, None, None, None
+    if len(known) > 1:
+        raise RunFolderError(f"run folder {str(out)!r} mixes records of {len(known)} configurations (fingerprints "
+                             f"{', '.join(sorted(known))}); use another --out")
+    try:
+        saved = _read_saved_config(out) if cfg_path.exists() else None
+    except RunFolderError as exc:
+        if scan.records and (None in fps or known != {current}):
+            raise RunFolderError(f"{exc}; the records in episodes.jsonl cannot be matched to this configuration, "
+                                 f"so the folder cannot be resumed: restore config.yaml or use another --out") from None
+        saved, damaged_config = None, str(exc)
+    if saved is not None:
+        header, body, saved_cfg = saved
+        saved_commit = header.get("git_commit")
+        saved_fp = config_fingerprint(body)
+        if known and known != {saved_fp}:
+            raise RunFolderError(f"run folder {str(out)!r}: config.yaml does not describe the records in episodes.jsonl "
+                                 f"(they were made with configuration {next(iter(known))}, config.yaml says {saved_fp}): "
+                                 f"it was edited or replaced after they were written; restore it or use another --out")
+        if not scan.records:                        # nothing to protect: the folder takes this configuration
+            if saved_cfg != config or saved_fp != current:
+                new_config_text = _config_text(config)
+            if saved_cfg != config:
+                notes.append("config.yaml of a run without results was replaced by this configuration")
+        elif saved_cfg != config:
             diff = [k for k, v in to_dict(config).items() if to_dict(saved_cfg).get(k) != v]
             if diff == ["episodes"] and config.episodes > saved_cfg.episodes:
-                _write_atomic(cfg_path, _config_text(config))
+                new_config_text = dump_yaml(provenance()) + dump_yaml({**body, "episodes": config.episodes})
+                folder_fp = saved_fp
             elif diff == ["episodes"]:
                 raise RunFolderError(f"run folder {str(out)!r} holds a run of {saved_cfg.episodes} episodes; "
                                      f"a run can be extended but not shortened (asked for {config.episodes}); "
@@ -146,34 +246,191 @@ def prepare_run_folder(out: Path, config: TrialConfig) -> dict[str, dict]:
             else:
                 raise RunFolderError(f"run folder {str(out)!r} holds results of a different configuration "
                                      f"(differs in: {', '.join(diff)}); use another --out to start a new run")
+        else:
+            folder_fp = saved_fp
     else:
-        _write_atomic(cfg_path, _config_text(config))
-    return read_results(out / "episodes.jsonl", repair=True)
+        if scan.records and None in fps:
+            raise RunFolderError(f"run folder {str(out)!r}: config.yaml is missing and the records in episodes.jsonl "
+                                 f"carry no configuration fingerprint (written by an older version), so nothing "
+                                 f"says which configuration made them; restore config.yaml or use another --out")
+        if scan.records and known != {current}:
+            raise RunFolderError(f"run folder {str(out)!r}: config.yaml is "
+                                 f"{'unreadable' if damaged_config else 'missing'} and the records in episodes.jsonl "
+                                 f"were made with a different configuration (fingerprint {next(iter(known))}, this "
+                                 f"one is {current}); use another --out, or restore config.yaml")
+        new_config_text = _config_text(config)
+        if damaged_config:
+            notes.append(f"{damaged_config}; moved it to {cfg_path.name}.damaged and wrote this configuration "
+                         f"(the records' fingerprints match it)")
+        elif scan.records:
+            notes.append("config.yaml was missing; rewrote it (the records' fingerprints match this configuration)")
+    # Every check has passed: now write.
+    if dry_run:
+        return dict(scan.records)
+    if scan.damaged:
+        quarantine(out / "episodes.jsonl", scan)
+        torn = [d for d in scan.damaged if d.torn]
+        bad = [d for d in scan.damaged if not d.torn]
+        if bad:
+            notes.append(f"moved {len(bad)} damaged line(s) of episodes.jsonl to {DAMAGED_FILE} ("
+                         + "; ".join(f"line {d.lineno}: {d.reason}" for d in bad[:5])
+                         + (f"; and {len(bad) - 5} more" if len(bad) > 5 else "") + "); episodes without a valid record run again")
+        if torn:
+            notes.append(f"moved the torn last line of episodes.jsonl (an interrupted write) to {DAMAGED_FILE}")
+    if new_config_text is not None:
+        if damaged_config:
+            _move_aside(cfg_path)
+        _write_atomic(cfg_path, new_config_text)
+    if report is not None:
+        report.fingerprint = folder_fp
+        report.saved_commit = saved_commit
+        report.notes.extend(notes)
+    return dict(scan.records)
+
+
+def _move_aside(path: Path) -> None:
+    target = path.with_name(path.name + ".damaged")
+    n = 1
+    while target.exists():
+        n += 1
+        target = path.with_name(f"{path.name}.damaged{n}")
+    path.replace(target)
+
+
+@dataclass
+class DamagedLine:
+    """A line of episodes.jsonl that is not a valid record (1-based line number, why, raw bytes)."""
+
+    lineno: int
+    reason: str
+    data: bytes
+    torn: bool = False              # the last line, without its newline: an interrupted write
+
+
+@dataclass
+class ResultsScan:
+    """episodes.jsonl read line by line: the first valid record per episode, the damaged lines."""
+
+    records: dict[str, dict]
+    damaged: list[DamagedLine]
+    good_lines: list[bytes]         # the valid lines as written, in order (duplicates included)
+    legacy: int = 0                 # valid records without a configuration fingerprint
+
+
+def record_problem(record) -> str | None:
+    """Why a parsed line of episodes.jsonl is not a usable record, or None when it is."""
+    if not isinstance(record, dict):
+        return f"a JSON {type(record).__name__}, not an episode record"
+    eid = record.get("episode_id")
+    if not isinstance(eid, str) or not eid:
+        return "no episode_id"
+
+    def number(v) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+
+    m = record.get("metrics")
+    if m is not None:
+        if not isinstance(m, dict):
+            return "metrics is not an object"
+        for key in METRIC_KEYS:
+            if not isinstance(m.get(key), bool):
+                return f"metrics.{key} is not true/false"
+        if m.get("failure_reason") is not None and not isinstance(m.get("failure_reason"), str):
+            return "metrics.failure_reason is not a string"
+        if "failure_reason" not in m:
+            return "metrics.failure_reason is missing"
+        if not (number(m.get("collisions")) and float(m["collisions"]).is_integer()):
+            return "metrics.collisions is not a count"
+    for key in ("sim_time", "wall_time"):
+        if not number(record.get(key)):
+            return f"{key} is not a non-negative number"
+    if "success" in record and not isinstance(record["success"], bool):
+        return "success is not true/false"
+    if record.get(FINGERPRINT_FIELD) is not None and not isinstance(record[FINGERPRINT_FIELD], str):
+        return f"{FINGERPRINT_FIELD} is not a string"
+    if record.get("extra") is not None and not isinstance(record["extra"], dict):
+        return "extra is not an object"
+    mem = record.get("memory")
+    if mem is not None:
+        if not isinstance(mem, dict):
+            return "memory is not an object"
+        for key in ("peak_rss_mb", "map_mb_peak", "gpu_allocated_mb_peak", "gpu_reserved_mb_peak"):
+            if mem.get(key) is not None and not number(mem[key]):
+                return f"memory.{key} is not a number"
+        series = mem.get("series")
+        if series is not None:
+            if not isinstance(series, dict) or not isinstance(series.get("t", []), list):
+                return "memory.series is malformed"
+            n = len(series.get("t", []))
+            for key, vals in series.items():
+                if not isinstance(vals, list) or len(vals) != n or not all(
+                        v is None or (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v))
+                        for v in vals):
+                    return f"memory.series.{key} is malformed"
+    return None
+
+
+def scan_results(path: Path) -> ResultsScan:
+    """Read episodes.jsonl without changing it: every line is a valid record or a damaged line
+    (with its line number and why). RunFolderError when the file itself cannot be read."""
+    path = Path(path)
+    scan = ResultsScan({}, [], [])
+    if path.is_dir():
+        raise RunFolderError(f"{path} is a directory, where the results file belongs; move it away")
+    if not path.exists():
+        return scan
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise RunFolderError(f"cannot read {path}: {exc.strerror or exc}") from None
+    for lineno, line in enumerate(data.splitlines(keepends=True), 1):
+        if not line.endswith(b"\n"):
+            scan.damaged.append(DamagedLine(lineno, "torn last line (an interrupted write)", line, torn=True))
+            break
+        if not line.strip():
+            scan.damaged.append(DamagedLine(lineno, "empty line", line))
+            continue
+        try:
+            record = json.loads(line.decode("utf-8"))
+        except UnicodeDecodeError:
+            scan.damaged.append(DamagedLine(lineno, "not UTF-8 text", line))
+            continue
+        except (json.JSONDecodeError, RecursionError) as exc:
+            scan.damaged.append(DamagedLine(lineno, f"not valid JSON ({getattr(exc, 'msg', 'too deeply nested')})",
+                                            line))
+            continue
+        problem = record_problem(record)
+        if problem:
+            scan.damaged.append(DamagedLine(lineno, problem, line))
+            continue
+        scan.good_lines.append(line)
+        if record["episode_id"] not in scan.records:
+            scan.records[record["episode_id"]] = record
+            scan.legacy += record.get(FINGERPRINT_FIELD) is None
+    return scan
+
+
+def quarantine(path: Path, scan: ResultsScan) -> None:
+    """Move the damaged lines of ``path`` to ``episodes.damaged.jsonl`` next to it (appended, with
+    their bytes unchanged; fsynced first) and rewrite ``path`` with the valid lines in order."""
+    if not scan.damaged:
+        return
+    side = Path(path).with_name(DAMAGED_FILE)
+    with side.open("ab") as fh:
+        for d in scan.damaged:
+            fh.write(d.data if d.data.endswith(b"\n") else d.data + b"\n")
+        fh.flush()
+        os.fsync(fh.fileno())
+    _write_bytes_atomic(Path(path), b"".join(scan.good_lines))
 
 
 def read_results(path: Path, repair: bool = False) -> dict[str, dict]:
-    """Finished episodes by id. With ``repair``, a torn last line is cut off the file."""
-    done: dict[str, dict] = {}
-    path = Path(path)
-    if not path.exists():
-        return done
-    data = path.read_bytes()
-    good_end = 0
-    for line in data.splitlines(keepends=True):
-        if not line.endswith(b"\n"):
-            break
-        try:
-            record = json.loads(line)
-        except json.JSONDecodeError:
-            break
-        done.setdefault(record["episode_id"], record)
-        good_end += len(line)
-    if repair and good_end < len(data):
-        with path.open("r+b") as fh:
-            fh.truncate(good_end)
-            fh.flush()
-            os.fsync(fh.fileno())
-    return done
+    """Finished episodes by id (the first valid record of each); damaged lines are skipped (see
+    :func:`scan_results`). With ``repair``, they are moved to ``episodes.damaged.jsonl``."""
+    scan = scan_results(path)
+    if repair:
+        quarantine(path, scan)
+    return dict(scan.records)
 
 
 def append_result(path: Path, record: dict) -> dict:
@@ -320,7 +577,13 @@ class _FolderLock:
             import fcntl
         except ImportError:  # pragma: no cover - Windows: no lock
             return self
-        self.fh = self.path.open("a+")
+        if self.path.is_dir():
+            raise RunFolderError(f"run folder {str(self.path.parent)!r} is damaged: .lock is a directory, where the "
+                                 f"lock file belongs; move it away (or use another --out)")
+        try:
+            self.fh = self.path.open("a+")
+        except OSError as exc:
+            raise RunFolderError(f"cannot lock run folder {str(self.path.parent)!r}: {exc.strerror or exc}") from None
         try:
             fcntl.flock(self.fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -337,6 +600,11 @@ class _FolderLock:
 
     def __exit__(self, *exc):
         if self.fh is not None:
+            try:                         # leave the folder as it was: an empty lock file
+                self.fh.seek(0)
+                self.fh.truncate()
+            except OSError:
+                pass
             self.fh.close()
 
 
@@ -350,6 +618,9 @@ class BatchReport:
     crashed: dict[str, str] = field(default_factory=dict)   # episode id -> why its worker died
     wall_seconds: float = 0.0
     commit_changed: str | None = None
+    fingerprint: str = ""            # config_fingerprint stamped on the records this call writes
+    saved_commit: str | None = None  # git commit in the folder's config.yaml before this call
+    notes: list[str] = field(default_factory=list)   # what opening the folder repaired
 
 
 def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
@@ -366,14 +637,16 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
     from tasks.executors import make_executor
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    check_folder_layout(out, record)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RunFolderError(f"cannot create run folder {str(out)!r}: {exc.strerror or exc}") from None
     t0 = time.perf_counter()
     report = report if report is not None else BatchReport([])
     with _FolderLock(out):
-        saved_commit = None
-        if (out / "config.yaml").exists():
-            saved_commit = read_run_config(out)[0].get("git_commit")
-        done = prepare_run_folder(out, config)
+        done = prepare_run_folder(out, config, report)
+        saved_commit = report.saved_commit
         commit = git_commit()
         if saved_commit and saved_commit != commit and done:
             report.commit_changed = saved_commit
@@ -394,12 +667,15 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
                     job = jobs[outcome.index]
                     eid = job.episode.episode_id
                     if outcome.status == "error":
-                        raise EpisodeSetupError(f"episode {eid} failed outside the agent; the batch stops "
-                                                f"(finished episodes are saved):\n{outcome.value.rstrip()}")
+                        trace = outcome.value.rstrip()
+                        raise EpisodeSetupError(f"episode {eid} failed outside the agent ("
+                                                f"{shorten(trace.splitlines()[-1] if trace else 'no message', 300)}); "
+                                                f"the batch stops (finished episodes are saved)", trace)
                     if outcome.status == "died":
                         report.crashed[eid] = outcome.value
                         continue
                     rec = outcome.value
+                    rec[FINGERPRINT_FIELD] = report.fingerprint
                     blob = rec.pop("_recording", None)
                     if blob is not None:
                         rel = Path("recordings") / f"{eid}.rrd"

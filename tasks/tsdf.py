@@ -16,6 +16,7 @@ from typing import Iterable
 
 import numpy as np
 
+from helios.schema import require_range
 from robots.hal import Observation
 
 
@@ -29,6 +30,15 @@ class TsdfConfig:
     tolerance: float = 0.02           # m, a true surface point is covered within this distance
     sample_spacing: float = 0.02      # m between points sampled on true surfaces
     weight_threshold: float = 0.5     # voxels with weight above this are extracted (Open3D compares with ">": one frame counts)
+
+    def __post_init__(self) -> None:
+        require_range(self, "voxel_size", 0.001, 1.0)
+        require_range(self, "block_resolution", 2, 64)
+        require_range(self, "block_count", 1, 10_000_000)
+        require_range(self, "depth_max", 0.0, 100.0, lo_open=True)
+        require_range(self, "trunc_voxels", 0.0, 100.0, lo_open=True)
+        require_range(self, "tolerance sample_spacing", 0.0, 1.0, lo_open=True)
+        require_range(self, "weight_threshold", 0.0, 1e6)
 
 
 class TsdfIntegrator:

@@ -195,3 +195,17 @@ def test_the_checks_see_imports_inside_functions_and_type_checking_blocks(tmp_pa
     assert method_imports_of_the_testbed(tmp_path) == ["helios/agent.py:2: helios.agent imports pybullet"]
     assert import_cycles(tmp_path) == ["tasks.a <-> tasks.b (tasks/a.py:2 imports tasks.b; tasks/b.py:1 imports "
                                        "tasks.a)"]
+
+
+def test_rooms_stay_small():
+    """The agent's decision file stays under 450 lines and no class of the method over 400: a
+    skill that grows goes to a room of its own (README, "Layout")."""
+    agent = ROOT / "helios" / "agents" / "helios_agent.py"
+    assert len(agent.read_text().splitlines()) < 450, f"{agent.relative_to(ROOT)}: split it further"
+    big = []
+    for path in sorted((ROOT / "helios").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ClassDef) and node.end_lineno - node.lineno + 1 > 400:
+                big.append(f"{path.relative_to(ROOT)}:{node.lineno} class {node.name} "
+                           f"({node.end_lineno - node.lineno + 1} lines)")
+    assert not big, "classes over 400 lines: " + "; ".join(big)

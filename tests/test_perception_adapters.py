@@ -3,7 +3,6 @@ saved to a temporary directory: no downloads. Also the errors for missing weight
 
 from __future__ import annotations
 
-import string
 
 import numpy as np
 import pytest
@@ -52,32 +51,10 @@ def test_box_masks_keep_the_object_and_drop_the_wall_behind_it():
 
 @pytest.fixture(scope="module")
 def tiny_models(tmp_path_factory):
-    transformers = pytest.importorskip("transformers")
-    import torch
+    pytest.importorskip("transformers")
+    from tiny_models import save_tiny_models
 
-    torch.manual_seed(0)
-    root = tmp_path_factory.mktemp("tiny_models")
-    vocab = {"!": 0, "<|endoftext|>": 1, "<|startoftext|>": 2}
-    for ch in list(string.ascii_lowercase) + list(string.digits) + ["(", ")", ".", "'", "-"]:
-        vocab.setdefault(ch, len(vocab))
-        vocab.setdefault(ch + "</w>", len(vocab))
-    tok = transformers.CLIPTokenizer(vocab=vocab, merges=[])
-    text = dict(vocab_size=len(vocab), hidden_size=32, intermediate_size=37, num_hidden_layers=1, num_attention_heads=2,
-                max_position_embeddings=16, bos_token_id=2, eos_token_id=1, pad_token_id=1)
-    vision = dict(hidden_size=32, intermediate_size=37, num_hidden_layers=1, num_attention_heads=2, image_size=32,
-                  patch_size=8)
-    owl_dir, clip_dir = root / "owlv2", root / "clip"
-    owl = transformers.Owlv2ForObjectDetection(transformers.Owlv2Config(text_config=text, vision_config=vision,
-                                                                        projection_dim=32))
-    owl.save_pretrained(owl_dir)
-    transformers.Owlv2Processor(image_processor=transformers.Owlv2ImageProcessor(size={"height": 32, "width": 32}),
-                                tokenizer=tok).save_pretrained(owl_dir)
-    clip = transformers.CLIPModel(transformers.CLIPConfig(text_config=text, vision_config=vision, projection_dim=16))
-    clip.save_pretrained(clip_dir)
-    transformers.CLIPProcessor(image_processor=transformers.CLIPImageProcessor(size={"shortest_edge": 32},
-                                                                               crop_size={"height": 32, "width": 32}),
-                               tokenizer=tok).save_pretrained(clip_dir)
-    return owl_dir, clip_dir
+    return save_tiny_models(tmp_path_factory.mktemp("tiny_models"))
 
 
 def test_owlv2_and_clip_adapters_run_offline_on_tiny_models(tiny_models):

@@ -84,10 +84,23 @@ def test_oracle_completes_smoke_episodes_and_batches_resume(tmp_path):
 
 
 def test_a_run_folder_refuses_a_different_config(tmp_path):
+    from tasks.trials import FINGERPRINT_FIELD, append_result, config_fingerprint
+
     prepare_run_folder(tmp_path, TrialConfig(seed=0))
+    record = {"episode_id": "smoke-00000", "metrics": None, "sim_time": 1.0, "wall_time": 1.0,
+              FINGERPRINT_FIELD: config_fingerprint(TrialConfig(seed=0))}
+    append_result(tmp_path / "episodes.jsonl", record)
     with pytest.raises(RunFolderError, match="different configuration .*seed"):
         prepare_run_folder(tmp_path, TrialConfig(seed=1))
-    assert read_results(tmp_path / "episodes.jsonl") == {}
+    assert list(read_results(tmp_path / "episodes.jsonl")) == ["smoke-00000"]
+
+
+def test_a_run_folder_without_results_takes_a_new_config(tmp_path):
+    from tasks.trials import read_run_config
+
+    prepare_run_folder(tmp_path, TrialConfig(seed=0))
+    prepare_run_folder(tmp_path, TrialConfig(seed=1))     # e.g. a corrected command after a failed set-up
+    assert read_run_config(tmp_path)[1] == TrialConfig(seed=1)
 
 
 def test_a_run_can_be_extended_to_more_episodes_but_not_shortened(tmp_path):

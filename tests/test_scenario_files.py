@@ -44,11 +44,19 @@ def test_every_example_file_loads_and_says_what_it_is():
 
 
 def test_the_ablation_set_is_one_file_per_agent_of_make_compare():
-    for agent in _compare_agents():
-        header, cfg = load_trial_config(CONFIGS / f"val_{agent}.yaml")
+    for run in _compare_agents():
+        header, cfg = load_trial_config(CONFIGS / f"val_{run}.yaml")
         assert header == {"helios_version": None, "git_commit": None}
+        if run == "helios-earlier":      # HELIOS with the earlier readings switched back
+            assert cfg.agent == "helios" and (cfg.split, cfg.episodes, cfg.seed) == ("val", 200, 0)
+            assert cfg.helios.search.initial_frontier_calibration == "fixed_ratio"
+            assert cfg.helios.search.frontier_choice == "value_minus_distance"
+            assert cfg.helios.decision.candidate_class == "score_only"
+            assert cfg.helios.decision.view_prediction == "optimistic"
+            assert cfg.agent_config.gaze.outer_rings == "always"
+            continue
         # exactly the config `make compare` used to build from flags
-        assert cfg == TrialConfig(agent=agent, split="val", episodes=200, seed=0)
+        assert cfg == TrialConfig(agent=run, split="val", episodes=200, seed=0)
     smoke = load_trial_config(CONFIGS / "smoke.yaml")[1]
     assert smoke == TrialConfig(agent="helios", split="smoke", episodes=20, seed=0)     # `make run`
 

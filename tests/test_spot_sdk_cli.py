@@ -168,8 +168,11 @@ def test_wrong_hostname(capsys, monkeypatch):
 
 @pytest.mark.parametrize("args, fragment", [
     (["127.0.0.1", "--task", "   "], "--task must not be empty"),
-    (["127.0.0.1", "--task", TASK, "--agent", "helios-v9"], "unknown agent 'helios-v9'; valid agents: scripted-demo"),
-    (["127.0.0.1", "--task", TASK, "--agent", "helios"],
+    (["127.0.0.1", "--task", TASK, "--agent", "helios-v9"],
+     "unknown agent 'helios-v9'; valid agents: helios, helios-5050, helios-no-global, helios-place, scripted-demo, "
+     "trusting"),
+    (["127.0.0.1", "--task", TASK, "--agent", "helios"], "real perception needs the models' weight folders"),
+    (["--fake", "--task", TASK, "--agent", "helios"],
      "agent 'helios' runs on task episodes, not on the demo layout; valid agents: scripted-demo"),
     (["--fake", "--episode", "smoke-00001", "--agent", "scripted-demo"],
      "agent 'scripted-demo' runs on the demo layout, not on task episodes; valid agents: helios"),

@@ -26,7 +26,7 @@ from spot_fake_fixtures import connect, python_threads, start_fake, wait_for_thr
 pytestmark = pytest.mark.timeout(60)
 
 SURFACE_WITHIN = 2.0   # s from the faulty call to the typed error
-CLOSE_WITHIN = 4.0     # s for close() after a fault (bounded by the RPC timeout, never the SDK's 30 s)
+CLOSE_WITHIN = 3.0     # s for close() after a fault (bounded by close_budget, never the SDK's 30 s)
 
 # fault -> (params, expected error, sticky: later commands fail locally without reaching the robot)
 FAULTS = {

@@ -15,7 +15,7 @@ import json
 import math
 from pathlib import Path
 
-from tools.cli import CliError
+from tools.cli import CliError, check_output_dir, check_output_file
 from tools.tables import format_table
 
 
@@ -129,10 +129,21 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--views ({args.views}) must be at least --group ({args.group}), and --group >= 1")
     if args.scenes < 1:
         raise CliError("--scenes must be >= 1")
+    if args.views > 1_000_000 or args.scenes > 10_000:
+        raise CliError(f"--views ({args.views}) must be at most 1000000 and --scenes ({args.scenes}) at most 10000")
+    if args.seed < 0:
+        raise CliError(f"--seed must be >= 0, got {args.seed}")
+    if args.min_pixels < 1:
+        raise CliError(f"--min-pixels must be >= 1, got {args.min_pixels}")
     config = with_overrides(SimPerceptionConfig(), args.overrides)
     if config.mode != "noisy":
         raise CliError("calibration measures the noisy simulated detector; mode=gt is perfect by construction")
-    out = Path(args.out)
+    from tasks.episodes import split_path
+
+    split_path(args.split)                     # an unknown split is one clear error before any work
+    out = check_output_dir(args.out)
+    for name in ("calibration.json", "calibration.png"):
+        check_output_file(out / name, "--out")
     out.mkdir(parents=True, exist_ok=True)
     settings = CalibrationSettings(split=args.split, views=args.views, group=args.group, scenes=args.scenes,
                                    seed=args.seed, min_pixels=args.min_pixels)

@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+import tempfile
+from pathlib import Path
 
 # command name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -48,13 +51,95 @@ class CliError(Exception):
     """A command-line usage problem detected after argument parsing."""
 
 
+MAX_ERROR_CHARS = 1000       # an error line longer than this is shortened in the middle
+
+
+def one_line(message: object, limit: int = MAX_ERROR_CHARS) -> str:
+    """An error message as one line of at most ``limit`` characters."""
+    from helios.schema import shorten
+
+    return shorten(" ".join(str(message).split("\n")).strip(), limit)
+
+
+def _writable(directory: Path) -> str | None:
+    """None when a file can be created in ``directory`` (an existing folder), else why not. Probes
+    by making and removing an empty folder (``os.access`` is no help when running as root)."""
+    try:
+        probe = tempfile.mkdtemp(prefix=".helios-write-test-", dir=directory)
+        os.rmdir(probe)
+        return None
+    except OSError as exc:
+        return exc.strerror or str(exc)
+
+
+def _nearest_existing(path: Path) -> tuple[Path, Path | None]:
+    """The nearest existing ancestor of ``path`` (or itself), and the first non-directory met on the way."""
+    for parent in [path, *path.parents]:
+        if parent.exists() or parent.is_symlink():
+            return parent, (None if parent.is_dir() else parent)
+    return Path("."), None
+
+
+def check_output_dir(path: str | Path, flag: str = "--out") -> Path:
+    """``path`` can be (or already is) a folder we can write in; CliError naming ``flag`` otherwise.
+    Reads only (a probe folder is made and removed again): call it before any work starts."""
+    from helios.schema import short_repr
+
+    p = Path(path)
+    if not str(path).strip():
+        raise CliError(f"{flag} must not be empty")
+    if "\0" in str(path):
+        raise CliError(f"{flag} {short_repr(str(path))} contains a NUL character")
+    existing, blocker = _nearest_existing(p)
+    if blocker is not None:
+        what = "is an existing file" if blocker == p else f"is inside {str(blocker)!r}, which is a file"
+        raise CliError(f"{flag} {short_repr(str(p))} {what}; it must name a folder")
+    why = _writable(existing)
+    if why is not None:
+        raise CliError(f"{flag} {short_repr(str(p))}: cannot write in {str(existing)!r} ({why})")
+    return p
+
+
+def check_output_file(path: str | Path, flag: str = "--out") -> Path:
+    """``path`` can be written as a file (made or replaced); CliError naming ``flag`` otherwise."""
+    from helios.schema import short_repr
+
+    p = Path(path)
+    if not str(path).strip():
+        raise CliError(f"{flag} must not be empty")
+    if p.is_dir():
+        raise CliError(f"{flag} {short_repr(str(p))} is a folder; it must name a file")
+    if str(path).endswith(("/", os.sep)):
+        raise CliError(f"{flag} {short_repr(str(p))} ends with a slash; it must name a file")
+    check_output_dir(p.parent if str(p.parent) else Path("."), flag=f"{flag} {short_repr(str(p))}: its folder")
+    if p.exists() and _writable(p.parent) is None and not os.access(p, os.W_OK):
+        raise CliError(f"{flag} {short_repr(str(p))} exists and cannot be replaced")
+    return p
+
+
+def check_finite(value: float, flag: str, positive: bool = False) -> float:
+    """A finite number (and > 0 with ``positive``), else CliError naming ``flag``."""
+    import math
+
+    if not math.isfinite(value) or (positive and value <= 0):
+        raise CliError(f"{flag} must be a {'positive ' if positive else ''}finite number, got {value}")
+    return value
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one ``error:`` line (exit status 2) like every other error."""
+
+    def error(self, message: str):  # noqa: D401 - argparse's hook
+        self.exit(2, f"error: {one_line(self.prog + ': ' + message)} (see: {self.prog} --help)\n")
+
+
 def _summary(doc: str) -> str:
     """A module docstring's first paragraph as one line (a sentence can wrap over lines)."""
     return " ".join(doc.strip().split("\n\n")[0].split())
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="helios", description="HELIOS testbed command line.")
+    parser = _Parser(prog="helios", description="HELIOS testbed command line.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name, (module, help_) in COMMANDS.items():
@@ -77,7 +162,16 @@ def main(argv: list[str] | None = None) -> int:
         print("interrupted", file=sys.stderr)
         return 130
     except user_error_types() as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {one_line(exc)}", file=sys.stderr)
+        return 2
+    except (OSError, UnicodeError) as exc:
+        # The environment refused something (a file or folder that cannot be written, a full disk,
+        # a file that is not text): one line, like bad input. HELIOS_DEBUG=1 shows the traceback.
+        if os.environ.get("HELIOS_DEBUG"):
+            raise
+        where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
+        print(f"error: {one_line((getattr(exc, 'strerror', None) or exc) if where else exc)}{one_line(where, 300)}",
+              file=sys.stderr)
         return 2
 
 

@@ -149,7 +149,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    record = None if args.no_record else Path(args.out) / f"demo_seed{args.seed}.rrd"
+    from helios.schema import load_config
+    from robots.spot.sim_backend import SimBackendConfig
+    from tools.cli import CliError, check_output_file
+
+    if not 0 <= args.seed < 2 ** 32:
+        raise CliError(f"--seed must be within 0..4294967295, got {args.seed}")
+    load_config(SimBackendConfig, getattr(args, "config", None), list(args.overrides))   # bad config: fail first
+    record = None if args.no_record else check_output_file(Path(args.out) / f"demo_seed{args.seed}.rrd", "--out")
     outcome = run_demo(args.seed, args.overrides, record, config_file=getattr(args, "config", None))
     print()
     print(format_outcome(outcome))

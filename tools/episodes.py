@@ -25,12 +25,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import re
+
+    from helios.schema import short_repr
     from tasks.episodes import generate_episodes, load_episodes, save_episodes
-    from tools.cli import CliError
+    from tools.cli import CliError, check_output_file
 
     if args.action == "generate":
         if args.count <= 0:
             raise CliError(f"--count must be positive, got {args.count}")
+        if args.count > 100_000:
+            raise CliError(f"--count must be at most 100000, got {args.count}")
+        if args.seed < 0:
+            raise CliError(f"--seed must be >= 0, got {args.seed}")
+        if not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,80}", args.name):
+            raise CliError(f"--name {short_repr(args.name, 80)} must be 1-81 letters, digits, '-', '_' or '.' "
+                           f"(it starts every episode id)")
+        check_output_file(args.out, "--out")
         tty = sys.stdout.isatty()
 
         def progress(done: int, total: int) -> None:

@@ -1,6 +1,8 @@
 """Compare trial runs: the paper-style table (rows = runs; FindObj, Pick, FindRec, Place, SR in
-percent ± standard error) as text and Markdown, PNG plots (subtask success as the paper's stacked
-bars, failure modes, memory over episode time) and one self-contained HTML page with all of it.
+percent ± standard error) as text and Markdown, what the search policy decided and where its
+simulated time went (the "Decisions" and "Simulated time per phase" tables, see
+``tasks.decisions``), PNG plots (subtask success as the paper's stacked bars, failure modes,
+memory over episode time) and one self-contained HTML page with all of it.
 
     python -m tools report runs/helios runs/trusting --out runs/report
 
@@ -34,6 +36,7 @@ class Run:
     records: list[dict]
     summary: dict
     config: dict
+    legacy: int = 0             # records without a configuration fingerprint (written before they existed)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -44,28 +47,62 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="compare on the episodes every run has finished (runs of different lengths)")
 
 
-def load_run(path: str | Path, name: str | None = None) -> Run:
-    """A run folder's finished episodes and summary; CliError when it is missing or empty."""
-    import yaml
+MAX_LISTED_DAMAGE = 10     # damaged lines named one by one (FILE:LINE) per run folder; the rest are counted
 
-    from tasks.trials import read_results, summarize
+
+def load_run(path: str | Path, name: str | None = None, warnings: list[str] | None = None) -> Run:
+    """A run folder's finished episodes and summary; CliError when it is missing, unreadable or
+    empty. Damaged lines of episodes.jsonl are skipped, each named as FILE:LINE in ``warnings``;
+    so are an unreadable config.yaml and records that disagree with it."""
+    from helios.schema import read_text, short_repr, yaml_load_text
+    from tasks.trials import FINGERPRINT_FIELD, RunFolderError, config_fingerprint, scan_results, summarize
     from tools.cli import CliError
 
+    warnings = warnings if warnings is not None else []
     p = Path(path)
+    if not p.exists():
+        raise CliError(f"run folder {short_repr(str(p))} does not exist")
     if not p.is_dir():
-        raise CliError(f"run folder {str(p)!r} does not exist")
-    records = list(read_results(p / "episodes.jsonl").values())
+        raise CliError(f"run folder {short_repr(str(p))} is a file, not a run folder")
+    results = p / "episodes.jsonl"
+    try:
+        scan = scan_results(results)
+    except RunFolderError as exc:
+        raise CliError(str(exc)) from None
+    for d in scan.damaged[:MAX_LISTED_DAMAGE]:
+        warnings.append(f"{results}:{d.lineno}: {d.reason}; skipped this line")
+    if len(scan.damaged) > MAX_LISTED_DAMAGE:
+        warnings.append(f"{results}: {len(scan.damaged) - MAX_LISTED_DAMAGE} more damaged line(s) skipped")
+    records = list(scan.records.values())
     if not records:
-        raise CliError(f"run folder {str(p)!r} has no finished episodes (episodes.jsonl missing or empty); "
+        what = "only damaged lines" if scan.damaged else "missing or empty"
+        raise CliError(f"run folder {str(p)!r} has no finished episodes (episodes.jsonl {what}); "
                        f"run `python -m tools trials --out {p}` first")
     records.sort(key=lambda r: r["episode_id"])
-    config = {}
-    if (p / "config.yaml").is_file():
+    config: dict = {}
+    cfg_path = p / "config.yaml"
+    if cfg_path.exists():
         try:
-            config = yaml.safe_load((p / "config.yaml").read_text()) or {}
-        except yaml.YAMLError:
-            config = {}
-    return Run(name or p.resolve().name, p, records, summarize(records), config)
+            loaded = yaml_load_text(read_text(cfg_path, str(cfg_path), CliError), str(cfg_path), CliError)
+            if loaded is not None and not isinstance(loaded, dict):
+                raise CliError(f"{cfg_path} holds a {type(loaded).__name__}, not a trial config")
+            config = loaded or {}
+        except CliError as exc:
+            warnings.append(f"{exc}; the run's configuration is shown as unknown")
+    fps = {r.get(FINGERPRINT_FIELD) for r in records} - {None}
+    if len(fps) > 1:
+        warnings.append(f"{results}: the records were made with {len(fps)} different configurations "
+                        f"(fingerprints {', '.join(sorted(fps))}); they are reported together")
+    elif fps and config:
+        try:
+            written = config_fingerprint(config)
+        except (TypeError, ValueError):
+            written = None
+        if written not in fps:
+            warnings.append(f"{cfg_path} does not describe the records in {results} (they were made with "
+                            f"configuration {next(iter(fps))}, config.yaml says {written}): it was edited or "
+                            f"replaced; the table shows the records")
+    return Run(name or p.resolve().name, p, records, summarize(records), config, legacy=scan.legacy)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -138,6 +175,64 @@ def paired_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
             losses = sum(bool(ref[e][key]) and not mine[e][key] for e in shared)
             cells.append(f"+{wins} -{losses} ({_p_text(sign_test_p(wins, losses))})")
         rows.append([run.name, runs[0].name, len(shared)] + cells)
+    return headers, rows
+
+
+DECISIONS_TITLE = ("Decisions: totals over the episodes shown (per-episode mean in brackets); "
+                   "n/a: the agent or the run has no decision counts")
+TIME_TITLE = ("Simulated time per phase: % of the run's simulated time (mean s per episode in brackets); "
+              "n/a: no phase times")
+
+
+def decision_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
+    """Per run, what the search policy decided (``tasks.decisions`` says what each number means):
+    global decisions with open candidates and their choice before / after F0 calibration, extra
+    views the Psi' rule asked for, local searches with their planned gaze points and the visits."""
+    from tasks.decisions import summarize_decisions
+
+    keys = ("global_with_candidates", "chose_candidate_before_f0", "chose_frontier_before_f0",
+            "chose_candidate_after_f0", "chose_frontier_after_f0", "extra_views_object", "extra_views_goal")
+    headers = ["run", "episodes", "with candidates", "cand. before F0", "frontier before F0", "cand. after F0",
+               "frontier after F0", "extra views obj", "extra views goal", "local searches",
+               "gaze pts/search mean", "median", "max", "gaze pt visits"]
+    rows = []
+    for r in runs:
+        d = summarize_decisions(r.records)
+        if d is None:
+            rows.append([r.name, f"0/{len(r.records)}"] + ["n/a"] * (len(headers) - 2))
+            continue
+
+        def cell(total: float, mean: float) -> str:
+            return f"{total} ({mean:.1f})"
+
+        tot, per = d["totals"], d["per_episode"]
+        planned = d["gaze_points_planned"]
+        rows.append([r.name, f"{d['episodes']}/{d['of']}"] + [cell(tot[k], per[k]) for k in keys]
+                    + [cell(d["local_searches"], d["local_searches_per_episode"])]
+                    + ([f"{planned['mean']:.1f}", f"{planned['median']:g}", str(planned["max"])] if planned
+                       else ["-", "-", "-"])
+                    + [cell(tot["gaze_point_visits"], per["gaze_point_visits"])])
+    return headers, rows
+
+
+def activity_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
+    """Per run, the share of simulated time spent in each phase (time-weighted over the episodes)
+    and the mean seconds per episode (``tasks.decisions.summarize_activity_time``)."""
+    from tasks.decisions import ACTIVITIES, summarize_activity_time
+
+    summaries = [summarize_activity_time(r.records) for r in runs]
+    activities = list(ACTIVITIES)
+    for s in summaries:
+        activities += [a for a in (s["activities"] if s else ()) if a not in activities]
+    headers = ["run", "episodes", "sim s/ep"] + activities
+    rows = []
+    for r, s in zip(runs, summaries):
+        if s is None:
+            rows.append([r.name, f"0/{len(r.records)}"] + ["n/a"] * (len(headers) - 2))
+            continue
+        per = s["seconds_per_episode"]
+        rows.append([r.name, f"{s['episodes']}/{s['of']}", f"{sum(per.values()):.0f}"]
+                    + [f"{s['share_percent'].get(a, 0.0):.1f} ({per.get(a, 0.0):.0f} s)" for a in activities])
     return headers, rows
 
 
@@ -327,12 +422,28 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     """Load the runs, write table.txt, table.md, the PNGs and index.html to ``out``; return what was
     written (``text``, ``markdown``, ``figures``, ``html``, ``warnings``). ``common``: compare on the
     episodes all runs have finished."""
-    from tools.cli import CliError
+    from tools.cli import CliError, check_output_dir, check_output_file
     from tools.tables import format_markdown, format_table
 
     if names and len(names) != len(run_paths):
         raise CliError(f"--names has {len(names)} name(s) for {len(run_paths)} run(s)")
-    runs = [load_run(p, names[i] if names else None) for i, p in enumerate(run_paths)]
+    if names and any(not n for n in names):
+        raise CliError("--names has an empty name")
+    out = Path(out)
+    for p in run_paths:
+        if Path(p).exists() and out.resolve() == Path(p).resolve():
+            raise CliError(f"--out {str(out)!r} is a run folder given to report; write the report elsewhere "
+                           f"(e.g. --out {Path(p) / 'report'})")
+    check_output_dir(out)
+    for fname in ("table.txt", "table.md", "index.html", "report.json", *FIGURES):
+        check_output_file(out / fname, "--out")
+    load_warnings: list[str] = []
+    runs = [load_run(p, names[i] if names else None, load_warnings) for i, p in enumerate(run_paths)]
+    legacy = [r for r in runs if r.legacy]
+    if legacy:
+        load_warnings.append("record(s) without a configuration fingerprint (written before fingerprints existed) "
+                             "in " + ", ".join(f"{r.path} ({r.legacy})" for r in legacy)
+                             + ": their configuration is taken as unknown")
     counts = sorted({len(r.records) for r in runs})
     note = []
     if common:
@@ -346,7 +457,6 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
         seen[r.name] = seen.get(r.name, 0) + 1
         if seen[r.name] > 1:
             r.name = f"{r.name} ({seen[r.name]})"
-    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     headers, rows = metrics_rows(runs)
     d_headers, d_rows = detail_rows(runs)
@@ -357,11 +467,13 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
         p_headers, p_rows = paired_rows(runs)
         tables.append((f"Paired with {runs[0].name}: episodes only this run passed (+) / only "
                        f"{runs[0].name} passed (-), exact sign test", p_headers, p_rows))
+    tables.append((DECISIONS_TITLE, *decision_rows(runs)))
+    tables.append((TIME_TITLE, *activity_rows(runs)))
     text = "\n\n".join(format_table(h, r, title=t) for t, h, r in tables)
-    markdown = "\n\n".join(format_markdown(h, r) for _, h, r in tables)
+    markdown = "\n\n".join(f"**{t}**\n\n" + format_markdown(h, r) for t, h, r in tables)
     (out / "table.txt").write_text(text + "\n")
     (out / "table.md").write_text(markdown + "\n")
-    warnings = list(note)
+    warnings = load_warnings + list(note)
     figures: list[Path] = []
     plt = _pyplot()
     if plt is None:
@@ -371,8 +483,12 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
             fn(runs, out / fname, plt)
             figures.append(out / fname)
     write_html(out / "index.html", runs, tables, figures)
-    (out / "report.json").write_text(json.dumps({r.name: {"path": str(r.path), "summary": r.summary} for r in runs},
-                                                indent=2, sort_keys=True))
+    from tasks.decisions import summarize_activity_time, summarize_decisions
+
+    (out / "report.json").write_text(json.dumps({r.name: {"path": str(r.path), "summary": r.summary,
+                                                          "decisions": summarize_decisions(r.records),
+                                                          "activity_time": summarize_activity_time(r.records)}
+                                                 for r in runs}, indent=2, sort_keys=True))
     return {"text": text, "markdown": markdown, "figures": figures, "html": out / "index.html", "warnings": warnings}
 
 

@@ -7,6 +7,10 @@ end (unmodified bosdyn client, TLS, gRPC): a hardware dry run.
         python -m tools spot 192.168.80.3 --task "Move the mug from the stool to the table"
     python -m tools spot --fake --task "Move the mug from the stool to the table"
     python -m tools spot --fake --episode smoke-00001 --agent helios
+    python -m tools spot 192.168.80.3 --agent helios --task "Move the mug from the stool to the table" \
+        --detector-weights weights/owlv2 --scorer-weights weights/clip          # HELIOS, real perception
+    python -m tools spot --fake --episode smoke-00001 --agent helios --perception real \
+        --detector-weights weights/owlv2 --scorer-weights weights/clip
 
 Bring-up: resolve, TLS + authenticate (credentials from the environment only), time sync, e-stop
 check, lease, power on, stand. Shutdown (always, also after a fault or Ctrl-C): stop, stow, sit
@@ -19,6 +23,19 @@ layout instead of a detector). ``--fake --episode ID`` instead serves a task epi
 runs any task-episode agent (HELIOS with its simulated detector fed the fake's ground truth for
 each SDK image) through ``tasks.fake_sdk``, scored by the simulator's judge: the same episode and
 agent code as ``tools trials`` on the sim backend, over the SDK.
+
+HELIOS (and the other task-episode agents that need no ground truth: ``helios``, ``trusting``,
+...) runs on a real robot with real perception: the OWLv2 detector and CLIP scorer of
+``helios.perception.adapters`` from local weight folders (``--models FILE.yaml``, a
+``helios.perception.config.ModelConfig``, and/or ``--detector-weights``/``--scorer-weights``),
+loaded before the robot is touched. The run is capped at ``--max-time`` (600 s, the paper's 10
+minutes). At the end the robot is shut down and the operator is asked what the robot cannot
+judge (is the object on the goal receptacle, at rest; collisions it did not report), or answers
+with ``--on-goal``/``--at-rest``/``--extra-collisions``; one record in the schema of simulated
+trials is appended to the run folder's ``episodes.jsonl`` (``tasks.hardware``), with a rerun
+recording in ``recordings/``, so ``python -m tools report`` reads hardware folders next to sim
+runs. ``--fake --episode ID --perception real`` runs the same agent with the same models on the
+fake (scored by the simulator's judge) and records it the same way.
 """
 
 from __future__ import annotations
@@ -35,7 +52,7 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
-from tasks.registry import DEMO, EPISODE, RunContext, agent_names, check_agent, make_agent
+from tasks.registry import DEMO, EPISODE, RunContext, agent_names, check_agent, check_robot_agent, make_agent
 from tasks.scripted_demo import DemoHints, physical_outcome
 
 _LOG = logging.getLogger("helios.spot")
@@ -73,8 +90,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(schema: robots/spot/sdk_backend.py SdkBackendConfig)")
     parser.add_argument("--config", default=None, metavar="FILE.yaml",
                         help="SDK backend scenario file (SdkBackendConfig YAML, e.g. configs/spot_fake.yaml or a run "
-                             "folder's config.yaml); HOSTNAME, --port, --cert, --estop, --take-lease and --set "
+                             "folder's robot.yaml); HOSTNAME, --port, --cert, --estop, --take-lease and --set "
                              "override it")
+    hw = parser.add_argument_group("task-episode agents on a robot (HELIOS with real perception)")
+    hw.add_argument("--perception", choices=("real", "sim"), default=None,
+                    help="real: OWLv2 + CLIP from local weights (the default on a robot); sim: the simulated detector "
+                         "(--fake --episode only, its default)")
+    hw.add_argument("--models", default=None, metavar="FILE.yaml",
+                    help="real perception settings (helios.perception.config.ModelConfig YAML: detector_weights, "
+                         "scorer_weights, device, detector_min_score, depth_mask_tolerance)")
+    hw.add_argument("--detector-weights", default=None, metavar="DIR", help="OWLv2 weight folder (overrides --models)")
+    hw.add_argument("--scorer-weights", default=None, metavar="DIR", help="CLIP weight folder (overrides --models)")
+    hw.add_argument("--device", choices=("cpu", "cuda", "auto"), default=None, help="torch device for the models")
+    hw.add_argument("--max-time", type=float, default=600.0,
+                    help="s of robot time per run before the agent is stopped (default 600: the paper's 10 minutes)")
+    hw.add_argument("--trial-id", default=None, help="episode id of this robot run (default hw-<time>-<task>)")
+    hw.add_argument("--on-goal", default=None, metavar="yes|no",
+                    help="operator's answer: the object is on the goal receptacle (default: asked at the end)")
+    hw.add_argument("--at-rest", default=None, metavar="yes|no",
+                    help="operator's answer: the object is at rest (default: asked at the end)")
+    hw.add_argument("--extra-collisions", type=int, default=None, metavar="N",
+                    help="operator's answer: collisions the robot did not report (default: asked, 0)")
+    hw.add_argument("--no-recording", action="store_true", help="no rerun recording of the run")
+    parser.add_argument("--time-scale", type=float, default=None, metavar="S",
+                        help="--fake: wall seconds per robot second (1 = real time: motions take as long as on "
+                             "Spot; default: as fast as the simulator runs)")
 
 
 class _RunLog(logging.Handler):
@@ -124,18 +164,52 @@ def _validate(args: argparse.Namespace):
         if args.agent is None:
             args.agent = "helios"
         check_agent(args.agent, EPISODE)
+        if args.perception is None:
+            args.perception = "sim"
     else:
         if not args.task or not args.task.strip():
             raise CliError("--task must not be empty (e.g. --task \"Move the mug from the stool to the table\")")
+        from tasks.spec import parse_task
+
+        parse_task(args.task)                      # a task the agents can read, else one TaskSpecError line
         if args.agent is None:
             args.agent = "scripted-demo"
-        check_agent(args.agent, DEMO)
+        entry = check_agent(args.agent, DEMO) if args.fake else check_robot_agent(args.agent)
+        if entry.runs_on == EPISODE:             # HELIOS & co. on a real robot: real perception only
+            if args.perception == "sim":
+                raise CliError("--perception sim needs the simulator's ground truth: on a robot HELIOS runs with "
+                               "real perception (--perception real)")
+            args.perception = "real"
+    if args.perception == "real" and not (args.models or args.detector_weights or args.scorer_weights):
+        raise CliError("real perception needs the models' weight folders: --models FILE.yaml, or --detector-weights "
+                       "DIR and --scorer-weights DIR (helios.perception.config.ModelConfig)")
+    if args.perception is not None and (args.episode is None and check_agent(args.agent, None).runs_on == DEMO):
+        raise CliError(f"--perception is for task-episode agents; {args.agent} is given the demo layout")
+    if not (isinstance(args.max_time, float) and 0 < args.max_time <= 3600):
+        raise CliError(f"--max-time must be within (0, 3600] s, got {args.max_time}")
+    if args.time_scale is not None:
+        if not args.fake:
+            raise CliError("--time-scale paces the fake Spot: it needs --fake")
+        if not 0 < args.time_scale <= 100:
+            raise CliError(f"--time-scale must be within (0, 100] wall seconds per robot second, got {args.time_scale}")
+    if args.extra_collisions is not None and not 0 <= args.extra_collisions <= 1000:
+        raise CliError(f"--extra-collisions must be within 0..1000, got {args.extra_collisions}")
     if args.fake and args.hostname:
         raise CliError("--fake runs against a local fake robot; leave out the hostname")
     if not args.fake and not args.hostname and not getattr(args, "config", None):
         raise CliError("the robot's HOSTNAME is required (or --fake for a dry run against a simulated Spot)")
     if args.port is not None and not 0 < args.port < 65536:
         raise CliError(f"--port must be within 1..65535, got {args.port}")
+    if args.seed < 0:
+        raise CliError(f"--seed must be >= 0, got {args.seed}")
+    if args.name is not None:
+        import re
+
+        from helios.schema import short_repr
+
+        if not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}", args.name):
+            raise CliError(f"--name {short_repr(args.name, 80)} must be 1-100 letters, digits, '-', '_' or '.' "
+                           f"(it names a folder under --out)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -162,7 +236,20 @@ def run(args: argparse.Namespace) -> int:
     if not args.fake and not config.hostname:
         raise CliError(f"the robot's HOSTNAME is required: {config_file} sets none (or --fake for a dry run)")
 
-    run_dir = Path(args.out) / (args.name or time.strftime("%Y%m%d-%H%M%S"))
+    from tools.cli import check_output_dir
+
+    run_dir = check_output_dir(Path(check_output_dir(args.out)) / (args.name or time.strftime("%Y%m%d-%H%M%S")))
+    if args.episode is not None:
+        from tasks.episodes import load_split
+
+        split = args.split or args.episode.split("-")[0]
+        if not any(e.episode_id == args.episode for e in load_split(split)):
+            from helios.schema import short_repr
+
+            raise CliError(f"no episode {short_repr(args.episode, 80)} in split {short_repr(split, 40)}")
+    trial = None
+    if args.episode is not None or check_agent(args.agent, None).runs_on == EPISODE:
+        trial = _prepare_trial(args, run_dir)        # folder, operator answers and models: before any robot
     handler = _RunLog()
     root = logging.getLogger()
     root.addHandler(handler)
@@ -172,7 +259,9 @@ def run(args: argparse.Namespace) -> int:
     saved_env: dict[str, str | None] = {}
     try:
         if args.episode is not None:
-            return _run_episode(args, config, run_dir, handler, USERNAME_ENV, PASSWORD_ENV)
+            return _run_episode(args, config, run_dir, handler, USERNAME_ENV, PASSWORD_ENV, trial)
+        if trial is not None:
+            return _run_hardware(args, config, run_dir, handler, trial)
         if args.fake:
             demo, config, saved_env = _start_fake(args, config, USERNAME_ENV, PASSWORD_ENV)
         hints = None
@@ -222,6 +311,128 @@ def run(args: argparse.Namespace) -> int:
         handler.close()
 
 
+class _Trial:
+    """A task-episode agent's run on a robot (or the fake): its configuration, the run folder's
+    fingerprint, the loaded perception, the operator's answers given as flags."""
+
+    def __init__(self, config, fingerprint: str, perception, verdict):
+        self.config, self.fingerprint, self.perception, self.verdict = config, fingerprint, perception, verdict
+
+
+def _model_config(args):
+    from helios.perception.config import ModelConfig
+    from helios.schema import load_config, with_overrides
+
+    models = load_config(ModelConfig, args.models) if args.models else ModelConfig()
+    flags = {k: v for k, v in (("detector_weights", args.detector_weights), ("scorer_weights", args.scorer_weights),
+                               ("device", args.device)) if v is not None}
+    return with_overrides(models, flags) if flags else models
+
+
+def _prepare_trial(args, run_dir: Path) -> _Trial:
+    """Everything a task-episode run needs that can fail, checked before a robot is touched: the
+    run folder takes this configuration, the operator can be asked (or answered by flags), the
+    models' weights load."""
+    from tasks.hardware import HardwareConfig, HardwareTrialError, load_robot_perception, prepare_hardware_folder, \
+        verdict_from_flags
+    from tasks.runner import RunnerConfig
+    from tools.cli import CliError
+
+    models = _model_config(args)
+    setting = "fake" if args.fake else "hardware"
+    config = HardwareConfig(agent=args.agent, setting=setting, seed=args.seed,
+                            runner=RunnerConfig(max_sim_time=float(args.max_time)),
+                            models=models if args.perception == "real" else type(models)())
+    try:
+        fingerprint = prepare_hardware_folder(run_dir, config, dry_run=True)
+        verdict = verdict_from_flags(args.on_goal, args.at_rest, args.extra_collisions)
+    except HardwareTrialError as exc:
+        raise CliError(str(exc)) from None
+    if setting == "hardware" and verdict is None and not sys.stdin.isatty():
+        raise CliError("no terminal to ask the operator at the end of the run: give their answers with --on-goal "
+                       "yes|no --at-rest yes|no [--extra-collisions N]")
+    if setting == "fake" and verdict is not None:
+        raise CliError("--on-goal/--at-rest are the operator's answers on a real robot; on the fake the simulator "
+                       "judges the episode")
+    perception = None
+    if args.perception == "real":
+        print(f"[spot] loading real perception: detector {models.detector_weights or '?'}, scorer "
+              f"{models.scorer_weights or '?'} ({models.device})")
+        perception = load_robot_perception(models)       # missing weights: one error, no robot touched
+    return _Trial(config, fingerprint, perception, verdict)
+
+
+def _run_hardware(args, config, run_dir: Path, handler: "_RunLog", trial: _Trial) -> int:
+    """A task-episode agent (HELIOS...) with real perception on a real robot: one hardware trial."""
+    from helios.schema import dump_yaml
+    from robots.spot.sdk_backend import SdkSpotBackend
+    from tasks.hardware import HardwareTrialError, RobotTask, ask_operator, prepare_hardware_folder, \
+        run_hardware_trial, trial_id
+    from tools.cli import CliError
+
+    task = RobotTask(args.trial_id or trial_id(args.task), args.task, args.seed)
+    print(f"[spot] connecting to {config.hostname}:{config.port}")
+    backend = SdkSpotBackend(config)
+    try:
+        try:
+            prepare_hardware_folder(run_dir, trial.config)
+        except HardwareTrialError as exc:
+            raise CliError(str(exc)) from None
+        (run_dir / "robot.yaml").write_text(dump_yaml(config))
+        handler.open(run_dir / "session.log")
+        rid = backend.robot_id
+        print(f"[spot] connected to {rid.nickname or 'robot'} (serial {rid.serial_number}); e-stop {config.estop_mode}, "
+              f"lease held, standing")
+        print(f"[spot] {task.episode_id}: {args.agent} on {task.task!r}, at most {args.max_time:.0f} s")
+
+        def close_robot():
+            print("[spot] shutting down: stop, stow, sit, power off, return the lease")
+            backend.close()
+
+        def verdict():
+            if trial.verdict is not None:
+                return trial.verdict
+            print("[spot] the robot is sitting, powered off. Operator, please check the scene:")
+            return ask_operator(task.task)
+
+        record = run_hardware_trial(backend, trial.config, task, trial.perception, run_dir, verdict=verdict,
+                                    robot_info={"hostname": config.hostname, "nickname": rid.nickname,
+                                                "serial": rid.serial_number},
+                                    fingerprint=trial.fingerprint, record_rrd=not args.no_recording,
+                                    close_robot=close_robot)
+    except KeyboardInterrupt:
+        print("[spot] interrupted: stopping the robot", file=sys.stderr)
+        raise
+    finally:
+        backend.close()
+    print()
+    print(_format_record(record, run_dir))
+    return 0 if record["success"] else 1
+
+
+def _format_record(record: dict, run_dir: Path) -> str:
+    from tools.tables import format_table
+
+    m = record["metrics"]
+    rows = [("result", "SUCCESS" if record["success"] else f"FAILED ({m['failure_reason']})"),
+            ("episode", f"{record['episode_id']}: {record['task']}"),
+            ("agent", f"{record['agent']} (seed {record['seed']})"),
+            ("phases", "  ".join(f"{k}={'yes' if m[k] else 'no'}" for k in ("find_obj", "pick", "find_rec", "place"))),
+            ("collisions", str(m["collisions"])), ("commands", str(record["commands"])),
+            ("robot time", f"{record['sim_time']:.1f} s" + (" (limit reached)" if record["limit_hit"] else ""))]
+    hw = record.get("hardware") or {}
+    if hw.get("operator"):
+        op = hw["operator"]
+        rows.append(("operator", f"on goal: {'yes' if op['on_goal'] else 'no'}, at rest: "
+                                 f"{'yes' if op['at_rest'] else 'no'}, unreported collisions: {op['extra_collisions']}"))
+    if record.get("error"):
+        rows.append(("error", record["error"].splitlines()[0]))
+    if record.get("recording"):
+        rows.append(("recording", record["recording"]["path"]))
+    rows.append(("run folder", f"{run_dir} (python -m tools report {run_dir})"))
+    return format_table(["outcome", "value"], rows, title="Spot trial")
+
+
 def _check_fake_available() -> None:
     from tools.cli import CliError
 
@@ -250,11 +461,17 @@ def _restore_env(saved: dict[str, str | None]) -> None:
             os.environ[key] = value
 
 
-def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str, password_env: str) -> int:
-    """``--fake --episode``: the episode through SDK -> fake Spot -> PyBullet, scored by the judge."""
+def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str, password_env: str,
+                 trial: _Trial) -> int:
+    """``--fake --episode``: the episode through SDK -> fake Spot -> PyBullet, scored by the judge;
+    one record appended to the run folder's episodes.jsonl (with a rerun recording)."""
     from helios.schema import dump_yaml
     from tasks.episodes import load_split
     from tasks.fake_sdk import run_fake_sdk_episode
+    from tasks.hardware import HardwareTrialError, prepare_hardware_folder
+    from tasks.instrument import InstrumentedAgent
+    from tasks.runner import RunnerConfig
+    from tasks.trials import append_result
     from tools.cli import CliError
 
     _check_fake_available()
@@ -265,8 +482,11 @@ def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str,
     saved = _dry_run_credentials(user_env, password_env)
 
     def connected(backend) -> None:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / "config.yaml").write_text(dump_yaml(backend.config))
+        try:
+            prepare_hardware_folder(run_dir, trial.config)
+        except HardwareTrialError as exc:
+            raise CliError(str(exc)) from None
+        (run_dir / "robot.yaml").write_text(dump_yaml(backend.config))
         handler.open(run_dir / "session.log")
         rid = backend.robot_id
         print(f"[spot] connected to {rid.nickname or 'robot'} on 127.0.0.1:{backend.config.port} (fake Spot, "
@@ -275,14 +495,50 @@ def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str,
 
     print(f"[spot] episode {episode.episode_id}: {episode.task!r} (scene {episode.scene.seed}); "
           f"starting a fake Spot on it")
+    holder: dict = {}
+
+    def wrap(agent, ep):
+        recorder = None
+        if not args.no_recording:
+            from tasks.recording import EpisodeRecorder
+
+            path = run_dir / "recordings" / f"{episode.episode_id}-s{args.seed}.rrd"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            recorder = EpisodeRecorder(path, recording_id=f"{args.agent}-{episode.episode_id}-fake")
+            holder["path"] = path
+        sim = ep.fake.sim
+        state = lambda: (sim.world.time, sim.spot.T_world_body(), sim.spot.joint_positions())  # noqa: E731
+
+        def locked_state():
+            with ep.fake.sim_lock:
+                return state()
+
+        holder["agent"] = InstrumentedAgent(agent, recorder, locked_state if recorder is not None else None)
+        return holder["agent"]
+
+    options = {"perception": trial.perception} if trial.perception is not None else {}
+    fake_options = {"time_scale": args.time_scale} if args.time_scale is not None else {}
     try:
         result = run_fake_sdk_episode(args.agent, episode, seed=args.seed, backend_config=config,
-                                      on_connected=connected)
+                                      config=RunnerConfig(max_sim_time=float(args.max_time)), agent_options=options,
+                                      on_connected=connected, wrap_agent=wrap, fake_options=fake_options)
     finally:
         _restore_env(saved)
+        inst = holder.get("agent")
+        if inst is not None and inst.recorder is not None:
+            inst.recorder.close()
     print("[spot] shut down: stopped, stowed, sat, powered off, lease returned; fake Spot stopped")
     outcome = {"fake": True, **result.as_dict()}
     (run_dir / "outcome.json").write_text(json.dumps(outcome, indent=2, default=str))
+    record = result.as_dict()
+    record["config_fingerprint"] = trial.fingerprint
+    record["collision_events"] = record["extra"].pop("collision_events", [])
+    record["memory"] = holder["agent"].probe.summary() if "agent" in holder else None
+    record["hardware"] = {"setting": "fake", "operator": None, "perception": args.perception,
+                          "log_file": "session.log"}
+    if "path" in holder:
+        record["recording"] = {"path": str(holder["path"]), "errors": list(holder["agent"].hook_errors)}
+    append_result(run_dir / "episodes.jsonl", record)
     print()
     print(_format_episode(result, run_dir))
     return 0 if result.success else 1
@@ -317,7 +573,7 @@ def _start_fake(args, config, user_env: str, password_env: str):
     user, password = os.environ[user_env], os.environ[password_env]
     pki_dir = tempfile.mkdtemp(prefix="helios-fake-spot-")
     try:
-        demo = start_demo_fake(pki_dir, user, password, seed=args.seed)
+        demo = start_demo_fake(pki_dir, user, password, seed=args.seed, time_scale=args.time_scale)
     except BaseException:
         shutil.rmtree(pki_dir, ignore_errors=True)
         raise

@@ -87,6 +87,10 @@ def _check_provenance(path: str, header: dict) -> None:
 
 
 def select_episodes(config):
+    """The first ``config.episodes`` episodes of the split or file. Episodes from a file are also
+    checked against the homes they name (``tasks.episode_checks``); the committed splits are
+    checked by the test suite."""
+    from tasks.episode_checks import check_episode_homes
     from tasks.episodes import DatasetError, load_episodes, load_split
 
     episodes = load_episodes(config.episodes_file) if config.episodes_file else load_split(config.split)
@@ -95,6 +99,8 @@ def select_episodes(config):
     if config.episodes > len(episodes):
         source = config.episodes_file or f"split {config.split!r}"
         raise DatasetError(f"{source} has {len(episodes)} episodes, fewer than the {config.episodes} requested")
+    if config.episodes_file:
+        check_episode_homes(episodes[:config.episodes], config.episodes_file)
     return episodes[:config.episodes]
 
 
@@ -104,10 +110,13 @@ def default_out(config) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
+    import os
+
+    from tasks.executors import check_address
     from tasks.registry import check_agent
-    from tasks.trials import (METRIC_NAMES, BatchReport, EpisodeSetupError, metrics_table_rows, read_results,
-                              run_batch, summarize)
-    from tools.cli import CliError
+    from tasks.trials import (METRIC_NAMES, BatchReport, EpisodeSetupError, check_folder_layout, metrics_table_rows,
+                              prepare_run_folder, read_results, run_batch, summarize)
+    from tools.cli import CliError, check_output_dir
     from tools.progress import Progress, format_duration
     from tools.tables import format_markdown, format_table
 
@@ -115,12 +124,18 @@ def run(args: argparse.Namespace) -> int:
     check_agent(config.agent)
     if args.workers < 1:
         raise CliError(f"--workers must be >= 1, got {args.workers}")
+    if args.workers > 1024:
+        raise CliError(f"--workers must be <= 1024, got {args.workers}")
     if args.record < 0:
         raise CliError(f"--record must be >= 0, got {args.record}")
     if args.executor == "local" and args.address != "local":
         raise CliError("--address only applies to --executor ray")
+    if args.executor == "ray":
+        check_address(args.address)           # syntax, then a bounded wait for the head to answer
     episodes = select_episodes(config)
-    out = Path(args.out) if args.out else default_out(config)
+    out = check_output_dir(args.out if args.out else default_out(config))
+    check_folder_layout(out, args.record)
+    prepare_run_folder(out, config, dry_run=True)      # refuse a folder before creating or locking anything
     where = "" if args.executor == "local" else f" on Ray ({args.address})"
     print(f"[trials] {config.agent} on {len(episodes)} episode(s) "
           f"({config.episodes_file or 'split ' + config.split}), seed {config.seed}, "
@@ -139,7 +154,10 @@ def run(args: argparse.Namespace) -> int:
                             record=args.record, on_tick=progress.tick, report=report)
     except EpisodeSetupError as exc:
         progress.close()
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {exc}" + ("" if os.environ.get("HELIOS_DEBUG") else " (HELIOS_DEBUG=1 shows the traceback)"),
+              file=sys.stderr)
+        if os.environ.get("HELIOS_DEBUG"):
+            print(exc.trace, file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         progress.close()
@@ -147,6 +165,8 @@ def run(args: argparse.Namespace) -> int:
               f"to continue", file=sys.stderr)
         return 130
     progress.close()
+    for note in report.notes:
+        print(f"warning: {out}: {note}", file=sys.stderr)
     if report.commit_changed:
         print(f"warning: this run folder was started at commit {report.commit_changed[:10]}; episodes from "
               f"different code versions are mixed", file=sys.stderr)

@@ -8,7 +8,6 @@ the robot's observations covered (within 2 cm); writes the mesh.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,18 +28,25 @@ def run(args: argparse.Namespace) -> int:
     from tasks.oracle import OracleAgent
     from tasks.runner import RunnerConfig, SimEpisode, run_episode
     from tasks.tsdf import TsdfConfig, TsdfIntegrator, coverage, receptacle_surface_samples
-    from tools.cli import CliError
+    from helios.schema import short_repr
+    from tasks.episode_checks import check_episode_homes
+    from tools.cli import CliError, check_finite, check_output_dir, check_output_file
     from tools.tables import format_table
 
     cfg = with_overrides(TsdfConfig(), list(args.overrides))
-    if args.stream_hz <= 0:
-        raise CliError("--stream-hz must be positive")
+    check_finite(args.stream_hz, "--stream-hz", positive=True)
+    if args.stream_hz > 1000:
+        raise CliError(f"--stream-hz must be at most 1000 frames per simulated second, got {args.stream_hz:g}")
+    out = check_output_dir(args.out)
     episodes = load_episodes(args.episodes_file) if args.episodes_file else load_split(
         args.split or args.episode.split("-")[0])
     matches = [e for e in episodes if e.episode_id == args.episode]
     if not matches:
-        raise CliError(f"no episode {args.episode!r} in {args.episodes_file or 'that split'}")
+        raise CliError(f"no episode {short_repr(args.episode, 80)} in {args.episodes_file or 'that split'}")
     episode = matches[0]
+    if args.episodes_file:
+        check_episode_homes([episode], args.episodes_file)
+    check_output_file(out / f"{episode.episode_id}_tsdf.ply", "--out")
     sim = SimEpisode.create(episode, replace(SimBackendConfig(), stream_hz=args.stream_hz, stream_renderer="inline"))
     tsdf = TsdfIntegrator(cfg)
     sim.backend.add_frame_listener(tsdf.integrate)
@@ -57,7 +63,6 @@ def run(args: argparse.Namespace) -> int:
             role = "start" if name == episode.start_receptacle else "goal"
             if len(samples):
                 rows.append((name, role, len(samples), f"{100 * coverage(points, samples, cfg.tolerance):.1f}%"))
-        out = Path(args.out)
         mesh_path = out / f"{episode.episode_id}_tsdf.ply"
         triangles = tsdf.export_mesh(mesh_path)
     finally:

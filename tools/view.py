@@ -53,6 +53,8 @@ def run(args: argparse.Namespace) -> int:
     from tools.cli import CliError
 
     path = Path(args.file)
+    if path.is_dir():
+        raise CliError(f"recording {str(path)!r} is a folder, not a .rrd file")
     if not path.is_file():
         raise CliError(f"recording {str(path)!r} does not exist")
     if path.suffix != ".rrd":

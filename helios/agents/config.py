@@ -13,7 +13,7 @@ from typing import Literal
 
 from helios.planning.fmm import PlannerConfig
 from helios.search.gaze_points import GazeConfig
-from helios.schema import require
+from helios.schema import require, require_range
 
 
 @dataclass(frozen=True)
@@ -64,6 +64,16 @@ class ViewConfig:
     def __post_init__(self) -> None:
         require(bool(self.look_yaws_deg) and bool(self.start_look_yaws_deg), "look yaw lists must not be empty")
         require(self.look_distance > 0.3, "look_distance must be > 0.3 m")
+        for name in ("look_yaws_deg", "start_look_yaws_deg", "start_near_yaws_deg"):
+            require(all(-360.0 <= v <= 360.0 for v in getattr(self, name)),
+                    f"{name} must be angles within [-360, 360] degrees")
+        require_range(self, "look_distance", 0.3, 20.0, lo_open=True)
+        require_range(self, "look_height arm_swing_height self_mask_top", 0.0, 3.0)
+        require_range(self, "near_look_distance", 0.0, 10.0)
+        require_range(self, "shoulder_ahead elbow_radius arm_swing_radius make_room_distance self_mask_margin",
+                      0.0, 3.0)
+        require_range(self, "face_tolerance", 0.0, 3.1416)
+        require(all(abs(v) <= 2.0 for v in self.camera_in_body), "camera_in_body must lie within 2 m of the body")
 
 
 @dataclass(frozen=True)
@@ -93,6 +103,10 @@ class ReachConfig:
 
     def __post_init__(self) -> None:
         require(self.arm_reach > 0 and self.band >= 0 and self.n_angles >= 4, "invalid reach settings")
+        require_range(self, "shoulder_height shoulder_ahead min_standoff band grasp_lift place_lift "
+                            "close_in_threshold", 0.0, 3.0)
+        require_range(self, "arm_reach close_in_radius", 0.0, 3.0, lo_open=True)
+        require_range(self, "n_angles", 4, 3600)
 
 
 @dataclass(frozen=True)
@@ -121,6 +135,11 @@ class PlaceConfig:
         require(self.mode in ("drop", "improved"), f"place mode must be 'drop' or 'improved', got {self.mode!r}")
         require(0 <= self.improved_height <= self.drop_height <= 1.0, "need 0 <= improved_height <= drop_height <= 1")
         require(self.region[0] < self.region[1] and self.region[2] < self.region[3], "place region must be x0<x1, y0<y1")
+        require(all(abs(v) <= 3.0 for v in self.region), "place region must lie within 3 m of the body")
+        require_range(self, "drop_height improved_height", 0.0, 1.0)
+        require_range(self, "top_band approach_inset", 0.0, 1.0)
+        require_range(self, "surface_cell", 0.001, 0.5)
+        require_range(self, "mask_erosion_px", 0, 100)
 
 
 @dataclass(frozen=True)
@@ -171,6 +190,10 @@ class AgentConfig:
         require(self.max_looks_per_candidate >= 0 and self.max_failures_per_candidate >= 1,
                  "need max_looks_per_candidate >= 0 and max_failures_per_candidate >= 1")
         require(self.frontier_reach > 0 and self.gaze_goal_radius > 0, "radii must be > 0")
+        require_range(self, "max_pick_attempts max_looks_per_candidate max_revisits", 0, 100000)
+        require_range(self, "max_failures_per_candidate revisit_candidates max_walk_chunks", 1, 100000)
+        require_range(self, "support_radius frontier_blacklist_radius revisit_spacing", 0.0, 100.0)
+        require_range(self, "frontier_reach gaze_goal_radius", 0.0, 100.0, lo_open=True)
 
     @property
     def flags(self) -> "VariantFlags":

@@ -63,6 +63,14 @@ class PlannerConfig:
             raise ValueError("need 0 < forward_min <= forward_max and 0 < rotate_min <= rotate_max")
         if self.plan_cell_size <= 0 or self.robot_radius <= 0 or self.horizon <= 0:
             raise ValueError("plan_cell_size, robot_radius and horizon must be > 0")
+        from helios.schema import require_range
+
+        require_range(self, "plan_cell_size", 0.005, 1.0)
+        require_range(self, "robot_radius speed_saturation min_speed", 0.0, 10.0, lo_open=True)
+        require_range(self, "crop_margin start_clearance shuffle_max", 0.0, 20.0)
+        require_range(self, "forward_min forward_max", 0.0, 10.0, lo_open=True)
+        require_range(self, "rotate_min rotate_max", 0.0, math.pi, lo_open=True)
+        require_range(self, "horizon", 0.0, 100.0, lo_open=True)
 
 
 @dataclass(frozen=True)

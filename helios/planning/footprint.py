@@ -34,6 +34,13 @@ class FootprintConfig:
                 raise ValueError(f"footprint box {box} must be (x0 < x1, y0 < y1)")
         if self.margin < 0:
             raise ValueError("footprint margin must be >= 0")
+        from helios.schema import require_range
+
+        for box in (self.body, self.arm):
+            if not all(abs(v) <= 3.0 for v in box):
+                raise ValueError(f"footprint box {box} must lie within 3 m of the body centre")
+        require_range(self, "arm_clearance_height", 0.0, 3.0)
+        require_range(self, "margin", 0.0, 1.0)
 
 
 class FootprintChecker:

@@ -29,6 +29,7 @@ from scipy import ndimage
 
 from helios.maps.grid import GridGeometry
 from helios.planning.footprint import FootprintChecker
+from helios.schema import require, require_range
 from robots.hal import SE2Pose
 
 
@@ -53,12 +54,13 @@ class GazeConfig:
     """Lower bound (m) of the look-at point's height (objects on the floor)."""
 
     def __post_init__(self) -> None:
-        if not self.standoffs or any(s <= 0 for s in self.standoffs):
-            raise ValueError("standoffs must be positive distances")
-        if self.spacing <= 0 or self.min_points < 3:
-            raise ValueError("need spacing > 0 and min_points >= 3")
-        if self.outer_rings not in ("fallback", "always"):
-            raise ValueError(f"outer_rings must be 'fallback' or 'always', got {self.outer_rings!r}")
+        require(bool(self.standoffs) and all(0 < s <= 5.0 for s in self.standoffs),
+                "standoffs must be distances in (0, 5] m")
+        require(0 < self.spacing <= 5.0 and 3 <= self.min_points <= 360, "need 0 < spacing <= 5 m and 3 <= min_points <= 360")
+        require(self.outer_rings in ("fallback", "always"), f"outer_rings must be 'fallback' or 'always', got {self.outer_rings!r}")
+        require_range(self, "los_margin", -1.0, 2.0)
+        require_range(self, "own_margin", 0.0, 2.0)
+        require_range(self, "min_look_height", 0.0, 3.0)
 
 
 @dataclass(frozen=True)

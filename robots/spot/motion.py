@@ -18,6 +18,7 @@ from typing import Sequence
 import numpy as np
 from ruckig import InputParameter, Result, Ruckig, RuckigError, Synchronization, Trajectory
 
+from helios.schema import require_range
 from robots.hal import InvalidCommandError, SE2Pose
 from robots.spot import model
 from robots.transforms import wrap_angle
@@ -34,6 +35,10 @@ class BaseLimits:
     angular_acceleration: float = 2.0  # rad/s^2
     angular_jerk: float = 8.0          # rad/s^3
 
+    def __post_init__(self) -> None:
+        require_range(self, "linear_velocity linear_acceleration linear_jerk angular_velocity angular_acceleration "
+                            "angular_jerk", 0.0, 1000.0, lo_open=True)
+
 
 @dataclass(frozen=True)
 class ArmLimits:
@@ -43,12 +48,18 @@ class ArmLimits:
     acceleration: float = 5.0   # rad/s^2
     jerk: float = 40.0          # rad/s^3
 
+    def __post_init__(self) -> None:
+        require_range(self, "velocity acceleration jerk", 0.0, 1000.0, lo_open=True)
+
 
 @dataclass(frozen=True)
 class MotionConfig:
     base: BaseLimits = BaseLimits()
     arm: ArmLimits = ArmLimits()
     control_dt: float = 0.05   # s between executed trajectory samples (collision checks happen here)
+
+    def __post_init__(self) -> None:
+        require_range(self, "control_dt", 0.0, 1.0, lo_open=True)
 
 
 def _solve(current, target, vmax, amax, jmax) -> Trajectory:

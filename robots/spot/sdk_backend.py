@@ -17,11 +17,15 @@ Commands map onto the SDK as Spot's own examples use it:
 | ``place(p, h)`` | hand over ``p`` (object geometry estimated at grasp time), claw open, retreat, claw close |
 | ``stow_arm`` | named ``STOW`` (``CARRY`` while holding) |
 | ``observe`` | ``hand_color_image`` + ``hand_depth_in_hand_color_frame``: intrinsics from the response, depth / ``depth_scale``, poses from the shot's frame snapshot |
-| ``stop`` / ``close`` | full-body stop / stop, stow, sit + power off, return the lease, stop every keep-alive thread |
+| ``stop`` / ``close`` | full-body stop / stop, stow, sit + power off, return the lease, deregister our e-stop endpoint, stop every keep-alive thread (bounded in wall time, see ``close``) |
 
 Every command is sent, then its feedback polled every ``feedback_period`` until it ends; a command
-that does not end within its planned duration + ``command_margin`` is stopped and raises
-:class:`CommandTimeoutError`. Robot faults raise the HAL's typed errors and most are *sticky*: once
+that does not end within its planned duration + ``command_margin``, or (walks, arm joint moves)
+makes no progress for ``stall_time`` while away from where its plan has it, raises
+:class:`CommandTimeoutError`. While a command runs the backend also updates time sync itself every
+0.25 s. Whatever error ends a command, a stop is sent first (without waiting long for its reply: a
+robot on a slow link acts on it when it arrives). gRPC tracing in the environment (``GRPC_TRACE``)
+would print the session token and is refused unless ``allow_grpc_tracing``. Robot faults raise the HAL's typed errors and most are *sticky*: once
 the lease is lost, the robot e-stopped, powered off, the link or time sync lost, every further
 command raises the same error without reaching the robot (``stand()`` retries power after an
 e-stop is released). TLS verification is never disabled: the backend only ever uses the SDK's
@@ -122,7 +126,14 @@ class SdkBackendConfig:
     command_margin: float = 2.0            # s a command may run past its planned duration before it times out
     arm_move_timeout: float = 10.0         # s for moves the robot plans itself (gaze, stow, carry)
     grasp_timeout: float = 20.0            # s for a pick-in-image
-    time_sync_interval: float = 5.0        # s between time-sync updates (the SDK default is 60)
+    time_sync_interval: float = 1.0        # s between time-sync updates (SDK default 60): bounds how long a
+    #                                        time-sync loss takes to surface during a motion
+    close_budget: float = 2.0              # s of wall time close() may spend on a robot after a fault or
+    #                                        on a failing link (stop, safe power off, lease, e-stop in flight)
+    stall_time: float = 1.0                # s a moving command may make no progress while its plan moves
+    #                                        before it is stopped as stalled (CommandTimeoutError)
+    allow_grpc_tracing: bool = False       # connect although GRPC_TRACE / GRPC_VERBOSITY=debug would print
+    #                                        the session token to the terminal (a warning instead of an error)
     lease_retain_period: float = 2.0       # s between lease keep-alive check-ins
     stand_on_connect: bool = True          # power on and stand during bring-up
     power_off_on_close: bool = True        # sit and power off in close()
@@ -138,7 +149,7 @@ class SdkBackendConfig:
             raise ValueError(f"port must be within 1..65535, got {self.port}")
         for name in ("estop_timeout", "rpc_timeout", "image_rpc_timeout", "connect_timeout", "power_on_timeout",
                      "stand_timeout", "feedback_period", "arm_move_timeout", "grasp_timeout",
-                     "time_sync_interval", "lease_retain_period"):
+                     "time_sync_interval", "lease_retain_period", "close_budget", "stall_time"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number of seconds, got {v!r}")
@@ -148,6 +159,28 @@ class SdkBackendConfig:
             raise ValueError(f"max_trajectory_points must be within 2..250, got {self.max_trajectory_points}")
         if not 1 <= int(self.jpeg_quality) <= 100:
             raise ValueError(f"jpeg_quality must be within 1..100, got {self.jpeg_quality}")
+        for name in ("goal_tolerance", "release_retreat"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and 0 <= v <= 1.0):
+                raise ValueError(f"{name} must be within [0, 1], got {v!r}")
+
+
+_TRACE_OFF = ("", "none", "-all")
+
+
+def grpc_tracing_hazard(environ=None) -> str | None:
+    """Why gRPC's own tracing in the environment would print credentials, or None when it is off.
+    Any GRPC_TRACE tracer counts: with GRPC_TRACE=all grpcio 1.85 prints the session token 17 times
+    in one connect (with or without GRPC_VERBOSITY); tracers differ by version, so none is trusted."""
+    env = os.environ if environ is None else environ
+    trace = env.get("GRPC_TRACE", "").strip()
+    if trace.lower() not in _TRACE_OFF:
+        return f"GRPC_TRACE={trace!r} is set"
+    return None
+
+
+class GrpcTracingError(HalError):
+    """gRPC tracing is on in the environment and would print credentials."""
 
 
 def credentials_from_env(environ=None) -> tuple[str, str]:
@@ -264,6 +297,66 @@ class _Shot:
 _FATAL = (LeaseLostError, ConnectionLostError, TimeSyncLostError)   # no command can reach the robot
 
 
+def _future_result(fut, timeout: float):
+    """The result of a bosdyn FutureWrapper, waiting at most ``timeout`` s (its own
+    ``result(timeout=)`` waits for the RPC's full deadline before looking at the timeout)."""
+    inner = getattr(fut, "original_future", fut)
+    inner.exception(timeout=timeout)          # grpc.FutureTimeoutError while not done
+    return fut.result()
+
+
+def _cancel(fut) -> None:
+    try:
+        getattr(fut, "original_future", fut).cancel()
+    except Exception:  # noqa: BLE001
+        pass
+
+
+_TIME_SYNC_PROBE = 0.25     # s between our own time-sync updates while a command runs
+
+
+class _Unanswered(Exception):
+    """A shutdown step found the robot not answering (go on without waiting)."""
+
+
+class _StallWatch:
+    """Progress of a moving command from robot state samples: stalled when over the last
+    ``window`` s the robot moved less than ``tolerance`` (any coordinate: m, rad, or cos/sin of a
+    heading) while it is more than four times that away from where its plan has it now (or at
+    the plan's end, once the plan is over). A robot that keeps moving, slower or faster than
+    planned, is never stalled; nor is one that has arrived."""
+
+    period = 0.1            # s between state samples
+    tolerance = 0.01
+
+    def __init__(self, track, window: float, expected: float):
+        self.actual, self.planned = track
+        self.window, self.expected = float(window), float(expected)
+        self.samples: list[tuple[float, np.ndarray]] = []
+        self._next = time.monotonic() + self.period
+
+    def due(self, now: float) -> bool:
+        if now < self._next:
+            return False
+        self._next = now + self.period
+        return True
+
+    def add(self, t: float, state) -> None:
+        self.samples.append((t, np.asarray(self.actual(state), dtype=float)))
+        while len(self.samples) > 2 and self.samples[1][0] <= t - self.window:
+            self.samples.pop(0)
+
+    def stalled(self) -> bool:
+        if len(self.samples) < 2:
+            return False
+        (t_old, x_old), (t, x) = self.samples[0], self.samples[-1]
+        if t - t_old < self.window:
+            return False
+        moved = float(np.max(np.abs(x - x_old)))
+        behind = float(np.max(np.abs(np.asarray(self.planned(min(t, self.expected)), dtype=float) - x)))
+        return moved < self.tolerance and behind > 4 * self.tolerance
+
+
 # --------------------------------------------------------------------------------------------
 # The backend
 # --------------------------------------------------------------------------------------------
@@ -304,6 +397,16 @@ class SdkSpotBackend:
     def connect(self) -> None:
         """Authenticate, time sync, e-stop, lease, and (``stand_on_connect``) power on and stand."""
         cfg, bd = self.config, self._bd
+        hazard = grpc_tracing_hazard()
+        if hazard is not None:
+            if not cfg.allow_grpc_tracing:
+                raise GrpcTracingError(f"refusing to connect: {hazard}, and gRPC's tracing prints request metadata "
+                                       f"including the robot session token; unset GRPC_TRACE (or set "
+                                       f"allow_grpc_tracing=true to accept that)")
+            _LOG.warning("%s: gRPC tracing may print the session token to the terminal", hazard)
+        if os.environ.get("GRPC_VERBOSITY", "").strip().lower() in ("debug", "info"):
+            _LOG.warning("GRPC_VERBOSITY=%s: gRPC logs verbosely; with any GRPC_TRACE it would print credentials",
+                         os.environ["GRPC_VERBOSITY"])
         user, password = credentials_from_env()
         self._resolve(cfg.hostname, cfg.port)
         cert_glob = None
@@ -331,6 +434,7 @@ class SdkSpotBackend:
         finally:
             del password
         self._token_manager_thread = getattr(getattr(robot, "_token_manager", None), "th", None)
+        self._bound_time_sync_rpcs(robot)
         try:
             self.robot_id = robot.ensure_client("robot-id").get_id(timeout=cfg.rpc_timeout)
             robot.time_sync.time_sync_interval_sec = cfg.time_sync_interval
@@ -354,6 +458,19 @@ class SdkSpotBackend:
             res = self.stand()
             if not res:
                 raise PowerError(f"the robot did not stand up: {res.message}")
+
+    def _bound_time_sync_rpcs(self, robot) -> None:
+        """The SDK's time-sync thread calls the robot without an RPC timeout (30 s by default): on a
+        silent robot it would hang there, and ``close()`` would wait for it. Bound its calls."""
+        client = robot.ensure_client("time-sync")
+        update = client.get_time_sync_update
+        timeout = self.config.rpc_timeout
+
+        def bounded(*args, **kwargs):
+            kwargs.setdefault("timeout", timeout)
+            return update(*args, **kwargs)
+
+        client.get_time_sync_update = bounded
 
     def _resolve(self, host: str, port: int) -> None:
         try:
@@ -407,9 +524,19 @@ class SdkSpotBackend:
         cfg, bd = self.config, self._bd
         try:
             if cfg.estop_mode == "endpoint":
-                ep = bd.estop.EstopEndpoint(self._estop_client, f"{cfg.client_name}-estop", cfg.estop_timeout)
-                ep.force_simple_setup()
+                # The SDK's force_simple_setup() with bounded RPCs, and the endpoint remembered as soon
+                # as the configuration names it: a bring-up failing after this point deregisters it.
+                client, t = self._estop_client, cfg.rpc_timeout
+                ep = bd.estop.EstopEndpoint(client, f"{cfg.client_name}-estop", cfg.estop_timeout)
+                config = bd.estop_pb2.EstopConfig()
+                config.endpoints.add().CopyFrom(ep.to_proto())
+                active = client.get_config(timeout=t)
+                active = client.set_config(config, active.unique_id, timeout=t)
+                ep._unique_id = active.endpoints[0].unique_id
+                ep._config_id = active.unique_id
                 self._estop_endpoint = ep
+                ep.from_proto(client.register(active.unique_id, ep, timeout=t))
+                ep.stop(timeout=t)              # the first check-in seeds the challenge (as register() does)
                 self._estop_keepalive = bd.estop.EstopKeepAlive(ep, rpc_timeout_seconds=cfg.rpc_timeout,
                                                                rpc_interval_seconds=min(cfg.estop_timeout / 3.0, 2.0))
                 _LOG.info("registered software e-stop endpoint %r (timeout %.1f s)", f"{cfg.client_name}-estop",
@@ -444,7 +571,7 @@ class SdkSpotBackend:
     def _on_lease_keepalive_error(self, exc) -> None:
         bd = self._bd
         if isinstance(exc, (bd.exc.LeaseUseError, bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease)) \
-                and self._fault is None:
+                and self._fault is None and not self._closing:
             self._fault = LeaseLostError(f"the body lease was revoked or taken by another client ({type(exc).__name__})")
             _LOG.warning("lease keep-alive: %s", self._fault)
 
@@ -519,9 +646,17 @@ class SdkSpotBackend:
             return self._fault
         bd = self._bd
         try:
-            self._lease_client.lease_wallet.get_lease()
+            lease = self._lease_client.lease_wallet.get_lease()
         except (bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease):
             return self._set_fault(LeaseLostError(f"the body lease was taken by another client {what}"))
+        try:   # the robot's word on our lease (the keep-alive may not have checked in since it was taken)
+            self._lease_client.retain_lease(lease, timeout=self.config.rpc_timeout)
+        except (bd.exc.LeaseUseError, bd.lease.Error) as exc:
+            return self._set_fault(LeaseLostError(f"the body lease was revoked or taken by another client {what} "
+                                                  f"({type(exc).__name__})"))
+        except bd.exc.Error as exc:
+            fault = self._translate(exc, what)
+            return fault if isinstance(fault, RobotFault) else None
         try:
             state = self._state_client.get_robot_state(timeout=self.config.rpc_timeout)
         except bd.exc.Error as exc:
@@ -532,12 +667,61 @@ class SdkSpotBackend:
             return self._power_fault(what)
         return None
 
-    def _stop_quietly(self) -> None:
-        """Best-effort full-body stop (after a timeout); errors are ignored."""
+    def _stop_quietly(self, wait: float = 0.3) -> None:
+        """Best-effort full-body stop after a failure: sent at once (a robot on a slow link acts on
+        it when it arrives), its reply awaited at most ``wait`` s; errors are ignored."""
+        if not hasattr(self, "_cmd_client"):
+            return
         try:
-            self._cmd_client.robot_command(self._bd.Builder.stop_command(), timeout=self.config.rpc_timeout)
+            fut = self._cmd_client.robot_command_async(self._bd.Builder.stop_command(),
+                                                       timeout=self.config.rpc_timeout)
+            _future_result(fut, wait)
         except Exception as exc:  # noqa: BLE001 - best effort on an already failing link
-            _LOG.debug("stop after a failure did not go through: %s", type(exc).__name__)
+            _LOG.debug("stop after a failure not confirmed: %s", type(exc).__name__)
+
+    def _probe_time_sync(self, during: str) -> None:
+        """One time-sync update of our own (a motion must not wait for the SDK thread's next one):
+        TimeSyncLostError when the service fails, CommandTimeoutError when it does not answer."""
+        ts = getattr(self.robot, "_time_sync_thread", None)
+        if ts is None:
+            return
+        bd = self._bd
+        try:
+            ok = ts.endpoint.get_new_estimate()   # bounded by rpc_timeout (_bound_time_sync_rpcs)
+        except bd.exc.TimedOutError:
+            raise CommandTimeoutError(f"the robot did not answer within {self.config.rpc_timeout} s while "
+                                      f"{during}") from None
+        except bd.exc.Error as exc:
+            raise self._set_fault(TimeSyncLostError(f"time sync with the robot was lost while {during} "
+                                                    f"({type(exc).__name__}); timed commands cannot be sent "
+                                                    f"safely")) from None
+        if not ok:
+            raise self._set_fault(TimeSyncLostError(f"time sync with the robot was lost while {during}; timed "
+                                                    f"commands cannot be sent safely"))
+
+    def _check_time_sync(self) -> None:
+        """Raise TimeSyncLostError (sticky) once time sync is lost. The SDK's time-sync thread ends
+        on its first failed update; one more update of our own decides: the robot answers (the
+        thread is restarted) or time sync is lost."""
+        robot = self.robot
+        ts = getattr(robot, "_time_sync_thread", None)
+        if ts is None:
+            robot.time_sync                     # starts it
+            return
+        if not ts.stopped:
+            return
+        bd = self._bd
+        try:
+            ok = ts.endpoint.get_new_estimate()   # bounded by rpc_timeout (_bound_time_sync_rpcs)
+        except bd.exc.Error as exc:
+            ok, why = False, type(exc).__name__
+        else:
+            why = "the robot reports time sync is not established"
+        if ok:
+            robot.time_sync                     # restarts the thread
+            return
+        raise self._set_fault(TimeSyncLostError(f"time sync with the robot was lost ({why}); timed commands "
+                                                f"cannot be sent safely"))
 
     # ================================================================== command plumbing
     def _call(self, fn, *args, during: str, **kwargs):
@@ -549,42 +733,68 @@ class SdkSpotBackend:
             self._unresponsive = isinstance(err, CommandTimeoutError)
             raise err from None
 
-    def _run_command(self, command, *, during: str, expected: float, done: Callable, end_time_secs=None):
+    def _run_command(self, command, *, during: str, expected: float, done: Callable, end_time_secs=None,
+                     track: "tuple[Callable, Callable] | None" = None):
         """Send a RobotCommand and poll its feedback until ``done(feedback) -> (finished, ok)``
         reports it finished. Returns (ok, feedback response, seconds); ok is None when the command
         was interrupted (overridden, e.g. by stop()). Abnormal endings are diagnosed first (the
         typed fault is raised when there is one); a command that overruns its planned duration +
-        margin is stopped and raises CommandTimeoutError."""
+        margin, or (``track``: (actual(state) -> vector, planned(t) -> vector)) makes no progress for
+        ``stall_time`` while its plan moves, raises CommandTimeoutError. Whatever error ends the
+        wait (a fault, a lost time sync, an unanswered RPC), a stop is sent first."""
         self._guard()
         cfg = self.config
-        # The SDK's time-sync thread exits on its first failed update; reading the property restarts
-        # it (the last estimate stays valid meanwhile; the robot refuses commands once it is not).
-        self.robot.time_sync
+        try:
+            self._check_time_sync()
+        except TimeSyncLostError:
+            self._stop_quietly()
+            raise
         t0 = time.monotonic()
-        cmd_id = self._call(self._cmd_client.robot_command, command, end_time_secs=end_time_secs,
-                            timeout=cfg.rpc_timeout, during=during)
+        try:
+            cmd_id = self._call(self._cmd_client.robot_command, command, end_time_secs=end_time_secs,
+                                timeout=cfg.rpc_timeout, during=during)
+        except CommandTimeoutError:
+            self._stop_quietly()                # the robot may have accepted it and be moving
+            raise
         deadline = t0 + expected + cfg.command_margin
-        while True:
-            fb = self._call(self._cmd_client.robot_command_feedback, cmd_id, timeout=cfg.rpc_timeout, during=during)
-            ended = self._ended(fb)
-            if ended:
-                fault = self._diagnose(during)
-                if fault is not None:
-                    raise type(fault)(str(fault))
-                return None, fb, time.monotonic() - t0
-            finished, ok = done(fb)
-            if finished:
-                self._unresponsive = False
-                return ok, fb, time.monotonic() - t0
-            if self._fault is not None:        # e.g. the lease keep-alive found the lease gone
-                self._stop_quietly()
-                self._guard()
-            if time.monotonic() > deadline:
-                self._stop_quietly()
-                self._unresponsive = True
-                raise CommandTimeoutError(f"the robot did not finish {during} within {expected + cfg.command_margin:.1f} s "
-                                          f"(planned {expected:.1f} s); it was told to stop")
-            time.sleep(cfg.feedback_period)
+        stall = _StallWatch(track, cfg.stall_time, expected) if track is not None else None
+        next_sync = t0 + _TIME_SYNC_PROBE
+        try:
+            while True:
+                fb = self._call(self._cmd_client.robot_command_feedback, cmd_id, timeout=cfg.rpc_timeout,
+                                during=during)
+                ended = self._ended(fb)
+                if ended:
+                    fault = self._diagnose(during)
+                    if fault is not None:
+                        raise type(fault)(str(fault))
+                    return None, fb, time.monotonic() - t0
+                finished, ok = done(fb)
+                if finished:
+                    self._unresponsive = False
+                    return ok, fb, time.monotonic() - t0
+                self._guard()                   # e.g. the lease keep-alive found the lease gone
+                self._check_time_sync()
+                now = time.monotonic()
+                if now >= next_sync:            # while the robot moves, ask about time sync ourselves
+                    self._probe_time_sync(during)
+                    next_sync = time.monotonic() + _TIME_SYNC_PROBE
+                if stall is not None and stall.due(now):
+                    stall.add(now - t0, self._state(during))
+                    if stall.stalled():
+                        self._unresponsive = True
+                        raise CommandTimeoutError(f"the robot stopped making progress {during} "
+                                                  f"({stall.window:.1f} s without motion while its plan moves); "
+                                                  f"it was told to stop")
+                if now > deadline:
+                    self._unresponsive = True
+                    raise CommandTimeoutError(f"the robot did not finish {during} within "
+                                              f"{expected + cfg.command_margin:.1f} s (planned {expected:.1f} s); "
+                                              f"it was told to stop")
+                time.sleep(cfg.feedback_period)
+        except HalError:
+            self._stop_quietly()                # whatever ended the wait: the robot must not go on moving
+            raise
 
     def _ended(self, fb) -> bool:
         """True when the command is no longer being processed (overridden, timed out, frozen)."""
@@ -692,8 +902,17 @@ class SdkSpotBackend:
             return se2_fb.status == F.STATUS_AT_GOAL, se2_fb.final_goal_status != F.FINAL_GOAL_STATUS_BLOCKED
 
         end_time = time.time() + traj.duration + cfg.command_margin
+
+        def actual(state):
+            p = SE2Pose.from_matrix(self._T(state, cv.ODOM, cv.BODY))
+            return (p.x, p.y, math.cos(p.yaw), math.sin(p.yaw))
+
+        def planned(t):
+            p = traj.pose_at(t)
+            return (p.x, p.y, math.cos(p.yaw), math.sin(p.yaw))
+
         ok, fb, took = self._run_command(command, during="walking to the goal", expected=traj.duration,
-                                         done=done, end_time_secs=end_time)
+                                         done=done, end_time_secs=end_time, track=(actual, planned))
         final = SE2Pose.from_matrix(self._T(self._state("checking the base pose"), cv.ODOM, cv.BODY))
         travelled = self._travelled(poses, final)
         if ok is None:
@@ -738,7 +957,8 @@ class SdkSpotBackend:
             st = fb.feedback.synchronized_feedback.arm_command_feedback.arm_joint_move_feedback.status
             return st in (S.STATUS_COMPLETE, S.STATUS_STALLED), st == S.STATUS_COMPLETE
 
-        ok, _, took = self._run_command(command, during="moving the arm joints", expected=traj.duration, done=done)
+        ok, _, took = self._run_command(command, during="moving the arm joints", expected=traj.duration, done=done,
+                                        track=(self._arm_q, lambda t: traj.at_time(t)[0]))
         if ok is None:
             return CommandResult(False, Reason.STOPPED, "the arm move was interrupted", duration=took)
         if ok:
@@ -1015,35 +1235,29 @@ class SdkSpotBackend:
         self._on_close.append(fn)
 
     def close(self) -> None:
-        """Safe shutdown: stop, stow (if nothing is held), sit and power off, return the lease,
-        stop every keep-alive thread and close the connection. Never raises; safe to call twice."""
+        """Safe shutdown, whatever happened before: stop; stow (healthy robot, nothing held); sit
+        and power off; return the lease; deregister our e-stop endpoint; stop every keep-alive,
+        time-sync and token thread and close the connection. Never raises; safe to call twice.
+
+        Healthy robot: each step in turn, waiting for it. After a fault, a timed-out command or
+        once a step goes unanswered, the remaining steps go out back to back without waiting for
+        one another (a robot on a slow link acts on each as it arrives) and their replies are
+        awaited at most ``close_budget`` s in all; on a silent or dead link ``close()`` therefore
+        returns within about ``close_budget`` + 0.5 s. After a lost lease no motion command is
+        sent (it is not ours to command); the e-stop endpoint is deregistered whenever the robot
+        answers."""
         if self._closed or self._closing:
             return
         self._closing = True
-        cfg = self.config
-        reachable = self.robot is not None and self._cmd_client_ready() and not isinstance(self._fault, _FATAL)
+        t0 = time.monotonic()
         try:
-            if reachable:
-                reachable = self._shutdown_robot()
-            self._closed = True
-            if self._lease_keepalive is not None:
-                self._lease_keepalive.shutdown()
-            if reachable and self._lease_keepalive is not None:
-                try:
-                    self._lease_client.return_lease(self._lease_client.lease_wallet.get_lease(), timeout=cfg.rpc_timeout)
-                    _LOG.info("lease returned")
-                except Exception as exc:  # noqa: BLE001
-                    _LOG.debug("lease not returned: %s", type(exc).__name__)
-            if self._estop_keepalive is not None:
-                self._estop_keepalive.shutdown()
-                if reachable:
-                    try:
-                        self._estop_endpoint.deregister()
-                    except Exception as exc:  # noqa: BLE001
-                        _LOG.debug("e-stop endpoint not deregistered: %s", type(exc).__name__)
+            if self.robot is not None and hasattr(self, "_cmd_client"):
+                self._shutdown_robot(t0)
+        except Exception as exc:  # noqa: BLE001 - shutdown never raises
+            _LOG.warning("shutdown step failed: %s: %s", type(exc).__name__, str(exc).split("\n")[0])
         finally:
             self._closed = True
-            self._stop_threads()
+            self._stop_threads(max(t0 + self.config.close_budget + 0.6, time.monotonic() + 0.5))
             callbacks, self._on_close = self._on_close, []
             for fn in callbacks:
                 try:
@@ -1051,57 +1265,153 @@ class SdkSpotBackend:
                 except Exception:  # noqa: BLE001
                     _LOG.exception("close callback failed")
 
-    def _cmd_client_ready(self) -> bool:
-        return hasattr(self, "_cmd_client") and hasattr(self, "_lease_client") and self._lease_keepalive is not None
+    def _our_lease(self):
+        if self._lease_keepalive is None or isinstance(self._fault, LeaseLostError):
+            return None
+        try:
+            return self._lease_client.lease_wallet.get_lease()
+        except Exception:  # noqa: BLE001 - not ours (any more)
+            return None
 
-    def _shutdown_robot(self) -> bool:
-        """Stop, stow, sit and power off, each best effort; False once the robot stops answering."""
+    def _shutdown_robot(self, t0: float) -> None:
         cfg, bd = self.config, self._bd
-        try:
-            self._cmd_client.robot_command(bd.Builder.stop_command(), timeout=cfg.rpc_timeout)
-            if self._fault is None:
-                state = self._state_client.get_robot_state(timeout=cfg.rpc_timeout)
-                powered = state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_ON
-                if powered and not self._unresponsive and not state.manipulator_state.is_gripper_holding_item and \
-                        state.manipulator_state.stow_state != state.manipulator_state.STOWSTATE_STOWED:
-                    try:
-                        self.stow_arm()
-                    except HalError as exc:
-                        _LOG.warning("could not stow the arm at shutdown: %s", exc)
-                if powered and cfg.power_off_on_close:
-                    _LOG.info("sitting down and powering off")
-                    self.robot.power_off(cut_immediately=False, timeout_sec=cfg.stand_timeout,
-                                         update_frequency=1.0 / cfg.feedback_period, timeout=cfg.rpc_timeout)
-            return True
-        except bd.exc.TimedOutError:
-            _LOG.warning("the robot stopped answering during shutdown; skipping the remaining steps")
-            return False
-        except bd.exc.RpcError as exc:
-            _LOG.warning("lost the robot during shutdown (%s)", type(exc).__name__)
-            return False
-        except Exception as exc:  # noqa: BLE001 - shutdown never raises
-            _LOG.warning("shutdown step failed: %s: %s", type(exc).__name__, str(exc).split("\n")[0])
-            return True
+        lease = self._our_lease()
+        healthy = self._fault is None and not self._unresponsive
+        if healthy and lease is not None:
+            try:
+                self._shutdown_in_turn(lease)
+                return
+            except (bd.exc.TimedOutError, bd.exc.RpcError, bd.power.CommandTimedOutError, _Unanswered) as exc:
+                _LOG.warning("the robot stopped answering during shutdown (%s); sending the remaining steps "
+                             "without waiting", type(exc).__name__)
+            except Exception as exc:  # noqa: BLE001
+                _LOG.warning("shutdown step failed: %s: %s", type(exc).__name__, str(exc).split("\n")[0])
+            lease = self._our_lease()
+        self._shutdown_in_flight(lease, max(t0 + cfg.close_budget, time.monotonic() + 0.5))
 
-    def _stop_threads(self) -> None:
-        """Stop time sync and token refresh, close channels, forget the robot (no thread survives)."""
+    def _shutdown_in_turn(self, lease) -> None:
+        """Healthy robot: stop, stow, sit and power off, return the lease, deregister the e-stop."""
+        cfg, bd = self.config, self._bd
+        self._cmd_client.robot_command(bd.Builder.stop_command(), timeout=cfg.rpc_timeout)
+        state = self._state_client.get_robot_state(timeout=cfg.rpc_timeout)
+        powered = state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_ON
+        if powered and not state.manipulator_state.is_gripper_holding_item and \
+                state.manipulator_state.stow_state != state.manipulator_state.STOWSTATE_STOWED:
+            try:
+                self.stow_arm()
+            except HalError as exc:
+                _LOG.warning("could not stow the arm at shutdown: %s", exc)
+                if self._fault is not None or self._unresponsive:
+                    raise _Unanswered("stow failed") from None
+        if powered and cfg.power_off_on_close:
+            _LOG.info("sitting down and powering off")
+            self.robot.power_off(cut_immediately=False, timeout_sec=cfg.stand_timeout,
+                                 update_frequency=1.0 / cfg.feedback_period, timeout=cfg.rpc_timeout)
+        self._lease_client.return_lease(lease, timeout=cfg.rpc_timeout)
+        _LOG.info("lease returned")
+        if self._estop_endpoint is not None:
+            ep = self._estop_endpoint
+            self._estop_client.deregister(ep._config_id, ep, timeout=cfg.rpc_timeout)
+            self._estop_endpoint = None
+            _LOG.info("e-stop endpoint deregistered")
+
+    def _shutdown_in_flight(self, lease, deadline: float) -> None:
+        """Degraded robot or link: stop and safe power off (with our lease), then return the lease
+        and deregister the e-stop endpoint, each sent without waiting for the one before; replies
+        awaited until ``deadline``."""
+        cfg, bd = self.config, self._bd
+        pending = []
+
+        def send(name, fn, *args):
+            try:
+                pending.append((name, fn(*args, timeout=max(0.05, deadline - time.monotonic()))))
+            except Exception as exc:  # noqa: BLE001 - e.g. a refused connection: fails at once
+                _LOG.debug("shutdown: %s not sent: %s", name, type(exc).__name__)
+
+        if lease is not None:
+            send("stop", self._cmd_client.robot_command_async, bd.Builder.stop_command())
+            if cfg.power_off_on_close:
+                send("safe power off", self._cmd_client.robot_command_async, bd.Builder.safe_power_off_command())
+            self._await(pending[-1:], min(deadline, time.monotonic() + 0.3))   # let the robot take them first
+            send("lease return", self._return_lease_async, lease)
+        if self._estop_endpoint is not None:
+            ep = self._estop_endpoint
+            send("e-stop deregistration", self._estop_client.deregister_async, ep._config_id, ep)
+        done = self._await(pending, deadline)
+        for name, fut in pending:
+            if name in done:
+                _LOG.info("shutdown: %s done", name)
+            else:
+                _cancel(fut)
+                _LOG.warning("shutdown: %s not confirmed by the robot", name)
+        if "e-stop deregistration" in done:
+            self._estop_endpoint = None
+
+    def _return_lease_async(self, lease, **kwargs):
+        """ReturnLease without waiting (bosdyn 5.2's ``return_lease_async`` blocks: it uses ``call``)."""
+        client = self._lease_client
+        if client.lease_wallet:
+            client.lease_wallet.remove(lease)
+        return client.call_async(client._stub.ReturnLease, client._make_return_request(lease), None,
+                                 client._handle_return_errors, copy_request=False, **kwargs)
+
+    @staticmethod
+    def _await(pending, deadline: float) -> set:
+        """Names of the pending calls that completed without error by ``deadline``."""
+        done = set()
+        for name, fut in pending:
+            try:
+                _future_result(fut, max(0.0, deadline - time.monotonic()))
+                done.add(name)
+            except Exception as exc:  # noqa: BLE001
+                _LOG.debug("shutdown: %s: %s", name, type(exc).__name__)
+        return done
+
+    def _stop_threads(self, deadline: float) -> None:
+        """Stop the keep-alive, time-sync and token threads, close every channel (which cancels
+        RPCs still in flight: a silent robot holds nothing up), forget the robot. Joins are
+        bounded by ``deadline``; no thread survives the connection."""
         robot = self.robot
+        threads = []
+        for keepalive in (self._lease_keepalive, self._estop_keepalive):
+            if keepalive is not None:
+                keepalive._end_periodic_check_in()
+                threads.append(keepalive._thread)
         if robot is None:
+            self._join(threads, deadline)
             return
-        token_thread = getattr(getattr(robot, "_token_manager", None), "th", None) or self._token_manager_thread
-        try:
-            robot._shutdown()                 # stops the time-sync thread (joins) and the token manager
-        except Exception:  # noqa: BLE001
-            pass
+        ts = getattr(robot, "_time_sync_thread", None)
+        if ts is not None:
+            with ts._lock:                    # TimeSyncThread.stop() without its unbounded join
+                ts._locked_should_exit = True
+            ts._event.set()
+            if ts._thread is not None:
+                threads.append(ts._thread)
+        manager = getattr(robot, "_token_manager", None)
+        if manager is not None:
+            manager.stop()
+        token_thread = getattr(manager, "th", None) or self._token_manager_thread
         if token_thread is not None:
-            token_thread.join(timeout=2.0)
+            threads.append(token_thread)
         try:
-            robot.shutdown()                  # closes every channel
+            robot.shutdown()                  # closes every channel, cancelling RPCs in flight
         except Exception:  # noqa: BLE001
             pass
+        self._join(threads, deadline)
+        robot._time_sync_thread = None        # already stopped: the SDK's _shutdown() must not join again
+        robot._token_manager = None
         if self._sdk is not None:
             self._sdk.clear_robots()
+        self._lease_keepalive = self._estop_keepalive = None
         self.robot = None
+
+    @staticmethod
+    def _join(threads, deadline: float) -> None:
+        for th in threads:
+            if th is not None and th is not threading.current_thread():
+                th.join(timeout=max(0.05, deadline - time.monotonic()))
+            if th is not None and th.is_alive():
+                _LOG.warning("thread %s did not stop in time", th.name)
 
     def __enter__(self) -> "SdkSpotBackend":
         return self

@@ -16,6 +16,7 @@ from typing import Callable, Literal, Sequence
 
 import numpy as np
 
+from helios.schema import ConfigValueError, require_range
 from robots.hal import (
     as_pixel,
     as_point,
@@ -65,6 +66,21 @@ class SimBackendConfig:
     # moment the arm touches a movable object. Holding, grasping and placing always run physics.
     kinematic_free_arm: bool = True
 
+    def __post_init__(self) -> None:
+        require_range(self, "stream_hz", 0.0, 1000.0)     # 0 = no frame stream
+        for name in ("gaze_hand_position", "carry_hand_position"):
+            v = getattr(self, name)
+            if not all(isinstance(c, (int, float)) and math.isfinite(c) and abs(c) <= 2.0 for c in v):
+                raise ConfigValueError(f"{name} must be 3 numbers within 2 m of the body, got {v}")
+        require_range(self, "arm_tolerance hand_tolerance", 0.0, 1.0, lo_open=True)
+        require_range(self, "arm_settle_time", 0.0, 60.0)
+        require_range(self, "contact_check_every", 1, 10000)
+
+
+class MotionInterrupted(Exception):
+    """Raised by a :attr:`SimSpotBackend.pacer` to end the motion in progress where it is (the fake
+    Spot's e-stop, stop command, lost lease or power cut). The robot stays where it stopped."""
+
 
 @dataclass(frozen=True)
 class CollisionEvent:
@@ -110,6 +126,10 @@ class SimSpotBackend:
         self._render_worker: RenderWorker | None = None
         self._step_remainder = 0.0
         self._closed = False
+        # pacer(dt): called after every dt of simulated motion (a physics step or a kinematic
+        # control step). The fake Spot sets it to run motions in (scaled) wall-clock time and to
+        # end them (MotionInterrupted) when the robot is stopped; None = as fast as possible.
+        self.pacer: Callable[[float], None] | None = None
 
     # ================================================================== observation
     def observe(self) -> Observation:
@@ -674,11 +694,15 @@ class SimSpotBackend:
         else:
             self.world.advance(dt)
             self._stream()
+            if self.pacer is not None:
+                self.pacer(dt)
 
     def _step(self, n: int) -> None:
         for _ in range(n):
             self.world.step()
             self._stream()
+            if self.pacer is not None:
+                self.pacer(self.world.timestep)
 
     def _stream(self) -> None:
         if not self._listeners or self.config.stream_hz <= 0:

@@ -8,12 +8,19 @@ their feedback. Only the CA file and the port differ from a real robot (see ``ce
 
 Execution model: one "robot" thread executes accepted commands one after another on the
 simulator (PyBullet is not thread-safe; every simulator access holds ``sim_lock``). A command's
-RPC returns as soon as it is accepted and its feedback reports progress, as on the robot; the
-simulation runs faster than real time, so feedback turns final as soon as the simulated motion
-ends. The robot clock is the wall clock plus a fixed skew that the client's time sync must find.
+RPC returns as soon as it is accepted and its feedback reports progress, as on the robot. With
+``time_scale`` (wall seconds per robot second: 1.0 = real time, 0.1 = ten times faster) base and
+arm motions take the time the robot would take (the ruckig trajectories of
+``robots.spot.motion`` at Spot's limits, as the simulator executes them), the simulator lock is
+released between control steps so robot state and images are always fresh while it moves, and
+at every control step the motion checks the e-stop, the lease, motor power, the connection and
+the command's end time, stopping where it is when one fails. Without ``time_scale`` motions run
+as fast as the simulator can (feedback turns final as soon as the simulated motion ends). The
+robot clock is the wall clock plus a fixed skew that the client's time sync must find.
 
 Faults (``FakeSpot.inject``) model what goes wrong on real hardware; each persists until
-``clear``: see ``FAULTS``.
+``clear``: see ``FAULTS``. Scripted faults: ``inject_at`` (at a time), ``inject_on_call`` (on
+the Nth call of an RPC), ``fail_calls`` (an RPC fails N times, then recovers).
 """
 
 from __future__ import annotations
@@ -60,11 +67,12 @@ from bosdyn.api import (
     time_sync_service_pb2_grpc,
 )
 
-from robots.hal import Observation, Reason
+from robots.hal import HalError, Observation, Reason
 from robots.spot import model
 from robots.spot import sdk_conversions as cv
 from robots.spot.fake_spot.certs import TestPKI
 from robots.spot.fake_spot.sim_robot import FakeRobotSim, TimedSE2Path
+from robots.spot.sim_backend import MotionInterrupted
 from robots.transforms import invert_transform, make_transform, rot_z
 
 _LOG = logging.getLogger("helios.fake_spot")
@@ -74,11 +82,14 @@ FAULTS: dict[str, str] = {
     "lease_revoked": "another client takes the body lease: motion stops, commands with our lease are refused",
     "connection_drop": "the robot drops off the network (the server stops); the robot's comms-loss "
                        "behaviour stops it and cuts power",
-    "command_timeout": "commands are accepted but never finish (their feedback stays 'in progress')",
-    "grasp_failure": "pick requests end with MANIP_STATE_GRASP_FAILED without moving",
-    "time_sync_loss": "the time-sync service fails and commands are refused with STATUS_NO_TIMESYNC",
-    "slow": "every response is delayed by `delay` seconds (default 3); requests whose caller gave up "
-            "meanwhile are dropped unprocessed",
+    "command_timeout": "commands are accepted but never finish (their feedback stays 'in progress'); a motion "
+                       "in progress stalls where it is",
+    "grasp_failure": "pick requests end with MANIP_STATE_GRASP_FAILED (a pick in progress stops where it is)",
+    "time_sync_loss": "the time-sync service fails and timed commands are refused with STATUS_NO_TIMESYNC "
+                      "(stop, sit and safe power off, which carry no time, are still accepted); a motion in "
+                      "progress goes on to its end time",
+    "slow": "every reply is delayed by `delay` seconds (default 3): the robot acts on each request when it "
+            "arrives, the caller hears back late (or gives up)",
 }
 
 # Services the directory lists: name -> (type, authority). The authorities must be covered by the
@@ -103,6 +114,8 @@ _STOP_LEVEL_NAMES = {estop_pb2.ESTOP_LEVEL_CUT: "CUT", estop_pb2.ESTOP_LEVEL_SET
 _FB = basic_command_pb2.RobotCommandFeedbackStatus
 _MAX_ARM_POINTS = 250
 _CACHED_FRAMES = 16
+_CONTROL_DT = 0.05          # s of robot time between the safety checks of a moving robot
+_UNTIMED = ("stop", "sit", "safe_power_off")   # commands without a time that a robot takes without time sync
 
 
 @dataclass
@@ -126,6 +139,13 @@ class _Command:
     extra: dict = field(default_factory=dict)
 
 
+START_TIMEOUT_S = 10.0       # for a started fake Spot to accept connections
+
+
+class FakeSpotStartError(HalError):
+    """The fake Spot did not come up (no port, or not accepting connections in time)."""
+
+
 class FakeSpot:
     """A fake Spot robot on ``127.0.0.1:<port>`` backed by a :class:`FakeRobotSim`.
 
@@ -136,9 +156,14 @@ class FakeSpot:
 
     def __init__(self, sim: FakeRobotSim, pki: TestPKI, username: str, password: str, *,
                  clock_skew: float = 7.25, depth_scale: float = 999.0, jpeg_quality: int = 90,
-                 robot_name: str = "helios-fake-spot", max_workers: int = 16):
+                 robot_name: str = "helios-fake-spot", max_workers: int = 16, time_scale: float | None = None):
         if not username or not password:
             raise ValueError("the fake Spot needs a username and a password to accept")
+        if time_scale is not None and not (isinstance(time_scale, (int, float)) and math.isfinite(time_scale)
+                                           and 0.0 < time_scale <= 100.0):
+            raise ValueError(f"time_scale must be within (0, 100] wall seconds per robot second (or None), "
+                             f"got {time_scale!r}")
+        self.time_scale = None if time_scale is None else float(time_scale)
         self.sim = sim
         self.pki = pki
         self.sim_lock = threading.RLock()
@@ -168,6 +193,16 @@ class FakeSpot:
         self._jobs: queue.Queue = queue.Queue()
         self._frames: OrderedDict[int, tuple[np.ndarray, Observation]] = OrderedDict()
         self._state_cache: robot_state_pb2.RobotState | None = None
+        # the motion in progress (robot thread) and its pacing
+        self._current: _Command | None = None
+        self._pace_wall0 = 0.0
+        self._pace_sim = 0.0
+        self._pace_next_check = 0.0
+        self._wake = threading.Condition(self.sim_lock)
+        # scripted faults
+        self._calls: dict[str, int] = {}
+        self._call_rules: list[dict] = []
+        self._timers: list[threading.Timer] = []
         # server
         self._executor = futures.ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix="fake-spot-rpc")
         self._server: grpc.Server | None = None
@@ -198,13 +233,30 @@ class FakeSpot:
         creds = grpc.ssl_server_credentials([self.pki.server_credentials()])
         self.port = server.add_secure_port("127.0.0.1:0", creds)
         if not self.port:
-            raise RuntimeError("the fake Spot could not bind a port on 127.0.0.1")
+            raise FakeSpotStartError("the fake Spot could not bind a port on 127.0.0.1")
+        self.sim.pacer = self._pace
         self._robot_thread = threading.Thread(target=self._run_robot, name="fake-spot-robot", daemon=True)
         self._robot_thread.start()
         server.start()
         self._server = server
+        self._wait_listening(START_TIMEOUT_S)
         _LOG.info("fake Spot %r listening on 127.0.0.1:%d", self.robot_name, self.port)
         return self
+
+    def _wait_listening(self, timeout: float) -> None:
+        """Return once 127.0.0.1:port accepts a connection; FakeSpotStartError after ``timeout`` s."""
+        import socket
+
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", int(self.port)), timeout=1.0).close()
+                return
+            except OSError as exc:
+                if time.monotonic() >= deadline:
+                    raise FakeSpotStartError(f"the fake Spot did not accept connections on 127.0.0.1:{self.port} "
+                                             f"within {timeout:g} s ({exc.strerror or exc})") from None
+                time.sleep(0.05)
 
     def stop(self) -> None:
         """Stop serving, end the robot thread, close the simulation. Safe to call twice."""
@@ -212,6 +264,10 @@ class FakeSpot:
             return
         self._stopped = True
         self._fault_event.set()
+        with self._lock:
+            timers, self._timers = self._timers, []
+        for t in timers:
+            t.cancel()
         if self._server is not None:
             self._server.stop(grace=None).wait(5.0)
         self._jobs.put(None)
@@ -248,6 +304,10 @@ class FakeSpot:
                 self._jobs.put(self._sim_stop)
             elif fault == "time_sync_loss":
                 self._clock_id = "fake-clock-" + secrets.token_hex(4)   # old identifiers become invalid
+            elif fault == "command_timeout":
+                for cmd in self.commands.values():
+                    if cmd.state in ("queued", "running") and cmd.kind not in ("stop", "safe_power_off"):
+                        cmd.state, cmd.detail = "hung", "stalled (fault injection)"
         if fault == "connection_drop":
             self.dropped = True
             if self._server is not None:
@@ -266,6 +326,53 @@ class FakeSpot:
 
     def has_fault(self, fault: str) -> bool:
         return fault in self.faults
+
+    def inject_at(self, seconds: float, fault: str, **params) -> threading.Timer:
+        """Inject ``fault`` ``seconds`` from now (wall clock); cancelled when the fake stops."""
+        if fault not in FAULTS:
+            raise ValueError(f"unknown fault {fault!r}; known: {', '.join(FAULTS)}")
+        timer = threading.Timer(float(seconds), lambda: None if self._stopped else self.inject(fault, **params))
+        timer.daemon = True
+        timer.name = f"fake-spot-fault-{fault}"
+        with self._lock:
+            self._timers.append(timer)
+        timer.start()
+        return timer
+
+    def inject_on_call(self, method: str, n: int, fault: str, **params) -> None:
+        """Inject ``fault`` when the ``n``-th call (counted from now) of RPC ``method`` (e.g.
+        ``"RobotCommand"``) arrives, before it is processed."""
+        if fault not in FAULTS:
+            raise ValueError(f"unknown fault {fault!r}; known: {', '.join(FAULTS)}")
+        with self._lock:
+            self._call_rules.append({"method": method, "at": self._calls.get(method, 0) + int(n), "fault": fault,
+                                     "params": dict(params)})
+
+    def fail_calls(self, method: str, times: int, code: grpc.StatusCode = grpc.StatusCode.UNAVAILABLE,
+                   after: int = 0) -> None:
+        """The next ``times`` calls of RPC ``method`` (after ``after`` more that succeed) fail with
+        the gRPC status ``code`` without being processed; later calls succeed again."""
+        with self._lock:
+            first = self._calls.get(method, 0) + int(after) + 1
+            self._call_rules.append({"method": method, "fail": (first, first + int(times) - 1), "code": code})
+
+    def on_call(self, method: str, context) -> None:
+        """Count a call of ``method`` and apply the scripted faults due on it (RPC threads)."""
+        fire, fail = [], None
+        with self._lock:
+            self.rpc_log.append(method)
+            n = self._calls[method] = self._calls.get(method, 0) + 1
+            for rule in self._call_rules:
+                if rule["method"] != method:
+                    continue
+                if "fault" in rule and rule["at"] == n:
+                    fire.append(rule)
+                elif "fail" in rule and rule["fail"][0] <= n <= rule["fail"][1]:
+                    fail = rule["code"]
+        for rule in fire:
+            self.inject(rule["fault"], **rule["params"])
+        if fail is not None:
+            context.abort(fail, f"scripted failure of {method} (call {n})")
 
     # ================================================================== helpers used by servicers
     def robot_now(self) -> float:
@@ -302,15 +409,14 @@ class FakeSpot:
         return hmac.compare_digest(username.encode(), self._username.encode()) and \
             hmac.compare_digest(password.encode(), self._password.encode())
 
-    def slow_delay(self, context) -> bool:
-        """Apply the 'slow' fault; False when the caller gave up meanwhile (drop the request)."""
+    def slow_delay(self, context) -> None:
+        """Apply the 'slow' fault to a reply: hold it back ``delay`` seconds (ended early by
+        ``clear`` or ``stop``)."""
         with self._lock:
             params = self.faults.get("slow")
             event = self._fault_event
-        if params is None:
-            return True
-        event.wait(float(params.get("delay", 3.0)))
-        return context.is_active()
+        if params is not None:
+            event.wait(float(params.get("delay", 3.0)))
 
     # ---------------------------------------------------------------- e-stop
     def stop_level(self) -> tuple[int, str]:
@@ -426,17 +532,63 @@ class FakeSpot:
             if cmd.state != "queued":
                 return
             cmd.state = "running"
+        self._current = cmd
+        self._pace_wall0, self._pace_sim, self._pace_next_check = time.monotonic(), 0.0, 0.0
         try:
             ok, detail, extra = _execute_on_sim(self, cmd)
+        except MotionInterrupted:
+            ok, detail, extra = False, "interrupted", {}
+            self.sim.stop()                       # the arm holds where it is
         except Exception as exc:  # noqa: BLE001 - reported through feedback
             ok, detail, extra = False, f"simulator error: {exc}", {}
             _LOG.exception("fake Spot: command %s failed in the simulator", cmd.kind)
+        finally:
+            self._current = None
         self.sim.settle_loose_objects()
         self._state_cache = None
         with self._lock:
             if cmd.state == "running":
                 cmd.state, cmd.success, cmd.detail = "done", ok, detail
                 cmd.extra.update(extra)
+
+    # ---------------------------------------------------------------- pacing (robot thread, sim_lock held)
+    def _pace(self, dt: float) -> None:
+        """The simulator's pacer: after every ``dt`` of simulated motion, check at each control
+        step that the motion may go on, and (``time_scale``) wait for the wall clock, releasing
+        the simulator lock meanwhile so state and images stay fresh."""
+        cmd = self._current
+        if cmd is None:
+            return
+        self._pace_sim += dt
+        if self._pace_sim + 1e-9 < self._pace_next_check:
+            return
+        self._pace_next_check = self._pace_sim + _CONTROL_DT
+        self._check_motion(cmd)
+        if self.time_scale is None:
+            return
+        target = self._pace_wall0 + self._pace_sim * self.time_scale
+        while True:
+            remaining = target - time.monotonic()
+            if remaining <= 0:
+                return
+            self._wake.wait(min(remaining, 0.02))   # releases sim_lock (all levels) while waiting
+            self._check_motion(cmd)
+
+    def _check_motion(self, cmd: _Command) -> None:
+        """End the motion (MotionInterrupted) once it must not go on: e-stop (including an
+        endpoint timeout), motor power cut, connection lost, lease lost, stop command, a stall, a
+        failing pick, or the command's end time passed."""
+        self.stop_level()                         # cuts power on an e-stop or an endpoint timeout
+        with self._lock:
+            if cmd.state == "running":
+                if cmd.kind == "pick" and "grasp_failure" in self.faults:
+                    cmd.state, cmd.success, cmd.detail = "done", False, "grasp failure (fault injection)"
+                    cmd.extra["manip_state"] = manipulation_api_pb2.MANIP_STATE_GRASP_FAILED
+                end = cmd.extra.get("end_time")
+                if end is not None and self.robot_now() > end:
+                    cmd.state, cmd.success, cmd.detail = "done", False, "the command's end time passed"
+            if cmd.state != "running" or self._stopped or self.dropped:
+                raise MotionInterrupted(cmd.state)
 
     # ---------------------------------------------------------------- sensing (hold sim_lock)
     def remember_frame(self, obs: Observation) -> None:
@@ -549,21 +701,7 @@ def robot_state(fake: FakeSpot) -> robot_state_pb2.RobotState:
         js.name = name
         js.position.value = float(q)
         js.velocity.value = 0.0
-    with fake._lock:
-        powered = fake.powered
-        endpoints = list(fake._endpoints.values())
-        hw = "estop" in fake.faults
-    state.power_state.motor_power_state = (robot_state_pb2.PowerState.MOTOR_POWER_STATE_ON if powered
-                                           else robot_state_pb2.PowerState.MOTOR_POWER_STATE_OFF)
-    state.power_state.timestamp.CopyFrom(ks.acquisition_timestamp)
-    es = state.estop_states.add()
-    es.name, es.type = "hardware_estop", robot_state_pb2.EStopState.TYPE_HARDWARE
-    es.state = robot_state_pb2.EStopState.STATE_ESTOPPED if hw else robot_state_pb2.EStopState.STATE_NOT_ESTOPPED
-    for ep in endpoints:
-        s = state.estop_states.add()
-        s.name, s.type = ep.proto.name, robot_state_pb2.EStopState.TYPE_SOFTWARE
-        s.state = (robot_state_pb2.EStopState.STATE_NOT_ESTOPPED if ep.level == estop_pb2.ESTOP_LEVEL_NONE
-                   else robot_state_pb2.EStopState.STATE_ESTOPPED)
+    _fill_status(fake, state)
     ms = state.manipulator_state
     ms.is_gripper_holding_item = sim.holding
     ms.gripper_open_percentage = float(100.0 * min(1.0, max(0.0, sim.gripper_angle / model.GRIPPER_LIMITS[0])))
@@ -572,6 +710,26 @@ def robot_state(fake: FakeSpot) -> robot_state_pb2.RobotState:
     ms.carry_state = (robot_state_pb2.ManipulatorState.CARRY_STATE_CARRIABLE_AND_STOWABLE if sim.holding
                       else robot_state_pb2.ManipulatorState.CARRY_STATE_UNKNOWN)
     return state
+
+
+def _fill_status(fake: FakeSpot, state: robot_state_pb2.RobotState) -> None:
+    """Power and e-stop states (bookkeeping, never stale)."""
+    with fake._lock:
+        powered = fake.powered
+        endpoints = list(fake._endpoints.values())
+        hw = "estop" in fake.faults
+    del state.estop_states[:]
+    state.power_state.motor_power_state = (robot_state_pb2.PowerState.MOTOR_POWER_STATE_ON if powered
+                                           else robot_state_pb2.PowerState.MOTOR_POWER_STATE_OFF)
+    state.power_state.timestamp.CopyFrom(cv.seconds_to_timestamp(fake.robot_now()))
+    es = state.estop_states.add()
+    es.name, es.type = "hardware_estop", robot_state_pb2.EStopState.TYPE_HARDWARE
+    es.state = robot_state_pb2.EStopState.STATE_ESTOPPED if hw else robot_state_pb2.EStopState.STATE_NOT_ESTOPPED
+    for ep in endpoints:
+        s = state.estop_states.add()
+        s.name, s.type = ep.proto.name, robot_state_pb2.EStopState.TYPE_SOFTWARE
+        s.state = (robot_state_pb2.EStopState.STATE_NOT_ESTOPPED if ep.level == estop_pb2.ESTOP_LEVEL_NONE
+                   else robot_state_pb2.EStopState.STATE_ESTOPPED)
 
 
 def _image_response(fake: FakeSpot, req: image_pb2.ImageRequest, obs: Observation, snapshot,
@@ -681,7 +839,7 @@ def _parse_command(fake: FakeSpot, cmd: robot_command_pb2.RobotCommand, request)
                                     [cv.proto_to_se2(p.pose) for p in pts])
             except ValueError as exc:
                 raise _Reject(R.STATUS_INVALID_REQUEST, str(exc)) from None
-            return "se2", {"path": path}
+            return "se2", {"path": path, "end_time": cv.timestamp_to_seconds(se2.end_time)}
         raise _Reject(R.STATUS_UNSUPPORTED, f"mobility {which} is not supported by the fake")
     if part == "gripper_command":
         claw = sync.gripper_command.claw_gripper_command
@@ -734,6 +892,16 @@ def _parse_command(fake: FakeSpot, cmd: robot_command_pb2.RobotCommand, request)
     if which == "arm_stop_command":
         return "arm_stop", {}
     raise _Reject(R.STATUS_UNSUPPORTED, f"arm {which} is not supported by the fake")
+
+
+def _untimed(cmd: robot_command_pb2.RobotCommand) -> bool:
+    """Stop, sit and safe power off: commands without a time, which need no time sync."""
+    if cmd.HasField("full_body_command"):
+        return cmd.full_body_command.WhichOneof("command") in ("stop_request", "safe_power_off_request")
+    sync = cmd.synchronized_command
+    parts = [p for p in ("mobility_command", "arm_command", "gripper_command") if sync.HasField(p)]
+    return parts == ["mobility_command"] and \
+        sync.mobility_command.WhichOneof("command") in ("stop_request", "sit_request")
 
 
 # ====================================================================== feedback
@@ -812,8 +980,8 @@ def _feedback(cmd: _Command) -> robot_command_pb2.RobotCommandFeedback:
 
 # ====================================================================== the servicer
 class _Gate(grpc.ServerInterceptor):
-    """Every RPC: record it, apply the 'slow' fault, and require a valid user token (except for
-    the auth and robot-id services, as on the robot)."""
+    """Every RPC: record it, apply scripted faults, require a valid user token (except for the
+    auth and robot-id services, as on the robot), and hold the reply back under the 'slow' fault."""
 
     def __init__(self, fake: FakeSpot):
         self._fake = fake
@@ -829,13 +997,12 @@ class _Gate(grpc.ServerInterceptor):
         service = method.strip("/").split("/")[0]
 
         def gated(request, context):
-            with fake._lock:
-                fake.rpc_log.append(method.rsplit("/", 1)[-1])
-            if not fake.slow_delay(context):
-                context.abort(grpc.StatusCode.DEADLINE_EXCEEDED, "the caller gave up before the robot answered")
+            fake.on_call(method.rsplit("/", 1)[-1], context)
             if service not in _UNAUTHENTICATED_SERVICES and not fake.check_token(metadata):
                 context.abort(grpc.StatusCode.UNAUTHENTICATED, "missing or invalid user token")
-            return inner(request, context)
+            response = inner(request, context)
+            fake.slow_delay(context)
+            return response
 
         return grpc.unary_unary_rpc_method_handler(gated, request_deserializer=handler.request_deserializer,
                                                    response_serializer=handler.response_serializer)
@@ -917,14 +1084,18 @@ class _SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         f = self.f
         f.stop_level()   # applies e-stop endpoint timeouts lazily
         resp = robot_state_pb2.RobotStateResponse()
-        if f.sim_lock.acquire(timeout=0.5):
+        # A paced robot releases the simulator between control steps: the state is always fresh.
+        if f.sim_lock.acquire(timeout=0.5 if f.time_scale is None else 5.0):
             try:
                 state = robot_state(f)
                 f._state_cache = state
             finally:
                 f.sim_lock.release()
-        else:  # the robot thread is busy in the simulator: publish the last state
-            state = f._state_cache or robot_state_pb2.RobotState()
+        else:  # unpaced, busy in the simulator: the last kinematic state, power and e-stop as they are now
+            state = robot_state_pb2.RobotState()
+            if f._state_cache is not None:
+                state.CopyFrom(f._state_cache)
+            _fill_status(f, state)
         resp.robot_state.CopyFrom(state)
         return f.header(resp, request)
 
@@ -1131,7 +1302,7 @@ class _SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         try:
             with f._lock:
                 clock_ok = request.clock_identifier == f._clock_id and not f.has_fault("time_sync_loss")
-            if not clock_ok:
+            if not clock_ok and not _untimed(request.command):
                 raise _Reject(R.STATUS_NO_TIMESYNC, "unknown clock identifier: time sync with the robot first")
             kind, extra = _parse_command(f, request.command, request)
             level, who = f.stop_level()

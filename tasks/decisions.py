@@ -1,0 +1,96 @@
+"""What the search policy decided and where its simulated time went, summed over a run's episodes
+(for ``tools report``; the numbers come from each record's ``extra``, see ``tasks.runner``).
+
+Per episode the runner stores, for agents that offer them (HELIOS and its ablations; the oracle
+and the scripted demo do not, and their runs read "n/a"):
+
+``extra["decisions"]`` (``HeliosAgent.decision_stats()``)
+    ``global_with_candidates``: global decisions (pick phase) taken while at least one candidate
+    pick location was open, i.e. where the global objective had to weigh a candidate against the
+    frontiers. Each one either chose a candidate (local search) or a frontier (exploration);
+    ``chose_candidate_before_f0`` / ``chose_frontier_before_f0`` count them while F0 (the frontier
+    calibration) had no chosen frontier to come from yet (a stand-in value, see
+    ``helios.search.objective``), ``..._after_f0`` once a frontier had been chosen.
+    ``extra_views_object`` / ``extra_views_goal``: extra views of a target-object / goal-receptacle
+    candidate taken because the predicted Psi' said one more view was worth it.
+    ``gaze_point_visits``: gaze points of local searches visited (walk there and look; a walk
+    that fails still counts), so at most the sum of the planned sizes.
+    ``local_search_sizes``: per candidate pick location searched, the gaze points planned for it.
+``extra["activity_time"]``
+    Simulated seconds per activity (``ACTIVITIES``: start scan, exploration, local search, pick,
+    carry, place); they sum to the episode's ``sim_time``.
+
+Reading them: a global objective can only make a difference where there are decisions with open
+candidates that chose a frontier. If nearly all such decisions chose a candidate (especially
+``chose_candidate_before_f0``), HELIOS behaves as its "w/o global objective" ablation (candidates
+always first) and the two runs coincide. Few ``extra_views_*`` mean the Psi' rule rarely asks for
+another view, so variants that only change Psi' (e.g. the 50-50 IG reading) cannot differ much.
+Large local searches and a large local-search share of the time point at timeouts spent on gaze
+points rather than on exploration.
+"""
+
+from __future__ import annotations
+
+import statistics
+from typing import Iterable
+
+ACTIVITIES = ("start_scan", "exploration", "local_search", "pick", "carry", "place")
+"""The activities in table order; the same as ``helios.agents.helios_agent.ACTIVITIES`` (kept here
+so a report does not import the agent; a test checks they agree). Unknown ones follow in the
+order they appear."""
+
+DECISION_COUNTS = ("global_with_candidates", "chose_candidate_before_f0", "chose_frontier_before_f0",
+                   "chose_candidate_after_f0", "chose_frontier_after_f0", "extra_views_object",
+                   "extra_views_goal", "gaze_point_visits")
+"""The integer counts of ``extra["decisions"]`` (``helios.agents.helios_agent.DECISION_COUNTS``)."""
+
+
+def _extra(record: dict, key: str):
+    extra = record.get("extra")
+    value = extra.get(key) if isinstance(extra, dict) else None
+    return value if isinstance(value, dict) else None
+
+
+def summarize_decisions(records: Iterable[dict]) -> dict | None:
+    """Decision counts summed over the records that have them; None when none has (a run of an
+    agent without ``decision_stats`` or one made before the runner stored them).
+
+    Returns ``episodes`` (records with decisions), ``of`` (all records), ``totals`` (each of
+    ``DECISION_COUNTS`` summed), ``per_episode`` (the same divided by ``episodes``),
+    ``local_searches`` (candidate pick locations searched) and ``gaze_points_planned``
+    (``mean``, ``median``, ``max`` over those searches; None when there was none).
+    """
+    records = list(records)
+    stats = [d for d in (_extra(r, "decisions") for r in records) if d is not None]
+    if not stats:
+        return None
+    n = len(stats)
+    totals = {k: int(sum(int(d.get(k, 0) or 0) for d in stats)) for k in DECISION_COUNTS}
+    sizes = [int(s) for d in stats for s in (d.get("local_search_sizes") or [])]
+    planned = ({"mean": float(statistics.fmean(sizes)), "median": float(statistics.median(sizes)),
+                "max": max(sizes)} if sizes else None)
+    return {"episodes": n, "of": len(records), "totals": totals,
+            "per_episode": {k: v / n for k, v in totals.items()},
+            "local_searches": len(sizes), "local_searches_per_episode": len(sizes) / n,
+            "gaze_points_planned": planned}
+
+
+def summarize_activity_time(records: Iterable[dict]) -> dict | None:
+    """Simulated time per activity over the records that have it; None when none has.
+
+    Returns ``episodes``, ``of``, ``activities`` (``ACTIVITIES`` first, then any other seen),
+    ``seconds`` (summed), ``share_percent`` (of the summed time of all activities: a time-weighted
+    share, so long episodes weigh more) and ``seconds_per_episode`` (mean over ``episodes``).
+    """
+    records = list(records)
+    times = [t for t in (_extra(r, "activity_time") for r in records) if t is not None]
+    if not times:
+        return None
+    n = len(times)
+    seen = [a for t in times for a in t]
+    activities = list(ACTIVITIES) + list(dict.fromkeys(a for a in seen if a not in ACTIVITIES))
+    seconds = {a: float(sum(float(t.get(a, 0.0) or 0.0) for t in times)) for a in activities}
+    total = sum(seconds.values())
+    return {"episodes": n, "of": len(records), "activities": activities, "seconds": seconds,
+            "share_percent": {a: (100.0 * s / total if total > 0 else 0.0) for a, s in seconds.items()},
+            "seconds_per_episode": {a: s / n for a, s in seconds.items()}}

@@ -1,0 +1,810 @@
+"""The bad-input corpus (issue 18): every command, fed what a new user (or a damaged disk) feeds it.
+
+Part 1, ``CASES``: bad input over all commands. Each case must end with exit status 2, exactly one
+line on stderr (``error: ...``), no traceback, and nothing changed anywhere in the workspace (which
+holds valid and damaged run folders, episode and config files). The commands run in this process
+through ``tools.cli.main`` (no simulation starts: every check happens at the boundary).
+
+Part 2, ``DAMAGES``: run folders damaged after a clean run. For each: what ``report`` does (the
+table from the valid records, every damaged line named FILE:LINE; or one error line), what a
+resume does (repairs what it can prove, refuses what it cannot: one line, folder unchanged), and
+after a valid command the records equal the clean run's, with every damaged line kept in
+``episodes.damaged.jsonl``.
+
+README "Reliability" lists the guarantees these cases check.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import shutil
+import time
+from pathlib import Path
+
+import pytest
+
+from tasks.episodes import load_split
+from tasks.trials import (DAMAGED_FILE, FINGERPRINT_FIELD, TrialConfig, append_result, config_fingerprint,
+                          deterministic_view, prepare_run_folder, read_results)
+from tools.cli import main
+
+TASK = "Move the mug from the stool to the table"
+LONG = "x" * 10_000
+UNWRITABLE = "/sys/helios-bad-input/out"        # mkdir there fails even for root
+BUDGET = ["runner.max_commands=3"]              # damage corpus: episodes end after 3 HAL commands
+RUN_ARGS = ["trials", "--agent", "oracle", "--split", "smoke", "--episodes", "3", "--progress", "none"]
+
+
+def run_cli(argv: list[str]) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            rc = main(argv)
+        except SystemExit as exc:           # argparse
+            rc = exc.code if isinstance(exc.code, int) else 2
+    return rc, out.getvalue(), err.getvalue()
+
+
+def snapshot(root: Path) -> dict[str, bytes | None]:
+    """Every file (bytes) and folder (None) under ``root``."""
+    return {str(p.relative_to(root)): (None if p.is_dir() else p.read_bytes()) for p in sorted(root.rglob("*"))}
+
+
+# ------------------------------------------------------------------------------------------------
+# The workspace: valid and damaged inputs, made once
+# ------------------------------------------------------------------------------------------------
+def _episode(**changes) -> str:
+    d = json.loads(load_split("smoke")[1].to_json())
+    for key, value in changes.items():
+        if key.startswith("scene."):
+            d["scene"][key[6:]] = value
+        else:
+            d[key] = value
+    return json.dumps(d)
+
+
+def _synthetic_run(folder: Path, config: TrialConfig, ids=("smoke-00000", "smoke-00001"), fingerprint=True,
+                   config_yaml=True) -> None:
+    prepare_run_folder(folder, config)
+    for eid in ids:
+        rec = {"episode_id": eid, "agent": config.agent, "metrics": {
+            "find_obj": True, "pick": False, "find_rec": False, "place": False, "success": False, "collisions": 0,
+            "failure_reason": "pick_failed"}, "sim_time": 10.0, "wall_time": 1.0, "success": False, "memory": None}
+        if fingerprint:
+            rec[FINGERPRINT_FIELD] = config_fingerprint(config)
+        append_result(folder / "episodes.jsonl", rec)
+    (folder / ".lock").write_text("")
+    if not config_yaml:
+        (folder / "config.yaml").unlink()
+
+
+@pytest.fixture(scope="module")
+def ws(tmp_path_factory):
+    root = tmp_path_factory.mktemp("bad-input")
+    (root / "afile").write_text("not a folder\n")
+    (root / "adir").mkdir()
+    (root / "empty_dir").mkdir()
+    (root / "rec.txt").write_text("not a recording\n")
+    eps = root / "eps"
+    eps.mkdir()
+    files = {
+        "nonutf8.jsonl": b"\xff\xfe\x00\x01 not text\n",
+        "empty.jsonl": b"\n\n",
+        "badjson.jsonl": b'{"episode_id": "smoke-00001", \n',
+        "nested.jsonl": b"[" * 100_000 + b"\n",
+        "scene_negative.jsonl": _episode(**{"scene.min_size": -5.0}).encode(),
+        "scene_inverted.jsonl": _episode(**{"scene.min_size": 12.0, "scene.max_size": 9.0}).encode(),
+        "scene_huge.jsonl": _episode(**{"scene.max_size": 1e9}).encode(),
+        "scene_seed.jsonl": _episode(**{"scene.seed": -3}).encode(),
+        "scene_seed_str.jsonl": _episode(**{"scene.seed": "abc"}).encode(),
+        "target_missing.jsonl": _episode(target_object="cup_99").encode(),
+        "target_category.jsonl": _episode(target_object="stool_2").encode(),
+        "start_missing.jsonl": _episode(start_receptacle="stool_9").encode(),
+        "goal_missing.jsonl": _episode(goal_receptacles=["chair_1", "chair_77"]).encode(),
+        "start_1e308.jsonl": _episode(robot_start=[1e308, 4.2, 0.0]).encode(),
+        "start_outside.jsonl": _episode(robot_start=[-5.0, -5.0, 0.0]).encode(),
+        "start_nan.jsonl": _episode(robot_start=[float("nan"), 4.2, 0.0]).encode(),
+        "long_task.jsonl": _episode(task=f"Move the {LONG} from the stool to the chair").encode(),
+        "bad_id.jsonl": _episode(episode_id="smoke-../../etc").encode(),
+        "long_id.jsonl": _episode(episode_id="smoke-" + LONG).encode(),
+        "schema.jsonl": _episode(schema_version=2).encode(),
+        "duplicate.jsonl": (_episode() + "\n" + _episode()).encode(),
+    }
+    for name, data in files.items():
+        (eps / name).write_bytes(data)
+    cfg = root / "cfg"
+    cfg.mkdir()
+    configs = {
+        "nonutf8.yaml": b"agent: oracle\nseed: \xff\xfe\n",
+        "binary.yaml": bytes(range(256)) * 4,
+        "list.yaml": b"- agent\n- oracle\n",
+        "unknown.yaml": b"agent: oracle\nrunner:\n  max_sim_tme: 3\n",
+        "syntax.yaml": b"agent: [oracle\n",
+        "range.yaml": b"runner:\n  max_sim_time: -1\n",
+        "camera.yaml": b"camera:\n  width: 0\n",
+        "sdk.yaml": b"rpc_timeout: 0\n",
+    }
+    for name, data in configs.items():
+        (cfg / name).write_bytes(data)
+    (cfg / "dir.yaml").mkdir()
+    runs = root / "runs"
+    _synthetic_run(runs / "valid", TrialConfig(agent="oracle", episodes=2))
+    _synthetic_run(runs / "nocfg", TrialConfig(agent="oracle", episodes=2, seed=7), config_yaml=False)
+    _synthetic_run(runs / "legacy_nocfg", TrialConfig(agent="oracle", episodes=2), fingerprint=False,
+                   config_yaml=False)
+    _synthetic_run(runs / "edited", TrialConfig(agent="oracle", episodes=2))
+    text = (runs / "edited" / "config.yaml").read_text()
+    (runs / "edited" / "config.yaml").write_text(text.replace("max_commands: 600", "max_commands: 400"))
+    _synthetic_run(runs / "binary_cfg", TrialConfig(agent="oracle", episodes=2, seed=3))
+    (runs / "binary_cfg" / "config.yaml").write_bytes(b"\x00\xff" * 50)
+    for name in ("lockdir", "jsonldir", "summarydir", "cfgdir"):
+        _synthetic_run(runs / name, TrialConfig(agent="oracle", episodes=2))
+    (runs / "lockdir" / ".lock").unlink()
+    (runs / "lockdir" / ".lock").mkdir()
+    (runs / "jsonldir" / "episodes.jsonl").unlink()
+    (runs / "jsonldir" / "episodes.jsonl").mkdir()
+    (runs / "summarydir" / "summary.json").mkdir()
+    (runs / "cfgdir" / "config.yaml").unlink()
+    (runs / "cfgdir" / "config.yaml").mkdir()
+    _synthetic_run(runs / "mixed", TrialConfig(agent="oracle", episodes=2))
+    rec = json.loads((runs / "mixed" / "episodes.jsonl").read_text().splitlines()[0])
+    append_result(runs / "mixed" / "episodes.jsonl", {**rec, "episode_id": "smoke-00002",
+                                                     FINGERPRINT_FIELD: "0123456789abcdef"})
+    (runs / "damaged_only").mkdir()
+    (runs / "damaged_only" / "episodes.jsonl").write_bytes(b"{}\n[]\nnot json\n")
+    _synthetic_run(runs / "other", TrialConfig(agent="oracle", episodes=2), ids=("smoke-00005",))
+    return root
+
+
+# ------------------------------------------------------------------------------------------------
+# Part 1: bad input, one clear line each
+# ------------------------------------------------------------------------------------------------
+T = ["trials", "--episodes", "1", "--out", "{ws}/new_run"]          # a valid trials command but for one thing
+E = "{ws}/eps/"
+C = "{ws}/cfg/"
+R = "{ws}/runs/"
+SPOT = ["spot", "--fake", "--task", TASK]
+REPORT = ["report", R + "valid"]
+
+CASES: list[tuple[str, list[str], str]] = [
+    # --- output paths: an existing file, a path inside a file, an unwritable folder (every command) ---
+    ("trials-out-file", ["trials", "--episodes", "1", "--out", "{ws}/afile"], "is an existing file"),
+    ("trials-out-in-file", ["trials", "--episodes", "1", "--out", "{ws}/afile/run"], "which is a file"),
+    ("trials-out-unwritable", ["trials", "--episodes", "1", "--out", UNWRITABLE], "cannot write"),
+    ("trials-out-empty", ["trials", "--episodes", "1", "--out", " "], "must not be empty"),
+    ("report-out-file", [*REPORT, "--out", "{ws}/afile"], "is an existing file"),
+    ("report-out-in-file", [*REPORT, "--out", "{ws}/afile/rep"], "which is a file"),
+    ("report-out-unwritable", [*REPORT, "--out", UNWRITABLE], "cannot write"),
+    ("report-out-is-run", [*REPORT, "--out", R + "valid"], "is a run folder given to report"),
+    ("tsdf-out-file", ["tsdf", "smoke-00001", "--out", "{ws}/afile"], "is an existing file"),
+    ("tsdf-out-in-file", ["tsdf", "smoke-00001", "--out", "{ws}/afile/mesh"], "which is a file"),
+    ("tsdf-out-unwritable", ["tsdf", "smoke-00001", "--out", UNWRITABLE], "cannot write"),
+    ("episodes-out-dir", ["episodes", "generate", "--name", "x", "--seed", "1", "--count", "1", "--out", "{ws}/adir"],
+     "is a folder"),
+    ("episodes-out-in-file", ["episodes", "generate", "--name", "x", "--seed", "1", "--count", "1",
+                              "--out", "{ws}/afile/e.jsonl"], "is an existing file"),
+    ("episodes-out-unwritable", ["episodes", "generate", "--name", "x", "--seed", "1", "--count", "1",
+                                 "--out", UNWRITABLE + "/e.jsonl"], "cannot write"),
+    ("episodes-out-slash", ["episodes", "generate", "--name", "x", "--seed", "1", "--count", "1",
+                            "--out", "{ws}/new/"], "ends with a slash"),
+    ("spot-out-file", [*SPOT, "--out", "{ws}/afile"], "is an existing file"),
+    ("spot-out-in-file", [*SPOT, "--out", "{ws}/afile/spot"], "which is a file"),
+    ("spot-out-unwritable", [*SPOT, "--out", UNWRITABLE], "cannot write"),
+    ("spot-name-is-file", [*SPOT, "--out", "{ws}", "--name", "afile"], "is an existing file"),
+    ("demo-out-file", ["demo", "--out", "{ws}/afile"], "is an existing file"),
+    ("demo-out-unwritable", ["demo", "--out", UNWRITABLE], "cannot write"),
+    ("calibrate-out-file", ["calibrate-perception", "--views", "5", "--out", "{ws}/afile"], "is an existing file"),
+    ("calibrate-out-in-file", ["calibrate-perception", "--views", "5", "--out", "{ws}/afile/c"], "which is a file"),
+    ("calibrate-out-unwritable", ["calibrate-perception", "--views", "5", "--out", UNWRITABLE], "cannot write"),
+    # --- values that pass the type check but would break set-up or score nonsense ---
+    ("seed-negative", ["trials", "--seed", "-1", "--episodes", "1", "--out", "{ws}/new_run"], "seed must be"),
+    ("seed-huge", [*T, "seed=99999999999999"], "seed must be"),
+    ("episodes-zero", ["trials", "--episodes", "0", "--out", "{ws}/new_run"], "episodes must be"),
+    ("episodes-negative", ["trials", "--episodes", "-3", "--out", "{ws}/new_run"], "episodes must be"),
+    ("episodes-too-many", ["trials", "--episodes", "21", "--out", "{ws}/new_run"], "fewer than the 21"),
+    ("max-sim-time-zero", [*T, "runner.max_sim_time=0"], "max_sim_time must be"),
+    ("max-sim-time-negative", [*T, "runner.max_sim_time=-1"], "max_sim_time must be"),
+    ("max-sim-time-nan", [*T, "runner.max_sim_time=.nan"], "NaN"),
+    ("max-sim-time-inf", [*T, "runner.max_sim_time=.inf"], "finite"),
+    ("max-sim-time-overflow", [*T, "runner.max_sim_time=1.0e+400"], "finite"),
+    ("max-sim-time-text", [*T, "runner.max_sim_time=abc"], "expected a number"),
+    ("max-sim-time-list", [*T, "runner.max_sim_time=[1, 2]"], "expected a number"),
+    ("max-sim-time-long", [*T, "runner.max_sim_time=" + LONG], "more characters"),
+    ("max-commands-negative", [*T, "runner.max_commands=-5"], "max_commands must be"),
+    ("max-commands-zero", [*T, "runner.max_commands=0"], "max_commands must be"),
+    ("max-commands-float", [*T, "runner.max_commands=1.5"], "expected an integer"),
+    ("max-commands-huge", [*T, "runner.max_commands=1" + "0" * 30], "max_commands must be"),
+    ("metrics-radius", [*T, "runner.metrics.find_radius=0"], "find_radius must be"),
+    ("metrics-coverage", [*T, "runner.metrics.min_coverage=2"], "min_coverage must be"),
+    ("metrics-stability", [*T, "runner.metrics.stability_steps=0"], "stability_steps must be"),
+    ("control-dt-zero", [*T, "sim.motion.control_dt=0"], "control_dt must be"),
+    ("control-dt-negative", [*T, "sim.motion.control_dt=-0.05"], "control_dt must be"),
+    ("base-velocity-zero", [*T, "sim.motion.base.linear_velocity=0"], "linear_velocity must be"),
+    ("arm-jerk-negative", [*T, "sim.motion.arm.jerk=-1"], "jerk must be"),
+    ("camera-width-zero", [*T, "sim.camera.width=0"], "width must be"),
+    ("camera-height-huge", [*T, "sim.camera.height=100000"], "height must be"),
+    ("camera-near-zero", [*T, "sim.camera.near=0"], "near must be"),
+    ("camera-far-before-near", [*T, "sim.camera.far=0.01"], "must be < far"),
+    ("camera-renderer", [*T, "sim.camera.renderer=opengl"], "is not one of"),
+    ("hold-force-negative", [*T, "sim.grasp.hold_force=-1"], "hold_force must be"),
+    ("hold-force-inf", [*T, "sim.grasp.hold_force=.inf"], "finite"),
+    ("close-force-zero", [*T, "sim.grasp.close_force=0"], "close_force must be"),
+    ("open-angle-positive", [*T, "sim.grasp.open_angle=1"], "open_angle must be"),
+    ("timestep-zero", [*T, "sim.world.physics.timestep=0"], "timestep must be"),
+    ("solver-iterations-zero", [*T, "sim.world.physics.solver_iterations=0"], "solver_iterations must be"),
+    ("gravity-huge", [*T, "sim.world.physics.gravity=1000000000.0"], "gravity must be"),
+    ("settle-time-negative", [*T, "sim.world.settle.max_time=-1"], "max_time must be"),
+    ("stream-hz-negative", [*T, "sim.stream_hz=-1"], "stream_hz must be"),
+    ("arm-tolerance-zero", [*T, "sim.arm_tolerance=0"], "arm_tolerance must be"),
+    ("contact-check-zero", [*T, "sim.contact_check_every=0"], "contact_check_every must be"),
+    ("hand-position-far", [*T, "sim.gaze_hand_position=[0, 0, 1000000000.0]"], "within 2 m"),
+    ("hand-position-short", [*T, "sim.gaze_hand_position=[1, 2]"], "expected 3 values"),
+    ("pick-attempts-negative", [*T, "agent_config.max_pick_attempts=-1"], "max_pick_attempts must be"),
+    ("look-distance-zero", [*T, "agent_config.view.look_distance=0"], "look_distance must be"),
+    ("look-yaws-empty", [*T, "agent_config.view.look_yaws_deg=[]"], "must not be empty"),
+    ("reach-angles", [*T, "agent_config.reach.n_angles=1"], "invalid reach settings"),
+    ("drop-height", [*T, "agent_config.place.drop_height=5"], "drop_height"),
+    ("place-mode", [*T, "agent_config.place.mode=throw"], "is not one of"),
+    ("plan-cell-zero", [*T, "agent_config.planner.plan_cell_size=0"], "must be > 0"),
+    ("footprint-margin", [*T, "agent_config.planner.footprint.margin=-1"], "margin must be"),
+    ("walk-chunks-zero", [*T, "agent_config.max_walk_chunks=0"], "max_walk_chunks must be"),
+    ("occupancy-cell-zero", [*T, "helios.occupancy.cell_size=0"], "cell_size must be"),
+    ("occupancy-grid-huge", [*T, "helios.occupancy.grid_size=1000000000"], "grid_size must be"),
+    ("occupancy-stride-zero", [*T, "helios.occupancy.depth_stride=0"], "depth_stride must be"),
+    ("gaussians-alpha-zero", [*T, "helios.gaussians.alpha_cpa=0"], "alpha_cpa must be"),
+    ("gaussians-width-huge", [*T, "helios.gaussians.update_max_width=100000"], "update_max_width must be"),
+    ("instances-voxel-zero", [*T, "helios.instances.voxel_size=0"], "voxel_size must be"),
+    ("scoring-alpha-negative", [*T, "helios.scoring.alpha_cs=-1"], "alpha_cs must be"),
+    ("frontier-radius-zero", [*T, "helios.frontiers.value_radius=0"], "value_radius must be"),
+    ("render-near-zero", [*T, "helios.gaussians.render.near=0"], "near must be"),
+    ("detection-threshold", [*T, "helios.detection.od_object=2"], "od_object must be"),
+    ("device", [*T, "helios.device=tpu"], "is not one of"),
+    ("perception-probability", [*T, "perception.p_detect_object=1.5"], "p_detect_object must be"),
+    ("perception-bins", [*T, "perception.azimuth_bins=0"], "azimuth_bins must be"),
+    ("agent-empty", [*T, "agent="], "agent must be"),
+    ("agent-unknown", [*T, "agent=helio"], "unknown agent 'helio'"),
+    ("agent-long", [*T, "agent=" + LONG], "more characters"),
+    ("split-unknown", [*T, "split=vall"], "unknown split 'vall'"),
+    ("key-unknown", [*T, "runner.max_sim_tme=3"], "unknown config key"),
+    ("key-top-unknown", [*T, "nope=1"], "unknown config key"),
+    ("key-long", [*T, LONG + "=1"], "unknown config key"),
+    ("override-no-equals", [*T, "runner.max_sim_time"], "not of the form key=value"),
+    ("override-empty-key", [*T, "=5"], "empty key"),
+    ("override-section", [*T, "runner=5"], "expected a mapping"),
+    ("override-value-section", [*T, "runner.max_sim_time.x=5"], "is a value, not a section"),
+    ("override-bad-yaml", [*T, "runner.max_sim_time=[1,"], "cannot parse value"),
+    # --- trials flags ---
+    ("workers-zero", [*T, "--workers", "0"], "--workers must be"),
+    ("workers-huge", [*T, "--workers", "100000"], "--workers must be"),
+    ("workers-text", [*T, "--workers", "two"], "invalid int value"),
+    ("record-negative", [*T, "--record", "-1"], "--record must be"),
+    ("progress-choice", [*T, "--progress", "fancy"], "invalid choice"),
+    ("executor-choice", [*T, "--executor", "slurm"], "invalid choice"),
+    ("address-without-ray", [*T, "--address", "10.0.0.1:6379"], "only applies to --executor ray"),
+    ("ray-address-bad-ip", [*T, "--executor", "ray", "--address", "256.1.1.1:1"], "not a valid IP address"),
+    ("ray-address-no-port", [*T, "--executor", "ray", "--address", "headnode"], "HOST:PORT"),
+    ("ray-address-port", [*T, "--executor", "ray", "--address", "head:99999"], "outside 1..65535"),
+    ("ray-address-host", [*T, "--executor", "ray", "--address", "a..b:6379"], "not a valid host name"),
+    ("ray-address-refused", [*T, "--executor", "ray", "--address", "127.0.0.1:1"], "cannot reach the Ray cluster"),
+    ("episodes-flag-text", ["trials", "--episodes", "abc"], "invalid int value"),
+    ("seed-flag-float", ["trials", "--seed", "1.5"], "invalid int value"),
+    ("unknown-flag", [*T, "--wokers", "2"], "unrecognized arguments"),
+    # --- episode files: encodings, damage, and episodes that do not fit their homes ---
+    ("ep-nonutf8", [*T, "--episodes-file", E + "nonutf8.jsonl"], "not UTF-8"),
+    ("ep-directory", [*T, "--episodes-file", "{ws}/adir"], "is a directory"),
+    ("ep-missing", [*T, "--episodes-file", E + "nope.jsonl"], "does not exist"),
+    ("ep-empty", [*T, "--episodes-file", E + "empty.jsonl"], "holds no episodes"),
+    ("ep-bad-json", [*T, "--episodes-file", E + "badjson.jsonl"], "not valid JSON"),
+    ("ep-nested", [*T, "--episodes-file", E + "nested.jsonl"], "not valid JSON"),
+    ("ep-scene-negative", [*T, "--episodes-file", E + "scene_negative.jsonl"], "min_size"),
+    ("ep-scene-inverted", [*T, "--episodes-file", E + "scene_inverted.jsonl"], "min_size"),
+    ("ep-scene-huge", [*T, "--episodes-file", E + "scene_huge.jsonl"], "min_size"),
+    ("ep-scene-seed", [*T, "--episodes-file", E + "scene_seed.jsonl"], "seed >= 0"),
+    ("ep-scene-seed-text", [*T, "--episodes-file", E + "scene_seed_str.jsonl"], "field 'scene'"),
+    ("ep-target-missing", [*T, "--episodes-file", E + "target_missing.jsonl"], "'cup_99' is not in its home"),
+    ("ep-target-category", [*T, "--episodes-file", E + "target_category.jsonl"], "is not in its home"),
+    ("ep-start-missing", [*T, "--episodes-file", E + "start_missing.jsonl"], "'stool_9' is not in its home"),
+    ("ep-goal-missing", [*T, "--episodes-file", E + "goal_missing.jsonl"], "'chair_77' is not in its home"),
+    ("ep-start-1e308", [*T, "--episodes-file", E + "start_1e308.jsonl"], "outside its home"),
+    ("ep-start-outside", [*T, "--episodes-file", E + "start_outside.jsonl"], "outside its home"),
+    ("ep-start-nan", [*T, "--episodes-file", E + "start_nan.jsonl"], "3 finite numbers"),
+    ("ep-long-task", [*T, "--episodes-file", E + "long_task.jsonl"], "unknown object"),
+    ("ep-bad-id", [*T, "--episodes-file", E + "bad_id.jsonl"], "episode_id"),
+    ("ep-long-id", [*T, "--episodes-file", E + "long_id.jsonl"], "episode_id"),
+    ("ep-schema", [*T, "--episodes-file", E + "schema.jsonl"], "schema_version 2"),
+    ("ep-duplicate", [*T, "--episodes-file", E + "duplicate.jsonl"], "duplicate episode_id"),
+    ("ep-tsdf-target-missing", ["tsdf", "smoke-00001", "--episodes-file", E + "target_missing.jsonl",
+                                "--out", "{ws}/new_tsdf"], "is not in its home"),
+    ("ep-tsdf-outside", ["tsdf", "smoke-00001", "--episodes-file", E + "start_outside.jsonl",
+                         "--out", "{ws}/new_tsdf"], "outside its home"),
+    ("ep-check-nonutf8", ["episodes", "check", E + "nonutf8.jsonl"], "not UTF-8"),
+    ("ep-check-directory", ["episodes", "check", "{ws}/adir"], "is a directory"),
+    ("ep-check-scene", ["episodes", "check", E + "scene_inverted.jsonl"], "min_size"),
+    # --- scenario files ---
+    ("cfg-nonutf8", ["trials", "--config", C + "nonutf8.yaml", "--out", "{ws}/new_run"], "not UTF-8"),
+    ("cfg-binary", ["trials", "--config", C + "binary.yaml", "--out", "{ws}/new_run"], "config file"),
+    ("cfg-list", ["trials", "--config", C + "list.yaml", "--out", "{ws}/new_run"], "must hold a mapping"),
+    ("cfg-directory", ["trials", "--config", C + "dir.yaml", "--out", "{ws}/new_run"], "is a directory"),
+    ("cfg-missing", ["trials", "--config", C + "nope.yaml", "--out", "{ws}/new_run"], "does not exist"),
+    ("cfg-unknown-key", ["trials", "--config", C + "unknown.yaml", "--out", "{ws}/new_run"], "max_sim_tme"),
+    ("cfg-syntax", ["trials", "--config", C + "syntax.yaml", "--out", "{ws}/new_run"], "not valid YAML (line"),
+    ("cfg-range", ["trials", "--config", C + "range.yaml", "--out", "{ws}/new_run"], "max_sim_time must be"),
+    ("cfg-run-binary", ["trials", "--config", R + "binary_cfg/config.yaml", "--out", "{ws}/new_run"], "config file"),
+    ("demo-cfg-nonutf8", ["demo", "--no-record", "--config", C + "nonutf8.yaml"], "not UTF-8"),
+    ("demo-cfg-camera", ["demo", "--no-record", "--config", C + "camera.yaml"], "width must be"),
+    ("demo-cfg-directory", ["demo", "--no-record", "--config", C + "dir.yaml"], "is a directory"),
+    ("spot-cfg-nonutf8", [*SPOT, "--config", C + "nonutf8.yaml", "--out", "{ws}/new_spot"], "not UTF-8"),
+    ("spot-cfg-range", [*SPOT, "--config", C + "sdk.yaml", "--out", "{ws}/new_spot"], "rpc_timeout"),
+    # --- run folders that must not be resumed with this configuration ---
+    ("run-different-config", ["trials", "--episodes", "2", "--seed", "1", "--out", R + "valid"],
+     "different configuration"),
+    ("run-shortened", ["trials", "--episodes", "1", "--out", R + "valid"], "extended but not shortened"),
+    ("run-no-config-other", ["trials", "--episodes", "2", "--out", R + "nocfg"], "config.yaml is missing"),
+    ("run-no-config-legacy", ["trials", "--episodes", "2", "--out", R + "legacy_nocfg"], "no configuration fingerprint"),
+    ("run-config-edited", ["trials", "--episodes", "2", "--out", R + "edited", "runner.max_commands=400"],
+     "does not describe the records"),
+    ("run-config-binary", ["trials", "--episodes", "2", "--out", R + "binary_cfg"], "cannot be resumed"),
+    ("run-lock-directory", ["trials", "--episodes", "2", "--out", R + "lockdir"], ".lock is a directory"),
+    ("run-results-directory", ["trials", "--episodes", "2", "--out", R + "jsonldir"], "episodes.jsonl is a directory"),
+    ("run-summary-directory", ["trials", "--episodes", "2", "--out", R + "summarydir"], "summary.json is a directory"),
+    ("run-config-directory", ["trials", "--episodes", "2", "--out", R + "cfgdir"], "config.yaml is a directory"),
+    ("run-mixed", ["trials", "--episodes", "3", "--out", R + "mixed"], "mixes records of 2 configurations"),
+    # --- report ---
+    ("report-missing", ["report", R + "nope", "--out", "{ws}/new_rep"], "does not exist"),
+    ("report-file", ["report", "{ws}/afile", "--out", "{ws}/new_rep"], "is a file"),
+    ("report-empty", ["report", "{ws}/empty_dir", "--out", "{ws}/new_rep"], "no finished episodes"),
+    ("report-damaged-only", ["report", R + "damaged_only", "--out", "{ws}/new_rep"], "only damaged lines"),
+    ("report-results-directory", ["report", R + "jsonldir", "--out", "{ws}/new_rep"], "is a directory"),
+    ("report-names-count", [*REPORT, R + "other", "--names", "a", "--out", "{ws}/new_rep"], "--names has 1"),
+    ("report-names-empty", [*REPORT, R + "other", "--names", "a,", "--out", "{ws}/new_rep"], "empty name"),
+    ("report-common-disjoint", [*REPORT, R + "other", "--common", "--out", "{ws}/new_rep"], "share no finished"),
+    ("report-no-runs", ["report"], "the following arguments are required"),
+    # --- tsdf ---
+    ("tsdf-hz-nan", ["tsdf", "smoke-00001", "--stream-hz", "nan", "--out", "{ws}/new_tsdf"], "finite"),
+    ("tsdf-hz-inf", ["tsdf", "smoke-00001", "--stream-hz", "inf", "--out", "{ws}/new_tsdf"], "finite"),
+    ("tsdf-hz-negative", ["tsdf", "smoke-00001", "--stream-hz", "-1", "--out", "{ws}/new_tsdf"], "positive"),
+    ("tsdf-hz-zero", ["tsdf", "smoke-00001", "--stream-hz", "0", "--out", "{ws}/new_tsdf"], "positive"),
+    ("tsdf-hz-huge", ["tsdf", "smoke-00001", "--stream-hz", "1e9", "--out", "{ws}/new_tsdf"], "at most 1000"),
+    ("tsdf-unknown-episode", ["tsdf", "smoke-99999", "--out", "{ws}/new_tsdf"], "no episode 'smoke-99999'"),
+    ("tsdf-long-episode", ["tsdf", "smoke-" + LONG, "--out", "{ws}/new_tsdf"], "more characters"),
+    ("tsdf-unknown-split", ["tsdf", "smoke-00001", "--split", "nope", "--out", "{ws}/new_tsdf"], "unknown split"),
+    ("tsdf-voxel-zero", ["tsdf", "smoke-00001", "voxel_size=0", "--out", "{ws}/new_tsdf"], "voxel_size must be"),
+    ("tsdf-voxel-nan", ["tsdf", "smoke-00001", "voxel_size=.nan", "--out", "{ws}/new_tsdf"], "NaN"),
+    ("tsdf-depth-negative", ["tsdf", "smoke-00001", "depth_max=-1", "--out", "{ws}/new_tsdf"], "depth_max must be"),
+    ("tsdf-unknown-key", ["tsdf", "smoke-00001", "voxel=0.1", "--out", "{ws}/new_tsdf"], "unknown config key"),
+    # --- episodes ---
+    ("gen-count-zero", ["episodes", "generate", "--name", "x", "--seed", "1", "--count", "0", "--out", "{ws}/n.jsonl"],
+     "--count must be positive"),
+    ("gen-count-huge", ["episodes", "generate", "--name", "x", "--seed", "1", "--count", "1000000000",
+                        "--out", "{ws}/n.jsonl"], "at most 100000"),
+    ("gen-seed-negative", ["episodes", "generate", "--name", "x", "--seed", "-1", "--count", "1",
+                           "--out", "{ws}/n.jsonl"], "--seed must be"),
+    ("gen-name-slash", ["episodes", "generate", "--name", "a/b", "--seed", "1", "--count", "1",
+                        "--out", "{ws}/n.jsonl"], "--name"),
+    ("gen-name-long", ["episodes", "generate", "--name", LONG, "--seed", "1", "--count", "1", "--out", "{ws}/n.jsonl"],
+     "more characters"),
+    ("gen-difficulty", ["episodes", "generate", "--name", "x", "--seed", "1", "--count", "1", "--difficulty", "hard",
+                        "--out", "{ws}/n.jsonl"], "invalid choice"),
+    ("gen-missing-arg", ["episodes", "generate", "--name", "x"], "required"),
+    ("episodes-no-action", ["episodes"], "required"),
+    # --- demo ---
+    ("demo-seed-negative", ["demo", "--no-record", "--seed", "-1"], "--seed must be"),
+    ("demo-hold-force", ["demo", "--no-record", "grasp.hold_force=-1"], "hold_force must be"),
+    ("demo-camera-width", ["demo", "--no-record", "camera.width=0"], "width must be"),
+    ("demo-camera-text", ["demo", "--no-record", "camera.width=abc"], "expected an integer"),
+    ("demo-control-dt", ["demo", "--no-record", "motion.control_dt=0"], "control_dt must be"),
+    ("demo-stream-nan", ["demo", "--no-record", "stream_hz=.nan"], "NaN"),
+    ("demo-timestep", ["demo", "--no-record", "world.physics.timestep=0"], "timestep must be"),
+    ("demo-unknown-key", ["demo", "--no-record", "camera.widht=320"], "unknown config key"),
+    # --- spot ---
+    ("spot-fake-and-host", ["spot", "--fake", "10.0.0.3", "--task", TASK], "leave out the hostname"),
+    ("spot-no-host", ["spot", "--task", TASK], "HOSTNAME is required"),
+    ("spot-task-empty", ["spot", "--fake", "--task", "  "], "--task must not be empty"),
+    ("spot-task-long", ["spot", "--fake", "--task", LONG], "malformed task"),
+    ("spot-task-long-object", ["spot", "--fake", "--task", f"Move the {LONG} from the stool to the table"],
+     "unknown object"),
+    ("spot-task-unknown", ["spot", "--fake", "--task", "Move the unicorn from the stool to the table"],
+     "unknown object 'unicorn'"),
+    ("spot-port-zero", ["spot", "10.0.0.3", "--task", TASK, "--port", "0"], "--port must be"),
+    ("spot-port-huge", ["spot", "10.0.0.3", "--task", TASK, "--port", "70000"], "--port must be"),
+    ("spot-seed-negative", [*SPOT, "--seed", "-1"], "--seed must be"),
+    ("spot-name-slash", [*SPOT, "--name", "../escape"], "--name"),
+    ("spot-episode-no-fake", ["spot", "10.0.0.3", "--episode", "smoke-00001"], "--episode needs --fake"),
+    ("spot-episode-and-task", ["spot", "--fake", "--episode", "smoke-00001", "--task", TASK], "leave out --task"),
+    ("spot-episode-unknown", ["spot", "--fake", "--episode", "smoke-99999", "--out", "{ws}/new_spot"],
+     "no episode 'smoke-99999'"),
+    ("spot-episode-split", ["spot", "--fake", "--episode", "nope-00001", "--out", "{ws}/new_spot"], "unknown split"),
+    ("spot-agent-unknown", [*SPOT, "--agent", "nope"], "unknown agent 'nope'"),
+    ("spot-agent-wrong-kind", [*SPOT, "--agent", "helios"], "runs on"),
+    ("spot-set-timeout-zero", [*SPOT, "--out", "{ws}/new_spot", "--set", "rpc_timeout=0"], "rpc_timeout must be"),
+    ("spot-set-timeout-nan", [*SPOT, "--out", "{ws}/new_spot", "--set", "rpc_timeout=.nan"], "NaN"),
+    ("spot-set-jpeg", [*SPOT, "--out", "{ws}/new_spot", "--set", "jpeg_quality=0"], "jpeg_quality must be"),
+    ("spot-set-tolerance", [*SPOT, "--out", "{ws}/new_spot", "--set", "goal_tolerance=5"], "goal_tolerance must be"),
+    ("spot-set-control-dt", [*SPOT, "--out", "{ws}/new_spot", "--set", "motion.control_dt=0"], "control_dt must be"),
+    ("spot-set-unknown", [*SPOT, "--out", "{ws}/new_spot", "--set", "rpc_timout=2"], "unknown config key"),
+    # --- view, bench, calibrate-perception, the command line itself ---
+    ("view-missing", ["view", "{ws}/nope.rrd"], "does not exist"),
+    ("view-directory", ["view", "{ws}/adir"], "is a folder"),
+    ("view-not-rrd", ["view", "{ws}/rec.txt"], "not a rerun recording"),
+    ("bench-unknown", ["bench", "simulator"], "unknown benchmark suite"),
+    ("bench-seed", ["bench", "sim", "--seed", "-1"], "--seed must be"),
+    ("bench-trials-workers", ["bench", "trials", "--trials-workers", "1,x"], "--trials-workers"),
+    ("bench-trials-workers-zero", ["bench", "trials", "--trials-workers", "0"], "--trials-workers"),
+    ("bench-agent-episodes", ["bench", "agent", "--agent-episodes", "0"], "--agent-episodes must be"),
+    ("bench-maps-recording", ["bench", "maps", "--maps-recording", "{ws}/nope.npz"], "is not a file"),
+    ("calibrate-views", ["calibrate-perception", "--views", "0", "--out", "{ws}/new_cal"], "--views"),
+    ("calibrate-group", ["calibrate-perception", "--group", "0", "--out", "{ws}/new_cal"], "--group"),
+    ("calibrate-scenes", ["calibrate-perception", "--scenes", "0", "--out", "{ws}/new_cal"], "--scenes"),
+    ("calibrate-seed", ["calibrate-perception", "--seed", "-1", "--out", "{ws}/new_cal"], "--seed must be"),
+    ("calibrate-split", ["calibrate-perception", "--split", "nope", "--out", "{ws}/new_cal"], "unknown split"),
+    ("calibrate-pixels", ["calibrate-perception", "--min-pixels", "0", "--out", "{ws}/new_cal"], "--min-pixels"),
+    ("calibrate-gt", ["calibrate-perception", "--out", "{ws}/new_cal", "mode=gt"], "mode=gt"),
+    ("calibrate-probability", ["calibrate-perception", "--out", "{ws}/new_cal", "p_detect_object=2"],
+     "p_detect_object must be"),
+    ("no-command", [], "required"),
+    ("unknown-command", ["trails"], "invalid choice"),
+]
+
+
+@pytest.fixture
+def in_ws(ws, monkeypatch):
+    monkeypatch.chdir(ws)                  # default output folders (runs/...) land in the workspace too
+    return ws
+
+
+def _unwritable_works() -> bool:
+    try:
+        Path(UNWRITABLE).mkdir(parents=True)
+    except OSError:
+        return True
+    return False
+
+
+def test_the_corpus_is_big_and_covers_every_command():
+    assert len(CASES) >= 150
+    assert len({c[0] for c in CASES}) == len(CASES)
+    from tools.cli import COMMANDS
+
+    assert {argv[0] for _, argv, _ in CASES if argv} >= set(COMMANDS)
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])
+def test_bad_input_is_one_clear_line_and_changes_nothing(case, in_ws):
+    name, argv, fragment = case
+    if UNWRITABLE in argv or any(UNWRITABLE in a for a in argv):
+        if not _unwritable_works():
+            pytest.skip("no unwritable folder on this machine")
+    argv = [a.replace("{ws}", str(in_ws)) for a in argv]
+    before = snapshot(in_ws)
+    t0 = time.perf_counter()
+    rc, out, err = run_cli(argv)
+    assert time.perf_counter() - t0 < 15, "a bad input must fail fast"
+    assert rc == 2, (rc, out[-2000:], err[-2000:])
+    lines = err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), err[-3000:]
+    assert "Traceback" not in err + out
+    assert len(lines[0]) <= 1200, "long inputs are shortened"
+    assert fragment in lines[0], lines[0]
+    assert snapshot(in_ws) == before, "a bad input changed the workspace"
+
+
+def test_every_numeric_config_field_has_a_range():
+    """For every number in every config tree the command line can set, an absurd value (-1e12 or
+    +1e12) is refused. Exempt: fields the realism helper's perception config owns that have no
+    natural bound (logits, gains), and the agent's gaze settings (owned by helios/search)."""
+    import dataclasses
+    import typing
+
+    from helios.schema import ConfigError, with_overrides
+    from robots.spot.sdk_backend import SdkBackendConfig
+    from tasks.tsdf import TsdfConfig
+
+    exempt_prefixes = ("perception.",)
+
+    def numeric_fields(cls, prefix=""):
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            tp = hints[f.name]
+            if dataclasses.is_dataclass(tp):
+                yield from numeric_fields(tp, prefix + f.name + ".")
+            elif tp in (int, float):
+                yield prefix + f.name, tp
+
+    unchecked = []
+    for root in (TrialConfig, SdkBackendConfig, TsdfConfig):
+        for key, tp in numeric_fields(root):
+            if key.startswith(exempt_prefixes):
+                continue
+            refused = 0
+            for value in (-10 ** 12, 10 ** 12):
+                try:
+                    with_overrides(root(), {key: tp(value)})
+                except ConfigError:
+                    refused += 1
+            if not refused:
+                unchecked.append(f"{root.__name__}.{key}")
+    assert not unchecked, unchecked
+
+
+# ------------------------------------------------------------------------------------------------
+# Part 2: damaged run folders
+# ------------------------------------------------------------------------------------------------
+def _lines(folder: Path) -> list[bytes]:
+    return (folder / "episodes.jsonl").read_bytes().splitlines(keepends=True)
+
+
+def _set_lines(folder: Path, lines: list[bytes]) -> None:
+    (folder / "episodes.jsonl").write_bytes(b"".join(lines))
+
+
+def _replace_line(i: int, new: bytes):
+    def damage(folder: Path) -> None:
+        lines = _lines(folder)
+        lines[i] = new
+        _set_lines(folder, lines)
+    return damage
+
+
+def _insert_line(i: int, new: bytes):
+    def damage(folder: Path) -> None:
+        lines = _lines(folder)
+        lines.insert(i, new)
+        _set_lines(folder, lines)
+    return damage
+
+
+def _edit_record(i: int, edit):
+    def damage(folder: Path) -> None:
+        lines = _lines(folder)
+        rec = json.loads(lines[i])
+        edit(rec)
+        lines[i] = (json.dumps(rec, sort_keys=True) + "\n").encode()
+        _set_lines(folder, lines)
+    return damage
+
+
+def _torn(folder: Path) -> None:
+    data = (folder / "episodes.jsonl").read_bytes()
+    (folder / "episodes.jsonl").write_bytes(data[:-40])
+
+
+def _to_directory(name: str):
+    def damage(folder: Path) -> None:
+        p = folder / name
+        if p.exists():
+            p.unlink()
+        p.mkdir()
+        (p / "junk").write_text("x")
+    return damage
+
+
+def _undo_directory(name: str):
+    def fix(folder: Path, clean: Path) -> None:
+        shutil.rmtree(folder / name)
+    return fix
+
+
+def _strip_fingerprints(folder: Path) -> None:
+    lines = []
+    for line in _lines(folder):
+        rec = json.loads(line)
+        rec.pop(FINGERPRINT_FIELD)
+        lines.append((json.dumps(rec, sort_keys=True) + "\n").encode())
+    _set_lines(folder, lines)
+
+
+def _combine(*fns):
+    def damage(folder: Path) -> None:
+        for fn in fns:
+            fn(folder)
+    return damage
+
+
+def _delete(name: str):
+    return lambda folder: (folder / name).unlink()
+
+
+def _edit_config(folder: Path) -> None:
+    p = folder / "config.yaml"
+    p.write_text(p.read_text().replace("max_commands: 3", "max_commands: 4"))
+
+
+def _other_config_record(folder: Path) -> None:
+    lines = _lines(folder)
+    rec = json.loads(lines[0])
+    rec.update(episode_id="smoke-00004", **{FINGERPRINT_FIELD: "0123456789abcdef"})
+    _set_lines(folder, lines + [(json.dumps(rec, sort_keys=True) + "\n").encode()])
+
+
+# name, damage, report: (exit status, fragment in stderr), resume: (extra args, exit status, fragment),
+# fix(folder, clean) applied after a refusal, before the valid command (None: the same command again)
+DAMAGES = [
+    ("torn-last-line", _torn, (0, "episodes.jsonl:3: torn last line"), ([], 0, "torn last line"), None),
+    ("garbage-middle-line", _insert_line(1, b"#!garbage\n"), (0, "episodes.jsonl:2: not valid JSON"),
+     ([], 0, "line 2: not valid JSON"), None),
+    ("middle-line-overwritten", _replace_line(1, b'{"episode_id": "smoke-00001", "metr\n'),
+     (0, "episodes.jsonl:2: not valid JSON"), ([], 0, "episodes without a valid record run again"), None),
+    ("empty-object-line", _insert_line(1, b"{}\n"), (0, "episodes.jsonl:2: no episode_id"),
+     ([], 0, "no episode_id"), None),
+    ("list-line", _insert_line(2, b"[]\n"), (0, "episodes.jsonl:3: a JSON list"), ([], 0, "a JSON list"), None),
+    ("metrics-not-object", _edit_record(1, lambda r: r.update(metrics="yes")),
+     (0, "episodes.jsonl:2: metrics is not an object"), ([], 0, "metrics is not an object"), None),
+    ("metrics-not-bool", _edit_record(0, lambda r: r["metrics"].update(success="maybe")),
+     (0, "episodes.jsonl:1: metrics.success is not true/false"), ([], 0, "metrics.success"), None),
+    ("metrics-missing-key", _edit_record(2, lambda r: r["metrics"].pop("pick")),
+     (0, "episodes.jsonl:3: metrics.pick"), ([], 0, "metrics.pick"), None),
+    ("sim-time-nan", _edit_record(1, lambda r: r.update(sim_time=float("nan"))),
+     (0, "episodes.jsonl:2: sim_time"), ([], 0, "sim_time"), None),
+    ("non-utf8-line", _insert_line(0, b"\xff\xfe\xfd\n"), (0, "episodes.jsonl:1: not UTF-8"),
+     ([], 0, "not UTF-8"), None),
+    ("memory-malformed", _edit_record(0, lambda r: r.update(memory={"series": {"t": "abc"}})),
+     (0, "episodes.jsonl:1: memory.series"), ([], 0, "memory.series"), None),
+    ("binary-config", lambda f: (f / "config.yaml").write_bytes(bytes(range(256))),
+     (0, "config.yaml is not UTF-8"), ([], 0, "config.yaml.damaged"), None),
+    ("config-deleted", _delete("config.yaml"), (0, ""), ([], 0, "config.yaml was missing"), None),
+    ("config-deleted-other-config", _delete("config.yaml"), (0, ""),
+     (["runner.max_commands=4"], 2, "config.yaml is missing and the records"), None),
+    ("config-edited", _edit_config, (0, "does not describe the records"),
+     (["runner.max_commands=4"], 2, "does not describe the records"),
+     lambda f, clean: shutil.copy(clean / "config.yaml", f / "config.yaml")),
+    ("config-directory", _to_directory("config.yaml"), (0, "is a directory"), ([], 2, "config.yaml is a directory"),
+     _undo_directory("config.yaml")),
+    ("results-directory", _to_directory("episodes.jsonl"), (2, "is a directory"),
+     ([], 2, "episodes.jsonl is a directory"), _undo_directory("episodes.jsonl")),
+    ("lock-directory", _to_directory(".lock"), (0, ""), ([], 2, ".lock is a directory"), _undo_directory(".lock")),
+    ("summary-directory", _to_directory("summary.json"), (0, ""), ([], 2, "summary.json is a directory"),
+     _undo_directory("summary.json")),
+    ("record-of-another-config", _other_config_record, (0, "2 different configurations"),
+     ([], 2, "mixes records of 2 configurations"),
+     lambda f, clean: _set_lines(f, _lines(f)[:-1])),
+    ("legacy-records", _strip_fingerprints, (0, "without a configuration fingerprint"), ([], 0, ""), None),
+    ("legacy-records-config-deleted", _combine(_strip_fingerprints, _delete("config.yaml")),
+     (0, "without a configuration fingerprint"), ([], 2, "carry no configuration fingerprint"),
+     lambda f, clean: shutil.copy(clean / "config.yaml", f / "config.yaml")),
+    ("duplicate-record", lambda f: _set_lines(f, _lines(f) + _lines(f)[:1]), (0, ""), ([], 0, ""), None),
+]
+
+
+@pytest.fixture(scope="module")
+def clean_run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("damage")
+    clean = root / "clean"
+    rc, out, err = run_cli([*RUN_ARGS, "--out", str(clean), *BUDGET])
+    assert rc == 0, err
+    return clean
+
+
+def _views(folder: Path) -> dict[str, dict]:
+    return {k: {f: v for f, v in deterministic_view(r).items() if f != FINGERPRINT_FIELD}
+            for k, r in read_results(folder / "episodes.jsonl").items()}
+
+
+def _intact(folder: Path, clean: Path) -> set[str]:
+    """Episodes of the clean run whose record is still in ``folder``'s episodes.jsonl, unchanged
+    (fingerprints aside), found without the code under test."""
+    def bare(rec: dict) -> dict:
+        return {k: v for k, v in rec.items() if k != FINGERPRINT_FIELD}
+
+    clean_records = {r["episode_id"]: bare(r) for r in map(json.loads, _lines(clean))}
+    found = set()
+    if not (folder / "episodes.jsonl").is_file():
+        return found
+    for line in _lines(folder):
+        try:
+            rec = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(rec, dict) and clean_records.get(rec.get("episode_id")) == bare(rec):
+            found.add(rec["episode_id"])
+    return found
+
+
+def test_a_config_left_by_a_failed_start_does_not_block_the_corrected_command(tmp_path):
+    """A folder with only a config.yaml (a start that failed before any episode finished) takes the
+    corrected command's configuration instead of refusing it as "a different configuration"."""
+    folder = tmp_path / "run"
+    prepare_run_folder(folder, TrialConfig(agent="oracle", episodes=1, seed=5))
+    rc, out, err = run_cli(["trials", "--episodes", "1", "--progress", "none", "--out", str(folder), *BUDGET])
+    assert rc == 0, err
+    assert "replaced by this configuration" in err
+    assert list(read_results(folder / "episodes.jsonl")) == ["smoke-00000"]
+
+
+def test_the_damage_corpus_is_big_enough():
+    assert len(DAMAGES) >= 15
+
+
+@pytest.mark.parametrize("damage", DAMAGES, ids=[d[0] for d in DAMAGES])
+def test_a_damaged_run_folder(damage, clean_run, tmp_path):
+    name, fn, (report_rc, report_says), (resume_extra, resume_rc, resume_says), fix = damage
+    folder = tmp_path / "run"
+    shutil.copytree(clean_run, folder)
+    fn(folder)
+    damaged_lines = _lines(folder) if (folder / "episodes.jsonl").is_file() else []
+
+    # report: the table from the valid records, each damaged line named; or one error line
+    before = snapshot(folder)
+    rc, out, err = run_cli(["report", str(folder), "--out", str(tmp_path / "report")])
+    assert "Traceback" not in err
+    assert rc == report_rc, err
+    assert report_says in err, err
+    if rc == 2:
+        assert len(err.splitlines()) == 1
+    else:
+        assert "| run | FindObj" in out
+        shown = json.loads((tmp_path / "report" / "report.json").read_text())["run"]["summary"]["episodes"]
+        if name != "record-of-another-config":            # (that one adds a fourth, valid record)
+            assert shown == len(_intact(folder, clean_run)), "report must count every valid record"
+    assert snapshot(folder) == before, "report changed the run folder"
+
+    # resume: repairs what it can prove, or refuses in one line and changes nothing
+    rc, out, err = run_cli([*RUN_ARGS, "--out", str(folder), *BUDGET, *resume_extra])
+    assert "Traceback" not in err
+    assert rc == resume_rc, err
+    assert resume_says in err, err
+    if rc == 2:
+        assert len(err.splitlines()) == 1 and err.startswith("error: ")
+        assert snapshot(folder) == before, "a refused resume changed the run folder"
+        if fix is not None:
+            fix(folder, clean_run)
+            damaged_lines = _lines(folder) if (folder / "episodes.jsonl").is_file() else []
+        rc, out, err = run_cli([*RUN_ARGS, "--out", str(folder), *BUDGET])     # the valid command
+        assert rc == 0, err
+
+    # after a valid command: the records equal the clean run's, nothing valid was lost
+    assert _views(folder) == _views(clean_run)
+    kept = (folder / "episodes.jsonl").read_bytes()
+    side = (folder / DAMAGED_FILE).read_bytes() if (folder / DAMAGED_FILE).exists() else b""
+    for line in damaged_lines:
+        assert line in kept or line.rstrip(b"\n") in side, line
+    from tasks.trials import read_run_config
+
+    fps = {r.get(FINGERPRINT_FIELD) for r in read_results(folder / "episodes.jsonl").values()}
+    assert fps <= {config_fingerprint(read_run_config(clean_run)[1]), None}
+
+
+# ------------------------------------------------------------------------------------------------
+# Every wait on the network or another process is bounded, with a clear message
+# ------------------------------------------------------------------------------------------------
+def test_a_ray_head_that_does_not_answer_is_one_error_within_the_timeout(monkeypatch):
+    import socket
+
+    from tasks.executors import ExecutorError, check_address
+
+    def silent(*args, **kwargs):
+        time.sleep(5)                       # a black-holed address: the SYN is never answered
+        raise TimeoutError
+
+    monkeypatch.setattr(socket, "create_connection", silent)
+    t0 = time.perf_counter()
+    with pytest.raises(ExecutorError, match=r"no answer from the Ray cluster at 10\.1\.2\.3:6379 within 0\.3 s"):
+        check_address("10.1.2.3:6379", timeout=0.3)
+    assert time.perf_counter() - t0 < 2
+
+
+def test_a_worker_process_that_does_not_start_is_one_error(monkeypatch):
+    import tasks.executors as ex
+
+    monkeypatch.setattr(ex, "WORKER_START_TIMEOUT_S", 0.0)    # no spawned interpreter is that fast
+    pool = ex.ProcessExecutor(1)
+    try:
+        with pytest.raises(ex.ExecutorError, match="did not start within 0 s"):
+            list(pool.map_unordered(abs, [-1]))
+    finally:
+        pool.close()
+
+
+def test_a_fake_spot_that_does_not_listen_is_one_error():
+    import socket
+    from types import SimpleNamespace
+
+    pytest.importorskip("bosdyn.client")
+    from robots.spot.fake_spot.server import FakeSpot, FakeSpotStartError
+
+    with socket.socket() as s:               # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(FakeSpotStartError, match=f"did not accept connections on 127.0.0.1:{port} within 0.2 s"):
+        FakeSpot._wait_listening(SimpleNamespace(port=port), 0.2)

@@ -1,0 +1,182 @@
+"""Decision instrumentation: the runner's simulated time per activity and decision counts, their
+aggregation (``tasks.decisions``) and the "Decisions" / "Simulated time per phase" report tables."""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import pytest
+
+from helios.schema import with_overrides
+from tasks.decisions import ACTIVITIES, DECISION_COUNTS, summarize_activity_time, summarize_decisions
+from tasks.episodes import load_split
+from tasks.runner import RunnerConfig, run_episode
+from tasks.trials import TrialConfig, append_result, prepare_run_folder, read_results, run_batch, run_one
+from tools.report import make_report
+
+
+def test_the_report_keys_match_the_agent():
+    from helios.agents import helios_agent
+
+    assert ACTIVITIES == helios_agent.ACTIVITIES and DECISION_COUNTS == helios_agent.DECISION_COUNTS
+
+
+# ------------------------------------------------------------------------------------------------
+# The runner
+# ------------------------------------------------------------------------------------------------
+class _Standing:
+    """A robot whose only command, ``stand``, takes 1.5 simulated seconds."""
+
+    def stand(self):
+        return SimpleNamespace(duration=1.5)
+
+
+class _Phased:
+    """Two stands per act, naming a different activity each act; its third act is cut short by the
+    command budget after one stand."""
+
+    name = "phased"
+
+    def reset(self, task, rng):
+        self.n = 0
+
+    def act(self, robot):
+        self.activity = ("start_scan", "exploration", "local_search")[min(self.n, 2)]
+        self.n += 1
+        robot.stand()
+        robot.stand()
+        return False
+
+    def decision_stats(self):
+        return {"gaze_point_visits": self.n}
+
+
+def test_the_runner_times_each_activity_including_an_act_cut_short():
+    ep = load_split("smoke")[0]
+    result = run_episode(_Phased(), _Standing(), ep, RunnerConfig(max_commands=5))
+    assert result.limit_hit and result.commands == 5 and result.sim_time == pytest.approx(7.5)
+    assert result.extra["activity_time"] == {"start_scan": 3.0, "exploration": 3.0, "local_search": 1.5}
+    assert result.extra["decisions"] == {"gaze_point_visits": 3}
+
+
+def test_agents_without_the_hooks_get_no_fields():
+    class Bare:
+        name = "bare"
+
+        def reset(self, task, rng):
+            pass
+
+        def act(self, robot):
+            robot.stand()
+            return True
+
+    result = run_episode(Bare(), _Standing(), load_split("smoke")[0])
+    assert "activity_time" not in result.extra and "decisions" not in result.extra
+
+
+@pytest.fixture(scope="module")
+def real_runs(tmp_path_factory):
+    """One short HELIOS episode (40 commands: start scan, an extra view, a pick cut short) and one
+    short oracle episode, as run folders."""
+    tmp = tmp_path_factory.mktemp("runs")
+    ep = next(e for e in load_split("smoke") if e.episode_id == "smoke-00001")
+    cfg = with_overrides(TrialConfig(agent="helios", split="smoke", episodes=1), ["runner.max_commands=40"])
+    helios = tmp / "helios"
+    prepare_run_folder(helios, cfg)
+    append_result(helios / "episodes.jsonl", run_one(cfg, ep))
+    oracle = tmp / "oracle"
+    run_batch(with_overrides(TrialConfig(episodes=1), ["runner.max_sim_time=20"]), load_split("smoke")[:1], oracle)
+    return helios, oracle
+
+
+def test_helios_records_carry_activity_time_and_decisions(real_runs):
+    helios, oracle = real_runs
+    record = read_results(helios / "episodes.jsonl")["smoke-00001"]
+    times, decisions = record["extra"]["activity_time"], record["extra"]["decisions"]
+    assert sum(times.values()) == pytest.approx(record["sim_time"], abs=1e-9)
+    assert set(times) <= set(ACTIVITIES) and times["start_scan"] > 0 and len(times) >= 2
+    assert set(decisions) == set(DECISION_COUNTS) | {"local_search_sizes"}
+    assert all(isinstance(decisions[k], int) for k in DECISION_COUNTS)
+    other = read_results(oracle / "episodes.jsonl")["smoke-00000"]
+    assert "activity_time" not in other["extra"] and "decisions" not in other["extra"]
+
+
+def test_report_on_real_runs_shows_helios_numbers_and_oracle_na(real_runs, tmp_path):
+    helios, oracle = real_runs
+    result = make_report([helios, oracle], tmp_path / "rep")
+    lines = result["text"].splitlines()
+    row = lambda title, name: next(line for line in lines[next(i for i, x in enumerate(lines)  # noqa: E731
+                                                                if x.startswith(title)):] if line.startswith(name))
+    assert "n/a" not in row("Decisions", "helios") and row("Decisions", "oracle").count("n/a") == 12
+    assert "start_scan" in result["text"] and row("Simulated time per phase", "oracle").count("n/a") == 7
+    report = json.loads((tmp_path / "rep" / "report.json").read_text())
+    assert report["oracle"]["decisions"] is None and report["helios"]["activity_time"]["episodes"] == 1
+
+
+# ------------------------------------------------------------------------------------------------
+# Aggregation and the report on hand-written records
+# ------------------------------------------------------------------------------------------------
+def _record(i: int, extra: dict) -> dict:
+    return {"episode_id": f"val-{i:05d}", "agent": "helios", "task": "Move the cup from the stool to the chair",
+            "seed": i, "success": False, "error": None, "commands": 50, "limit_hit": False, "extra": extra,
+            "collision_events": [], "sim_time": 100.0, "wall_time": 3.0,
+            "metrics": {"find_obj": True, "pick": False, "find_rec": False, "place": False, "success": False,
+                        "collisions": 0, "failure_reason": "pick_failed"}, "memory": None}
+
+
+def _decisions(**counts) -> dict:
+    sizes = counts.pop("sizes", [])
+    return {**{k: 0 for k in DECISION_COUNTS}, **counts, "local_search_sizes": sizes}
+
+
+NEW = [
+    _record(0, {"activity_time": {"start_scan": 40.0, "local_search": 50.0, "pick": 10.0},
+                "decisions": _decisions(global_with_candidates=3, chose_candidate_before_f0=2,
+                                        chose_frontier_after_f0=1, extra_views_object=1, gaze_point_visits=14,
+                                        sizes=[8, 10])}),
+    _record(1, {"activity_time": {"start_scan": 40.0, "exploration": 60.0},
+                "decisions": _decisions(global_with_candidates=1, chose_candidate_after_f0=1, extra_views_goal=2,
+                                        gaze_point_visits=3, sizes=[12])}),
+]
+OLD = _record(2, {})
+
+
+def test_aggregation_of_hand_written_records():
+    d = summarize_decisions(NEW + [OLD])
+    assert d["episodes"] == 2 and d["of"] == 3
+    assert d["totals"] == {"global_with_candidates": 4, "chose_candidate_before_f0": 2, "chose_frontier_before_f0": 0,
+                           "chose_candidate_after_f0": 1, "chose_frontier_after_f0": 1, "extra_views_object": 1,
+                           "extra_views_goal": 2, "gaze_point_visits": 17}
+    assert d["per_episode"]["global_with_candidates"] == 2.0 and d["per_episode"]["gaze_point_visits"] == 8.5
+    assert d["local_searches"] == 3 and d["local_searches_per_episode"] == 1.5
+    assert d["gaze_points_planned"] == {"mean": 10.0, "median": 10.0, "max": 12}
+    t = summarize_activity_time(NEW + [OLD])
+    assert t["episodes"] == 2 and t["activities"] == list(ACTIVITIES)
+    assert t["seconds"] == {"start_scan": 80.0, "exploration": 60.0, "local_search": 50.0, "pick": 10.0,
+                            "carry": 0.0, "place": 0.0}
+    assert t["share_percent"]["start_scan"] == 40.0 and t["share_percent"]["exploration"] == 30.0
+    assert t["seconds_per_episode"]["local_search"] == 25.0
+    assert summarize_decisions([OLD]) is None and summarize_activity_time([OLD, {"episode_id": "x"}]) is None
+    # no local search at all: no sizes, no crash
+    assert summarize_decisions([_record(3, {"decisions": _decisions()})])["gaze_points_planned"] is None
+
+
+def test_report_prints_the_sections_with_na_for_old_runs(tmp_path):
+    runs = {}
+    for name, records in (("new", NEW + [OLD]), ("old", [OLD])):
+        runs[name] = tmp_path / name
+        prepare_run_folder(runs[name], TrialConfig(agent="helios", split="val", episodes=len(records)))
+        for r in records:
+            append_result(runs[name] / "episodes.jsonl", r)
+    result = make_report([runs["new"], runs["old"]], tmp_path / "rep")
+    text, md, page = result["text"], result["markdown"], result["html"].read_text()
+    assert "Decisions: totals over the episodes shown" in text and "Simulated time per phase" in text
+    assert ("| new | 2/3 | 4 (2.0) | 2 (1.0) | 0 (0.0) | 1 (0.5) | 1 (0.5) | 1 (0.5) | 2 (1.0) | 3 (1.5) "
+            "| 10.0 | 10 | 12 | 17 (8.5) |") in md
+    assert "| old | 0/1 | n/a | n/a |" in md
+    assert ("| new | 2/3 | 100 | 40.0 (40 s) | 30.0 (30 s) | 25.0 (25 s) | 5.0 (5 s) | 0.0 (0 s) | 0.0 (0 s) |"
+            in md)
+    assert "**Decisions: totals" in md and "**Simulated time per phase" in md
+    assert "<h2>Decisions: totals" in page and "<h2>Simulated time per phase" in page
+    assert "<td>40.0 (40 s)</td>" in page and page.count("<td>n/a</td>") == 12 + 7

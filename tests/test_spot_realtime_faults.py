@@ -1,0 +1,368 @@
+"""Faults in the middle of a motion, on a fake Spot that moves in (scaled) real time.
+
+Each fault is injected at a random (seeded) moment while the robot walks or moves its arm. The
+backend must end the command with the HAL's typed error (a failed GraspResult for a failing
+grasp) within 2 s, the base must move less than 0.3 m after the error is raised, ``close()`` must
+return within 3 s of wall time, and afterwards the robot is powered off (as far as the link and
+the lease allow), our lease returned, our e-stop endpoint gone and no thread of ours left. A fake
+frozen with SIGSTOP or killed: ``close()`` within 3 s. A failed bring-up leaves no e-stop endpoint.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("bosdyn.client")
+
+from bosdyn.api import estop_pb2  # noqa: E402
+
+from robots.hal import (  # noqa: E402
+    CommandTimeoutError,
+    ConnectionLostError,
+    EstopError,
+    GraspResult,
+    HalError,
+    LeaseLostError,
+    SE2Pose,
+    TimeSyncLostError,
+)
+from robots.spot import model  # noqa: E402
+from robots.spot.motion import MotionConfig, plan_arm, plan_base  # noqa: E402
+from robots.spot.sdk_backend import GrpcTracingError, SdkSpotBackend  # noqa: E402
+from spot_fake_fixtures import (  # noqa: E402
+    TEST_PASSWORD,
+    TEST_USER,
+    connect,
+    credentials_env,
+    fast_config,
+    python_threads,
+    session_pki,
+    start_fake,
+    wait_for_threads_to_end,
+)
+
+pytestmark = pytest.mark.timeout(60)
+
+SURFACE_WITHIN = 2.0    # s from the fault to the typed error
+CLOSE_WITHIN = 3.0      # s of wall time for close()
+TRAVEL_AFTER = 0.3      # m the base may move after the error is raised
+WALK_SCALE = 0.25       # wall seconds per robot second: a 4 m walk (~5.5 s on Spot) takes ~1.4 s
+ARM_SCALE = 1.0       # the arm in real time: a stow -> ready move takes ~2.5 s
+
+# fault -> (params, expected error)
+FAULTS = {
+    "estop": ({}, EstopError),
+    "lease_revoked": ({}, LeaseLostError),
+    "connection_drop": ({}, ConnectionLostError),
+    "command_timeout": ({}, CommandTimeoutError),
+    "time_sync_loss": ({}, TimeSyncLostError),
+    "slow": ({"delay": 1.5}, (CommandTimeoutError, TimeSyncLostError)),   # replies later than the 1 s RPC timeout
+}
+MEASURED: list[dict] = []   # filled by the tests; printed with -s (numbers for the README)
+
+
+def _base(fake) -> SE2Pose:
+    with fake.sim_lock:
+        return fake.sim.spot.base_pose()
+
+
+def _arm_q(fake) -> np.ndarray:
+    with fake.sim_lock:
+        return fake.sim.spot.arm_q()
+
+
+def _client_lease(fake, backend_name: str = "helios") -> bool:
+    return bool(fake.lease_owner) and backend_name in fake.lease_owner
+
+
+def _check_after_close(fake, fault: str, before: set) -> None:
+    link = fault != "connection_drop"           # the robot is unreachable: nothing can be returned
+    if fault != "lease_revoked":
+        assert not fake.powered and not fake.standing, "the robot is still powered after close()"
+    if link:
+        assert not _client_lease(fake), f"our client still holds the lease: {fake.lease_owner}"
+        assert not fake._endpoints, "our e-stop endpoint is still registered"
+    leaked = wait_for_threads_to_end(before)
+    assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
+
+
+def _run_mid_motion(fault: str, motion: str, seed: int) -> dict:
+    params, expected = FAULTS[fault]
+    rng = random.Random(f"{fault}-{motion}-{seed}")
+    before = python_threads()
+    demo = start_fake(seed=0, time_scale=WALK_SCALE if motion == "walk" else ARM_SCALE)
+    backend = connect(demo)
+    fake = demo.fake
+    out = {"fault": fault, "motion": motion}
+    try:
+        if motion == "walk":
+            start = _base(fake)
+            goal = SE2Pose(start.x, start.y - 4.0, 0.0)
+            planned = plan_base(start, [goal], MotionConfig().base).duration * WALK_SCALE
+            act = lambda: backend.navigate_to(goal)  # noqa: E731
+        else:
+            planned = plan_arm(_arm_q(fake), model.ARM_READY, MotionConfig().arm).duration * ARM_SCALE
+            act = lambda: backend.move_arm_joints(model.ARM_READY)  # noqa: E731
+        at = rng.uniform(0.2, 0.6) * planned       # a random moment while the robot moves
+        out["inject_at"] = at
+        injected = threading.Event()
+        timer = threading.Timer(at, lambda: (fake.inject(fault, **params), injected.set()))
+        t_start = time.monotonic()
+        timer.start()
+        try:
+            with pytest.raises(expected) as info:
+                act()
+            t_err = time.monotonic()
+        finally:
+            timer.join()
+        assert injected.is_set()
+        out["error"] = type(info.value).__name__
+        out["latency"] = t_err - (t_start + at)
+        message = str(info.value)
+        assert message and "\n" not in message and "Traceback" not in message
+        assert out["latency"] < SURFACE_WITHIN, f"{fault}: the error came {out['latency']:.2f} s after the fault"
+        pose_at_error = _base(fake)
+        q_at_error = _arm_q(fake)
+        time.sleep(0.5)
+        out["travel_after_error"] = _base(fake).distance_to(pose_at_error)
+        out["arm_after_error"] = float(np.max(np.abs(_arm_q(fake) - q_at_error)))
+        assert out["travel_after_error"] < TRAVEL_AFTER, out
+        assert out["arm_after_error"] < 0.05, out
+        running = [(c.kind, c.state) for c in fake.commands.values() if c.state in ("queued", "running", "hung")]
+        assert not running, f"the robot still runs {running} after the error (no stop sent?)"
+    finally:
+        t0 = time.monotonic()
+        backend.close()
+        out["close"] = time.monotonic() - t0
+    assert out["close"] < CLOSE_WITHIN, f"close() after {fault} took {out['close']:.2f} s"
+    _check_after_close(fake, fault, before)
+    MEASURED.append(out)
+    return out
+
+
+@pytest.mark.parametrize("fault", sorted(FAULTS))
+def test_fault_mid_walk_is_typed_fast_and_leaves_the_robot_safe(fault):
+    _run_mid_motion(fault, "walk", seed=1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fault", sorted(FAULTS))
+def test_fault_mid_arm_move_is_typed_fast_and_leaves_the_robot_safe(fault):
+    _run_mid_motion(fault, "arm", seed=1)
+
+
+def test_fault_mid_arm_move_estop_and_stall():
+    """The fast-suite sample of the arm matrix (the whole matrix runs with -m slow)."""
+    for fault in ("estop", "command_timeout"):
+        _run_mid_motion(fault, "arm", seed=2)
+
+
+def _grasp_setup(demo, backend):
+    mug = demo.facts["mug_position"]
+    assert backend.navigate_to(SE2Pose(mug[0] - 0.95, mug[1], 0.0)).success
+    assert backend.gaze_at(mug + [0, 0, 0.05]).success
+    obs = backend.observe()
+    return obs, (obs.intrinsics.width // 2, obs.intrinsics.height // 2)
+
+
+def test_grasp_failure_mid_grasp_is_a_failed_grasp_result_and_mid_walk_leaves_the_walk_alone():
+    before = python_threads()
+    demo = start_fake(seed=0, time_scale=0.3)
+    backend = connect(demo)
+    fake = demo.fake
+    try:
+        # Mid-walk: a failing grasp service does not stop the base; the walk arrives.
+        start = _base(fake)
+        fake.inject_at(0.2, "grasp_failure")
+        assert backend.navigate_to(SE2Pose(start.x - 0.8, start.y, 0.0)).success
+        fake.clear()
+        assert backend.navigate_to(start).success
+        obs, pixel = _grasp_setup(demo, backend)
+        # Mid-grasp: the pick in progress ends as GRASP_FAILED within 2 s.
+        at = random.Random(7).uniform(0.1, 0.4)   # the pick's approach takes ~0.5 s here
+        fake.inject_at(at, "grasp_failure")
+        t0 = time.monotonic()
+        res = backend.grasp(obs, pixel)
+        latency = time.monotonic() - t0 - at
+        assert isinstance(res, GraspResult) and not res.success and not res.holding, res
+        assert "GRASP_FAILED" in res.message
+        assert latency < SURFACE_WITHIN
+        MEASURED.append({"fault": "grasp_failure", "motion": "grasp", "latency": latency})
+    finally:
+        t0 = time.monotonic()
+        backend.close()
+        took = time.monotonic() - t0
+    _check_after_close(fake, "grasp_failure", before)
+    assert took < CLOSE_WITHIN
+
+
+def test_realtime_fake_takes_the_planned_time_and_state_is_fresh_while_moving():
+    demo = start_fake(seed=0, time_scale=0.5)
+    backend = connect(demo)
+    fake = demo.fake
+    try:
+        start = _base(fake)
+        goal = SE2Pose(start.x, start.y - 2.0, 0.0)
+        planned = plan_base(start, [goal], MotionConfig().base).duration
+        seen = []
+
+        def watch():
+            while not done.is_set():
+                seen.append(fake_state_y())
+                time.sleep(0.1)
+
+        def fake_state_y():   # what a second client reads from the robot-state service mid-walk
+            return backend._state_client.get_robot_state(timeout=1.0).kinematic_state.transforms_snapshot
+
+        done = threading.Event()
+        th = threading.Thread(target=watch)
+        th.start()
+        t0 = time.monotonic()
+        assert backend.navigate_to(goal).success
+        took = time.monotonic() - t0
+        done.set()
+        th.join()
+        assert 0.8 * planned * 0.5 < took < planned * 0.5 + 1.0, (took, planned)
+        from robots.spot import sdk_conversions as cv
+        ys = [cv.tform(s, cv.ODOM, cv.BODY)[1, 3] for s in seen]
+        assert len(set(np.round(ys, 3))) >= 4, ys      # the pose moves between reads: never a stale copy
+    finally:
+        backend.close()
+
+
+def test_scripted_faults_on_call_n_times_then_recovery_and_reply_delay():
+    import bosdyn.client
+    from bosdyn.client.exceptions import RpcError
+    import grpc
+
+    demo = start_fake(seed=0)
+    fake = demo.fake
+    sdk = bosdyn.client.create_standard_sdk("scripted", cert_resource_glob=str(session_pki().ca_cert))
+    robot = sdk.create_robot("127.0.0.1")
+    robot.update_secure_channel_port(demo.port)
+    try:
+        robot.authenticate(TEST_USER, TEST_PASSWORD, timeout=3)
+        ident = robot.ensure_client("robot-id")
+        fake.fail_calls("GetRobotId", 2, code=grpc.StatusCode.UNAVAILABLE)
+        for _ in range(2):
+            with pytest.raises(RpcError):
+                ident.get_id(timeout=1)
+        assert ident.get_id(timeout=1).serial_number == "FAKE-SPOT-0001"      # recovered
+        fake.inject_on_call("GetRobotId", 2, "estop")
+        ident.get_id(timeout=1)
+        assert not fake.has_fault("estop")
+        ident.get_id(timeout=1)
+        assert fake.has_fault("estop")
+        fake.clear()
+        fake.inject("slow", delay=0.4)
+        t0 = time.monotonic()
+        ident.get_id(timeout=2)
+        assert 0.35 < time.monotonic() - t0 < 1.5
+        fake.clear()
+        t0 = time.monotonic()
+        fake.inject_at(0.3, "estop")
+        while not fake.has_fault("estop") and time.monotonic() - t0 < 2:
+            time.sleep(0.01)
+        assert 0.25 < time.monotonic() - t0 < 0.6
+    finally:
+        sdk.clear_robots()
+        robot.shutdown()
+        demo.stop()
+
+
+def test_failed_bring_up_leaves_no_estop_endpoint_registered():
+    before = python_threads()
+    demo = start_fake(seed=0)
+    fake = demo.fake
+    fake.lease_owner = "tablet"                    # someone else holds the body lease
+    try:
+        with credentials_env(), pytest.raises(LeaseLostError, match="another client holds the body lease"):
+            SdkSpotBackend(fast_config(demo.port, estop_mode="endpoint", estop_timeout=1.0))
+        assert "RegisterEstopEndpoint" in fake.rpc_log and "DeregisterEstopEndpoint" in fake.rpc_log
+        assert not fake._endpoints, "our e-stop endpoint outlived the failed bring-up"
+        time.sleep(1.2)                            # past our endpoint's timeout: nobody's power is cut
+        assert fake.stop_level() == (estop_pb2.ESTOP_LEVEL_NONE, "")
+    finally:
+        demo.stop()
+    leaked = wait_for_threads_to_end(before)
+    assert not leaked, sorted(t.name for t in leaked)
+
+
+def test_grpc_tracing_in_the_environment_is_refused_before_the_robot_is_touched(monkeypatch):
+    demo = start_fake(seed=0)
+    try:
+        monkeypatch.setenv("GRPC_TRACE", "all")
+        with credentials_env(), pytest.raises(GrpcTracingError, match="GRPC_TRACE='all'.*session token"):
+            SdkSpotBackend(fast_config(demo.port))
+        assert demo.fake.rpc_log == []
+        monkeypatch.setenv("GRPC_TRACE", "none")
+        with credentials_env():
+            backend = SdkSpotBackend(fast_config(demo.port, stand_on_connect=False))
+        backend.close()
+    finally:
+        demo.stop()
+
+
+def _serve_fake_in_a_subprocess(tmp_path):
+    env = dict(os.environ, BOSDYN_CLIENT_USERNAME=TEST_USER, BOSDYN_CLIENT_PASSWORD=TEST_PASSWORD)
+    proc = subprocess.Popen([sys.executable, "-m", "robots.spot.fake_spot.serve", str(tmp_path), "--time-scale", "1"],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
+                            cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    line = proc.stdout.readline()
+    assert line, "the fake Spot subprocess did not start"
+    return proc, json.loads(line)
+
+
+@pytest.mark.parametrize("how", ["SIGSTOP", "SIGKILL"])
+def test_close_is_bounded_when_the_robot_freezes_or_dies(tmp_path, how):
+    proc, info = _serve_fake_in_a_subprocess(tmp_path)
+    before = python_threads()
+    try:
+        with credentials_env():
+            backend = SdkSpotBackend(fast_config(info["port"], cert_path=info["ca"], rpc_timeout=1.5))
+        assert backend.navigate_to(SE2Pose(0.0, -0.3, 0.0)).success
+        time.sleep(0.3)
+        os.kill(proc.pid, getattr(signal, how))
+        time.sleep(0.3)
+        with pytest.raises(HalError):
+            backend.observe()                   # the robot is gone: a typed error, not a hang
+        t0 = time.monotonic()
+        backend.close()
+        took = time.monotonic() - t0
+        MEASURED.append({"fault": how, "close": took})
+        assert took < CLOSE_WITHIN, f"close() with a {how} robot took {took:.2f} s"
+        leaked = wait_for_threads_to_end(before)
+        assert not leaked, sorted(t.name for t in leaked)
+    finally:
+        proc.kill()
+        proc.wait(10)
+
+
+def test_spot_task_is_parsed_before_connecting(capsys):
+    from tools.cli import main
+
+    t0 = time.monotonic()
+    # port 1 on loopback: connecting would fail differently (and later) than parsing
+    assert main(["spot", "127.0.0.1", "--port", "1", "--cert", str(session_pki().ca_cert),
+                 "--task", "Fly the piano to the moon"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "malformed task 'Fly the piano to the moon'" in err, err
+    assert time.monotonic() - t0 < 2.0
+
+
+def test_report_measurements(capsys):
+    """Prints what the tests above measured (run with -s to see it)."""
+    if MEASURED:
+        with capsys.disabled():
+            for m in MEASURED:
+                print(" ".join(f"{k}={v:.2f}" if isinstance(v, float) else f"{k}={v}" for k, v in m.items()))
