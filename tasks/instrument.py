@@ -14,6 +14,9 @@ recorded episode gives the same numbers as a bare one. Agents may offer two opti
     The recorder's clock is already set to the simulation time; exceptions are caught, reported
     once on stderr and in the record's ``recording.errors``, and never change the episode.
 
+A ``tracer`` (:class:`tasks.episode_trace.EpisodeTracer`) sees every observation and command too,
+for the per-episode pictures of the trial report; its failures go to the trace's own ``errors``.
+
 Memory per episode: peak resident set size (Linux: the kernel's high-water mark, reset at the
 episode start; elsewhere the peak of the samples), map bytes, and CUDA memory allocated/reserved
 (peak and per sample) when torch has initialised CUDA in this process. The time series has one
@@ -191,9 +194,10 @@ class InstrumentedAgent:
     of the simulated robot, used only to draw the robot in recordings between observations.
     """
 
-    def __init__(self, agent, recorder=None, robot_state: Callable[[], tuple] | None = None):
+    def __init__(self, agent, recorder=None, robot_state: Callable[[], tuple] | None = None, tracer=None):
         self._agent = agent
         self.recorder = recorder
+        self.tracer = tracer
         self._robot_state = robot_state
         hook = getattr(agent, "memory_bytes", None)
         self.probe = MemoryProbe(hook if callable(hook) else None)
@@ -209,7 +213,11 @@ class InstrumentedAgent:
 
     def act(self, robot) -> bool:
         self._robot = robot
-        done = self._agent.act(InstrumentedRobot(robot, self))
+        try:
+            done = self._agent.act(InstrumentedRobot(robot, self))
+        finally:
+            if self.tracer is not None:
+                self._trace(self.tracer.on_step, self._agent)
         self._call_record_hook()
         return done
 
@@ -222,6 +230,8 @@ class InstrumentedAgent:
 
     def after_command(self, name: str, args: tuple, result, kwargs: dict | None = None) -> None:
         self.probe.sample(self._elapsed())
+        if self.tracer is not None:
+            self._trace(self.tracer.on_command, name, args, result, self._elapsed(), self._agent)
         rec = self.recorder
         if rec is None:
             return
@@ -270,6 +280,15 @@ class InstrumentedAgent:
             hook(self.recorder)
         except Exception:  # noqa: BLE001
             self._hook_failed("agent.record")
+
+    def _trace(self, fn, *args) -> None:
+        try:
+            fn(*args)
+        except Exception as exc:  # noqa: BLE001 - a picture problem must never change the episode
+            if not self.tracer.errors:
+                print(f"[trials] warning: episode pictures failed (the episode goes on):\n"
+                      f"{traceback.format_exc(limit=4)}", file=sys.stderr, flush=True)
+            self.tracer.failed(f"{type(exc).__name__}: {exc}")
 
     def _hook_failed(self, what: str) -> None:
         text = traceback.format_exc(limit=4)

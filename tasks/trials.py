@@ -5,7 +5,8 @@ OVMM-style (percentages with standard errors).
 Run folder layout: ``config.yaml`` (resolved trial config, package version, git commit),
 ``episodes.jsonl`` (one line per episode, in the order episodes finished), ``summary.json``,
 ``invocations.jsonl`` (one line per command that worked on the folder: workers, executor, host,
-commit), ``recordings/<episode_id>.rrd`` (``record=N``), and a ``.lock`` that keeps two batches
+commit), ``recordings/<episode_id>.rrd`` (``record=N``), ``episodes/<episode_id>.npz`` (the data of
+each episode's pictures in the trial report, ``tasks.episode_trace``), and a ``.lock`` that keeps two batches
 from writing the same folder.
 
 Determinism: an episode's numbers depend only on the config and (master seed, episode id)
@@ -157,7 +158,7 @@ def load_trial_config(path: str | Path) -> tuple[dict, TrialConfig]:
     return header, load_config(TrialConfig, path, ignore=PROVENANCE_KEYS)
 
 
-def check_folder_layout(out: Path, record: int = 0) -> None:
+def check_folder_layout(out: Path, record: int = 0, pictures: bool = False) -> None:
     """One clear RunFolderError when ``out`` cannot be a run folder: a file in its place or in a
     parent's, or a directory where one of its files belongs. Reads only."""
     out = Path(out)
@@ -176,6 +177,9 @@ def check_folder_layout(out: Path, record: int = 0) -> None:
                                  f"move it away (or use another --out)")
     if record and (out / "recordings").exists() and not (out / "recordings").is_dir():
         raise RunFolderError(f"run folder {str(out)!r}: recordings is a file, where the recordings folder belongs")
+    if pictures and (out / "episodes").exists() and not (out / "episodes").is_dir():
+        raise RunFolderError(f"run folder {str(out)!r}: episodes is a file, where the folder of the episodes' "
+                             f"pictures belongs; move it away (or use --no-pictures)")
 
 
 def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | None" = None,
@@ -454,12 +458,14 @@ def _json_default(o):
 # ------------------------------------------------------------------------------------------------
 # One episode
 # ------------------------------------------------------------------------------------------------
-def run_one(config: TrialConfig, episode: Episode, recording: str | Path | None = None) -> dict:
+def run_one(config: TrialConfig, episode: Episode, recording: str | Path | None = None,
+            pictures: bool = False) -> dict:
     """Run one episode in simulation and return its JSON record.
 
     The agent is wrapped for memory sampling (and, with ``recording``, a rerun ``.rrd`` of the
-    episode); neither changes its numbers. The agent's context carries the episode's trial seed
-    (for agent-side randomness such as simulated perception).
+    episode; with ``pictures``, the data of its pictures in the trial report as ``.npz`` bytes
+    under ``_trace``, see ``tasks.episode_trace``); none of it changes its numbers. The agent's
+    context carries the episode's trial seed (for agent-side randomness such as simulated perception).
     """
     from tasks.instrument import InstrumentedAgent
 
@@ -469,6 +475,11 @@ def run_one(config: TrialConfig, episode: Episode, recording: str | Path | None 
         from tasks.recording import EpisodeRecorder
 
         recorder = EpisodeRecorder(recording, recording_id=f"{config.agent}-{episode.episode_id}-s{config.seed}")
+    tracer = None
+    if pictures:
+        from tasks.episode_trace import EpisodeTracer
+
+        tracer = EpisodeTracer()
     holder: dict = {}
 
     def factory(sim):
@@ -479,7 +490,12 @@ def run_one(config: TrialConfig, episode: Episode, recording: str | Path | None 
             _log_scene(recorder, sim, episode)
             spot = sim.backend.spot
             state = lambda: (sim.world.time, spot.T_world_body(), spot.joint_positions())  # noqa: E731
-        holder["agent"] = InstrumentedAgent(agent, recorder, state)
+        if tracer is not None:
+            try:
+                tracer.bind_sim(sim, episode)
+            except Exception as exc:  # noqa: BLE001 - pictures never change the episode
+                tracer.failed(f"ground truth: {type(exc).__name__}: {exc}")
+        holder["agent"] = InstrumentedAgent(agent, recorder, state, tracer)
         return holder["agent"]
 
     try:
@@ -496,6 +512,12 @@ def run_one(config: TrialConfig, episode: Episode, recording: str | Path | None 
         _log_outcome(recorder, record)
         recorder.close()
         record["recording"] = {"path": str(recording), "errors": list(agent.hook_errors) if agent else []}
+    if tracer is not None:
+        try:
+            record["_trace"] = tracer.finish(agent, record)
+        except Exception as exc:  # noqa: BLE001 - an episode without its picture, never a lost episode
+            print(f"[trials] warning: no pictures for episode {episode.episode_id}: {type(exc).__name__}: {exc}",
+                  file=sys.stderr, flush=True)
     return record
 
 
@@ -545,17 +567,19 @@ class EpisodeJob:
     config: TrialConfig
     episode: Episode
     record: bool = False
+    pictures: bool = False
 
 
 def run_job(job: EpisodeJob) -> dict:
-    """Executor entry point: the record, plus the recording's bytes (``_recording``) when recorded,
-    so that workers on other machines need no access to the run folder."""
+    """Executor entry point: the record, plus the recording's bytes (``_recording``) when recorded
+    and the pictures' data (``_trace``) when asked for, so that workers on other machines need no
+    access to the run folder."""
     if not job.record:
-        return run_one(job.config, job.episode)
+        return run_one(job.config, job.episode, pictures=job.pictures)
     tmp = Path(tempfile.mkdtemp(prefix="helios-rec-"))
     try:
         path = tmp / f"{job.episode.episode_id}.rrd"
-        record = run_one(job.config, job.episode, recording=path)
+        record = run_one(job.config, job.episode, recording=path, pictures=job.pictures)
         record["_recording"] = path.read_bytes()
         return record
     finally:
@@ -626,18 +650,21 @@ class BatchReport:
 def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
               on_episode: Callable[[dict, int, int], None] | None = None, *, workers: int = 1,
               executor: str = "local", address: str = "local", record: int = 0,
-              on_tick: Callable[[], None] | None = None, report: BatchReport | None = None) -> list[dict]:
+              on_tick: Callable[[], None] | None = None, report: BatchReport | None = None,
+              pictures: bool = True) -> list[dict]:
     """Run the episodes not yet in ``out/episodes.jsonl``, appending each as it ends.
 
     ``workers``/``executor``/``address`` choose where episodes run (``tasks.executors``);
-    ``record`` records the first N selected episodes to ``out/recordings/<id>.rrd``. An episode
+    ``record`` records the first N selected episodes to ``out/recordings/<id>.rrd``; ``pictures``
+    keeps every episode's picture data in ``out/episodes/<id>.npz`` (``tasks.episode_trace``,
+    written before the episode's record, so a record always has its trace). An episode
     whose worker process dies is not written (a re-run retries it) and is listed in ``report``.
     Returns the finished records of ``episodes`` in episode order and writes ``summary.json``.
     """
     from tasks.executors import make_executor
 
     out = Path(out)
-    check_folder_layout(out, record)
+    check_folder_layout(out, record, pictures)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -654,7 +681,8 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
         records = {e.episode_id: done[e.episode_id] for e in episodes if e.episode_id in done}
         report.skipped = len(records)
         recorded = {e.episode_id for e in episodes[:max(0, record)]}
-        jobs = [EpisodeJob(config, e, e.episode_id in recorded) for e in episodes if e.episode_id not in done]
+        jobs = [EpisodeJob(config, e, e.episode_id in recorded, pictures)
+                for e in episodes if e.episode_id not in done]
         if jobs:
             _log_invocation(out, workers, executor, address, len(jobs), commit)
             pool = make_executor(executor, min(workers, len(jobs)) if executor == "local" else workers, address)
@@ -676,6 +704,11 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
                         continue
                     rec = outcome.value
                     rec[FINGERPRINT_FIELD] = report.fingerprint
+                    trace = rec.pop("_trace", None)
+                    if trace is not None:
+                        from tasks.episode_trace import trace_path
+
+                        _write_bytes_atomic(trace_path(out, eid), trace)
                     blob = rec.pop("_recording", None)
                     if blob is not None:
                         rel = Path("recordings") / f"{eid}.rrd"

@@ -23,3 +23,22 @@ def world():
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+@pytest.fixture(scope="session")
+def picture_runs(tmp_path_factory):
+    """Two small real runs with episode pictures and their report: the oracle on smoke-00000 (a
+    success, with grasp and release frames) and HELIOS on the same episode with 60 s of robot time
+    (a timeout, with a map). About 5 s on the 2-core machine."""
+    from helios.schema import with_overrides
+    from tasks.episodes import load_split
+    from tasks.trials import TrialConfig, run_batch
+    from tools.report import make_report
+
+    root = tmp_path_factory.mktemp("picture_runs")
+    episodes = load_split("smoke")[:1]
+    configs = {"oracle": with_overrides(TrialConfig(agent="oracle", episodes=1), []),
+               "helios": with_overrides(TrialConfig(agent="helios", episodes=1), ["runner.max_sim_time=60"])}
+    records = {name: run_batch(cfg, episodes, root / name)[0] for name, cfg in configs.items()}
+    report = make_report([root / "oracle", root / "helios"], root / "report")
+    return {"root": root, "episode": episodes[0], "configs": configs, "records": records, "report": report}

@@ -115,3 +115,47 @@ def test_report_pairs_each_run_with_the_first_episode_by_episode(tmp_path):
     assert row in result["markdown"]
     assert "Paired with a" in result["text"]
     assert "Paired with" not in make_report([a], tmp_path / "one")["text"]
+
+
+@pytest.mark.parametrize("n_runs", [1, 3])
+def test_plot_titles_and_labels_lie_inside_the_figure(tmp_path, n_runs):
+    """Issue 20 item 3: the subtask plot's title was cut off at the left edge (an axes title
+    centred over a narrow axes). Every title, axis label, bar label and legend entry of every
+    plot must lie inside its figure."""
+    import matplotlib.text
+
+    from tools.report import _pyplot, load_run, plot_failures, plot_memory, plot_subtasks
+
+    plt = _pyplot()
+    runs = [load_run(_make_run(tmp_path / f"run{i}", [(5, None)] * 3 + [(2, "receptacle_not_found"), (0, "not_found")]))
+            for i in range(n_runs)]
+
+    class Keep:                     # plt, but close() keeps the figure for a look
+        figure = None
+
+        def __getattr__(self, name):
+            return getattr(plt, name)
+
+        def close(self, fig):
+            Keep.figure = fig
+
+    for fn in (plot_subtasks, plot_failures, plot_memory):
+        fn(runs, tmp_path / "x.png", Keep())
+        fig = Keep.figure
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        texts = [fig._suptitle] if fig._suptitle is not None else []
+        for ax in fig.axes:
+            texts += [ax.title, ax.xaxis.label, ax.yaxis.label, *ax.texts]
+            if ax.get_legend() is not None:
+                texts += ax.get_legend().get_texts()
+        for legend in fig.legends:
+            texts += legend.get_texts()
+        W, H = fig.bbox.width, fig.bbox.height
+        for t in texts:
+            if not isinstance(t, matplotlib.text.Text) or not t.get_visible() or not t.get_text():
+                continue
+            bb = t.get_window_extent(renderer)
+            assert bb.x0 >= -0.5 and bb.y0 >= -0.5 and bb.x1 <= W + 0.5 and bb.y1 <= H + 0.5, \
+                (fn.__name__, t.get_text(), bb, W, H)
+        plt.close(fig)

@@ -2,7 +2,8 @@
 percent ± standard error) as text and Markdown, what the search policy decided and where its
 simulated time went (the "Decisions" and "Simulated time per phase" tables, see
 ``tasks.decisions``), PNG plots (subtask success as the paper's stacked bars, failure modes,
-memory over episode time) and one self-contained HTML page with all of it.
+memory over episode time), one HTML page with all of it, and one page per episode (its top-down
+picture, hand-camera frames and numbers; ``tools.episode_pages``) with a failure gallery.
 
     python -m tools report runs/helios runs/trusting --out runs/report
 
@@ -45,6 +46,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--names", default="", help="comma-separated row names (default: the folder names)")
     parser.add_argument("--common", action="store_true",
                         help="compare on the episodes every run has finished (runs of different lengths)")
+    parser.add_argument("--no-episode-pages", action="store_true",
+                        help="skip the per-episode pages and the failure gallery (pictures of every episode)")
 
 
 MAX_LISTED_DAMAGE = 10     # damaged lines named one by one (FILE:LINE) per run folder; the rest are counted
@@ -275,7 +278,9 @@ def plot_subtasks(runs: list[Run], path: Path, plt) -> None:
     ax.set_xlim(-0.6, len(runs) - 0.4 + 0.9)
     ax.set_ylim(0, 105)
     ax.set_ylabel("episodes (%)")
-    ax.set_title("Subtask success (each bar: episodes reaching that phase)")
+    # a figure title from the left edge: an axes title is centred on the (narrow) axes and its
+    # ends were cut off at the figure's edges with one or two runs
+    fig.suptitle("Subtask success\n(each bar: episodes reaching that phase)", fontsize=10, x=0.02, ha="left")
     ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False)
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
@@ -382,11 +387,18 @@ def _html_table(headers, rows) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def write_html(path: Path, runs: list[Run], tables: list[tuple[str, list, list]], figures: list[Path]) -> None:
+def write_html(path: Path, runs: list[Run], tables: list[tuple[str, list, list]], figures: list[Path],
+               episodes: list[tuple[Run, list]] = ()) -> None:
+    """index.html: the tables, the plots (embedded), and per run a failure gallery and the
+    per-episode table, whose rows and thumbnails link to the episode pages (relative links)."""
+    from tools.episode_pages import episode_table_html, failure_gallery_html
+
     parts = ["<!doctype html><html><head><meta charset='utf-8'><title>HELIOS trial report</title><style>",
              "body{font-family:sans-serif;margin:2em;max-width:1100px}table{border-collapse:collapse;margin:1em 0}"
              "td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}td:first-child,th:first-child{text-align:left}"
-             "img{max-width:100%;margin:1em 0}code{background:#f4f4f4}",
+             "img{max-width:100%;margin:1em 0}code{background:#f4f4f4}"
+             "table.episodes td,table.episodes th{text-align:left}figure{display:inline-block;margin:4px;vertical-align:top}"
+             "figure img{margin:0;border:1px solid #ccc}figcaption{font-size:85%}",
              "</style></head><body><h1>HELIOS trial report</h1>"]
     for r in runs:
         cfg = r.config
@@ -398,6 +410,12 @@ def write_html(path: Path, runs: list[Run], tables: list[tuple[str, list, list]]
     for fig in figures:
         data = base64.b64encode(fig.read_bytes()).decode()
         parts.append(f"<h2>{html.escape(fig.stem)}</h2><img alt='{html.escape(fig.stem)}' src='data:image/png;base64,{data}'>")
+    for run, pages in episodes:
+        parts.append(f"<h2 id='gallery-{html.escape(run.name)}'>Failure gallery: {html.escape(run.name)}</h2>"
+                     + failure_gallery_html(pages))
+    for run, pages in episodes:
+        parts.append(f"<h2 id='episodes-{html.escape(run.name)}'>Episodes: {html.escape(run.name)}</h2>"
+                     + episode_table_html(run, pages))
     parts.append("</body></html>")
     path.write_text("\n".join(parts))
 
@@ -418,10 +436,11 @@ def restrict_to_common(runs: list[Run]) -> int:
 
 
 def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] | None = None,
-                common: bool = False) -> dict:
-    """Load the runs, write table.txt, table.md, the PNGs and index.html to ``out``; return what was
-    written (``text``, ``markdown``, ``figures``, ``html``, ``warnings``). ``common``: compare on the
-    episodes all runs have finished."""
+                common: bool = False, episode_pages: bool = True) -> dict:
+    """Load the runs, write table.txt, table.md, the PNGs, index.html and (``episode_pages``) one
+    page per episode under ``out/episodes/`` (``tools.episode_pages``); return what was written
+    (``text``, ``markdown``, ``figures``, ``html``, ``warnings``, ``pages``: run name -> its
+    ``EpisodePage`` list). ``common``: compare on the episodes all runs have finished."""
     from tools.cli import CliError, check_output_dir, check_output_file
     from tools.tables import format_markdown, format_table
 
@@ -437,6 +456,7 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     check_output_dir(out)
     for fname in ("table.txt", "table.md", "index.html", "report.json", *FIGURES):
         check_output_file(out / fname, "--out")
+    check_output_dir(out / "episodes", "--out (its episodes folder)")
     load_warnings: list[str] = []
     runs = [load_run(p, names[i] if names else None, load_warnings) for i, p in enumerate(run_paths)]
     legacy = [r for r in runs if r.legacy]
@@ -482,21 +502,30 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
         for fname, fn in zip(FIGURES, (plot_subtasks, plot_failures, plot_memory)):
             fn(runs, out / fname, plt)
             figures.append(out / fname)
-    write_html(out / "index.html", runs, tables, figures)
+    episodes: list[tuple[Run, list]] = []
+    if episode_pages:
+        from tools.episode_pages import write_episode_pages
+
+        try:
+            episodes = [(r, write_episode_pages(out, i, r)) for i, r in enumerate(runs)]
+        except ImportError as exc:
+            warnings.append(f"episode pages need Pillow (pip install -e '.[viz]'): {exc}; wrote the tables only")
+    write_html(out / "index.html", runs, tables, figures, episodes)
     from tasks.decisions import summarize_activity_time, summarize_decisions
 
     (out / "report.json").write_text(json.dumps({r.name: {"path": str(r.path), "summary": r.summary,
                                                           "decisions": summarize_decisions(r.records),
                                                           "activity_time": summarize_activity_time(r.records)}
                                                  for r in runs}, indent=2, sort_keys=True))
-    return {"text": text, "markdown": markdown, "figures": figures, "html": out / "index.html", "warnings": warnings}
+    return {"text": text, "markdown": markdown, "figures": figures, "html": out / "index.html", "warnings": warnings,
+            "pages": {r.name: pages for r, pages in episodes}}
 
 
 def run(args: argparse.Namespace) -> int:
     import sys
 
     names = [n.strip() for n in args.names.split(",")] if args.names else None
-    result = make_report(args.runs, args.out, names, common=args.common)
+    result = make_report(args.runs, args.out, names, common=args.common, episode_pages=not args.no_episode_pages)
     print(result["text"])
     print()
     print(result["markdown"])
@@ -505,5 +534,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: {w}", file=sys.stderr)
     for f in result["figures"]:
         print(f"plot: {f}")
+    pages = sum(len(p) for p in result["pages"].values())
+    if pages:
+        print(f"episode pages: {pages} in {Path(args.out) / 'episodes'}/ (linked from the report)")
     print(f"report: {result['html']}")
     return 0

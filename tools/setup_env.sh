@@ -27,6 +27,25 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
   }
 fi
 
+# 2b. Debian's chromium: tests/test_report_browser.py loads the trial report in headless Chromium
+#     (about 100 MB, ~20 s). Optional: where it cannot be installed, that test tries once more
+#     and otherwise skips with one message. HELIOS_NO_BROWSER_INSTALL=1 leaves it out.
+have_browser=""
+for b in chromium chromium-browser google-chrome google-chrome-stable chrome headless_shell; do
+  command -v "$b" >/dev/null 2>&1 && { have_browser="$b"; break; }
+done
+if [ -z "$have_browser" ] && [ -z "${HELIOS_NO_BROWSER_INSTALL:-}" ] && command -v apt-get >/dev/null 2>&1; then
+  if [ "$(id -u)" = "0" ]; then sudo_cmd=""; elif command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then
+    sudo_cmd="sudo -n"; else sudo_cmd="none"; fi
+  if [ "$sudo_cmd" != "none" ]; then
+    say "installing Debian package chromium (headless browser for the report's browser test)"
+    export DEBIAN_FRONTEND=noninteractive
+    $sudo_cmd apt-get install -y --no-install-recommends chromium >/dev/null 2>&1 || {
+      $sudo_cmd apt-get update -qq >/dev/null 2>&1 && $sudo_cmd apt-get install -y --no-install-recommends chromium >/dev/null 2>&1
+    } || say "warning: could not install chromium; the browser test will skip"
+  fi
+fi
+
 # 3. Virtual environment + pinned dependencies (torch==2.13.0 is the local CPU wheel).
 if [ ! -x "$venv/bin/python" ]; then
   say "creating $venv with $py"

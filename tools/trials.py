@@ -6,6 +6,7 @@ results, a printed OVMM-style table and ``summary.json``.
     python -m tools trials --agent oracle --episodes-file my_eval.jsonl --out runs/mine runner.max_sim_time=300
     python -m tools trials ... --executor ray --address local|auto|HOST:PORT   (pip install -e '.[ray]')
     python -m tools trials ... --record 3      (rerun recordings of the first 3 episodes)
+    python -m tools trials ... --no-pictures   (skip the per-episode picture data in OUT/episodes/)
     python -m tools trials --config configs/val_helios.yaml --workers 2 --out runs/val/helios
     python -m tools trials --config runs/val/helios/config.yaml --episodes 300 --out runs/val/helios
 
@@ -16,7 +17,8 @@ file (its ``helios_version``/``git_commit`` header is provenance, checked and ot
 fed back with the same ``--out`` it resumes that run.
 
 Re-running the same command continues an interrupted batch (finished episodes are skipped); the
-number of workers, the executor and recording may change between runs without changing a number.
+number of workers, the executor, recording and pictures may change between runs without changing a
+number.
 """
 
 from __future__ import annotations
@@ -50,6 +52,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="Ray cluster: 'local' (a private loopback-only instance), 'auto', or HOST:PORT")
     parser.add_argument("--record", type=int, default=0, metavar="N",
                         help="write rerun recordings of the first N episodes to OUT/recordings/")
+    parser.add_argument("--no-pictures", action="store_true",
+                        help="do not keep each episode's picture data (OUT/episodes/<id>.npz, tens of kB each; "
+                             "drawn by `tools report` as one page per episode)")
     parser.add_argument("--progress", default="auto", choices=MODES,
                         help="bar on a terminal, one line per episode otherwise (auto)")
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
@@ -134,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
         check_address(args.address)           # syntax, then a bounded wait for the head to answer
     episodes = select_episodes(config)
     out = check_output_dir(args.out if args.out else default_out(config))
-    check_folder_layout(out, args.record)
+    check_folder_layout(out, args.record, not args.no_pictures)
     prepare_run_folder(out, config, dry_run=True)      # refuse a folder before creating or locking anything
     where = "" if args.executor == "local" else f" on Ray ({args.address})"
     print(f"[trials] {config.agent} on {len(episodes)} episode(s) "
@@ -151,7 +156,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         records = run_batch(config, episodes, out, on_episode=lambda r, d, t: progress.update(r),
                             workers=args.workers, executor=args.executor, address=args.address,
-                            record=args.record, on_tick=progress.tick, report=report)
+                            record=args.record, on_tick=progress.tick, report=report,
+                            pictures=not args.no_pictures)
     except EpisodeSetupError as exc:
         progress.close()
         print(f"error: {exc}" + ("" if os.environ.get("HELIOS_DEBUG") else " (HELIOS_DEBUG=1 shows the traceback)"),

@@ -1,0 +1,162 @@
+"""Per-episode pictures (issue 20): captured during the trials without changing an episode, drawn
+where things really are, and linked from the report (every episode row, a failure gallery)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tasks.episode_trace import load_trace, trace_path
+from tasks.trials import deterministic_view, run_batch
+from tools.episode_pages import FAILED_TEXT, FOOTER, HEADER, MAP_PX, PATH, TARGET, map_picture
+
+
+def _image(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.open(path).convert("RGB"))
+
+
+def _pixel(trace: dict, x: float, y: float) -> tuple[int, int]:
+    """World (x, y) -> (column, row) in the top-down picture, worked out from the trace's grid and
+    the picture's documented layout (the map scaled to MAP_PX on its longer side, 1-12 px per
+    cell, north up, below a HEADER-pixel title band) rather than taken from the renderer."""
+    rows, cols = trace["map"].shape
+    cell = trace["meta"]["grid"]["cell_size"]
+    ox, oy = trace["meta"]["grid"]["origin_xy"]
+    scale = min(12.0, max(1.0, MAP_PX / max(rows, cols)))
+    sx, sy = round(cols * scale) / cols, round(rows * scale) / rows
+    return int((x - ox) / cell * sx), int(HEADER + (rows - (y - oy) / cell) * sy)
+
+
+def _page_file(runs, run: str, suffix: str) -> Path:
+    page = runs["report"]["pages"][run][0].page
+    return runs["root"] / "report" / page.replace(".html", suffix)
+
+
+def _true_target_xy(episode) -> np.ndarray:
+    """Where the episode's target object stands: from a freshly built scene, not from the trace."""
+    from sim.world import World
+    from tasks.runner import build_episode_scene
+
+    world = World()
+    try:
+        scene = build_episode_scene(world, episode)
+        return world.position(scene.object_ids[episode.target_object])[:2]
+    finally:
+        world.close()
+
+
+def test_pictures_do_not_change_an_episode(picture_runs, tmp_path):
+    """The same episodes with pictures off: identical records (bar wall time and memory), no traces."""
+    ep = picture_runs["episode"]
+    for name, cfg in picture_runs["configs"].items():
+        off = run_batch(cfg, [ep], tmp_path / name, pictures=False)[0]
+        on = picture_runs["records"][name]
+        assert deterministic_view(off) == deterministic_view(on), name
+        assert not (tmp_path / name / "episodes").exists()
+        assert trace_path(picture_runs["root"] / name, ep.episode_id).stat().st_size < 200_000
+
+
+def test_the_drawn_path_passes_through_the_start_pose(picture_runs):
+    ep = picture_runs["episode"]
+    walked = []
+    for run in ("helios", "oracle"):
+        trace = load_trace(trace_path(picture_runs["root"] / run, ep.episode_id))
+        path = trace["path"]
+        walked.append(len(path) >= 3 and np.ptp(path[:, 1:3], axis=0).max() > 0.5)
+        img = _image(_page_file(picture_runs, run, ".png"))
+        col, row = _pixel(trace, ep.start_pose.x, ep.start_pose.y)
+        assert tuple(img[row, col]) == PATH, (run, col, row, img[row, col])
+        assert (img == PATH).all(axis=-1).mean() < 0.2                        # a path, not a flood
+    assert any(walked)                                                        # somewhere beyond the start
+
+
+def test_the_target_marker_sits_at_the_true_target_location(picture_runs):
+    ep = picture_runs["episode"]
+    xy = _true_target_xy(ep)
+    for run in ("helios", "oracle"):
+        trace = load_trace(trace_path(picture_runs["root"] / run, ep.episode_id))
+        img = _image(_page_file(picture_runs, run, ".png"))
+        col, row = _pixel(trace, *xy)
+        assert tuple(img[row, col]) == TARGET, (run, img[row, col])
+        red = np.argwhere((img[:-FOOTER] == TARGET).all(axis=-1))                # (the legend has one too)
+        # the marker is small and centred there: every TARGET pixel of the map within 10 px of the true spot
+        assert len(red) and np.abs(red - (row, col)).max() <= 10, run
+
+
+def test_a_failed_episodes_page_names_its_failure_reason(picture_runs):
+    root = picture_runs["root"] / "report"
+    rec = picture_runs["records"]["helios"]
+    reason = rec["metrics"]["failure_reason"]
+    assert reason and not rec["success"], "HELIOS was meant to fail this episode in 60 s of robot time"
+    page = (root / picture_runs["report"]["pages"]["helios"][0].page).read_text()
+    assert f"<span id='failure-reason'>{reason}</span>" in page
+    ok = (root / picture_runs["report"]["pages"]["oracle"][0].page).read_text()
+    assert "Success" in ok and "failure-reason" not in ok
+    # the picture says it too: its title band is in the failure colour (and names the reason)
+    img = _image(_page_file(picture_runs, "helios", ".png"))
+    assert (img[:HEADER] == FAILED_TEXT).all(axis=-1).sum() > 50
+
+
+def test_the_report_links_every_episode_row_and_groups_failures(picture_runs):
+    root = picture_runs["root"] / "report"
+    index = (root / "index.html").read_text()
+    rows = re.findall(r"<tr class='episode-row'><td><a href='([^']+)'>([^<]+)</a>", index)
+    assert len(rows) == 2 and all((root / href).is_file() for href, _ in rows)
+    assert {href.split("/")[1] for href, _ in rows} == {"1-oracle", "2-helios"}
+    gallery = index[index.index("Failure gallery: helios"):index.index("Episodes: oracle")]
+    reason = picture_runs["records"]["helios"]["metrics"]["failure_reason"]
+    assert f"<h3 class='reason'>{reason} (1)</h3>" in gallery
+    thumbs = re.findall(r"<a href='([^']+)'><img alt='[^']*' src='([^']+)'", gallery)
+    assert len(thumbs) == 1 and all((root / a).is_file() and (root / b).is_file() for a, b in thumbs)
+    assert "No failed episodes." in index[index.index("Failure gallery: oracle"):]
+    assert "http://" not in index and "https://" not in index
+
+
+def test_key_frames_and_the_hand_camera_animation(picture_runs):
+    from PIL import Image
+
+    ep = picture_runs["episode"]
+    trace = load_trace(trace_path(picture_runs["root"] / "oracle", ep.episode_id))
+    kinds = [info["kind"] for info, _ in trace["key_frames"]]
+    m = picture_runs["records"]["oracle"]["metrics"]
+    assert m["pick_attempts"] > 0, "the oracle was meant to try a grasp here"
+    expected = ["find_obj"] * m["find_obj"] + ["grasp"] + ["find_rec"] * m["find_rec"] \
+        + ["release"] * (m["released_on"] is not None) + ["end"]
+    assert set(expected) <= set(kinds), kinds
+    present = [k for k in ("find_obj", "grasp", "release", "end") if k in expected]
+    assert [kinds.index(k) for k in present] == sorted(kinds.index(k) for k in present), kinds     # in time order
+    strip = Image.open(_page_file(picture_runs, "oracle", ".frames.png"))
+    assert strip.width >= len(kinds) * 240 and np.asarray(strip).std() > 10
+    gif = Image.open(_page_file(picture_runs, "oracle", ".gif"))
+    assert gif.n_frames >= 3
+    helios = load_trace(trace_path(picture_runs["root"] / "helios", ep.episode_id))
+    assert helios["meta"]["has_map"] and (helios["map"] > 0).mean() > 0.05      # the agent's map, explored
+    assert "detected" in [info["kind"] for info, _ in helios["key_frames"]] or helios["meta"]["candidates"]
+
+
+def test_a_trace_of_an_episode_that_never_observed_still_draws():
+    """An agent that crashed before its first frame: an empty path, no frames, no map."""
+    import io
+
+    from tasks.episode_trace import EpisodeTracer
+
+    data = EpisodeTracer().finish(object(), {"episode_id": "x", "task": "t", "agent": "a", "success": False,
+                                             "metrics": None, "error": "RuntimeError: boom\ntrace"})
+    trace = load_trace(io.BytesIO(data))
+    img, _ = map_picture(trace)
+    assert img.width > 0 and trace["meta"]["outcome"]["error"] == "RuntimeError: boom"
+
+
+def test_a_file_where_the_pictures_folder_belongs_is_one_clear_error(tmp_path):
+    from tasks.trials import RunFolderError, check_folder_layout
+
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "episodes").write_text("")
+    with pytest.raises(RunFolderError, match="episodes is a file"):
+        check_folder_layout(tmp_path / "run", pictures=True)
+    check_folder_layout(tmp_path / "run", pictures=False)

@@ -1,0 +1,411 @@
+"""One page per episode in the trial report, drawn from the run folder's traces
+(``OUT/episodes/<id>.npz``, written during the trials by ``tasks.episode_trace``):
+
+- a top-down picture (:func:`map_picture`): the occupancy map as the agent had it at the end
+  (unknown grey, free white, obstacles dark), the path walked (blue, from the start ring), the
+  frontiers the global objectives chose (orange: searching for the object, purple: for the goal
+  receptacle; numbered in the order first chosen), the candidates with their Psi for their own
+  class (dots coloured by role: object, start or goal receptacle), grasps (G), releases (R) and
+  collisions (red x), where the episode ended (black square, with its failure reason), and the ground truth from the judge: the target object (red
+  diamond; other valid instances of its class lighter), the start receptacle (brown box) and the
+  goal receptacles (green boxes);
+- a strip of hand-camera frames at the key moments (:func:`key_frame_strip`) and an animated GIF
+  of the hand camera (:func:`hand_camera_gif`);
+- the record's numbers, the failure reason and the end of the agent's log.
+
+Everything is written next to the report (``OUT/episodes/<run>/``) and linked relatively, so the
+report folder works offline and can be moved as a whole.
+"""
+
+from __future__ import annotations
+
+import html
+import io
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+MAP_COLORS = np.array([(205, 205, 205), (255, 255, 255), (70, 70, 70)], dtype=np.uint8)  # unknown, free, obstacle
+PATH = (31, 119, 180)
+TARGET = (214, 39, 40)
+OTHER_TARGET = (255, 152, 150)
+GOAL = (44, 160, 44)
+START_RECEPTACLE = (140, 86, 75)
+PICK_FRONTIER = (255, 127, 14)
+PLACE_FRONTIER = (148, 103, 189)
+CANDIDATE = {"object": (227, 119, 194), "start": (188, 189, 34), "goal": (23, 190, 207)}
+EVENT = {"grasp": (227, 119, 194), "release": (23, 190, 207), "collision": (255, 0, 0)}
+FAILED_TEXT = (178, 24, 43)      # the title of a failed episode (TARGET is kept for the target alone)
+MAP_PX = 640            # the map's longer side in pixels (the scale is clamped to 1..12 px per cell)
+HEADER = 44
+FOOTER = 46
+THUMB_WIDTH = 240
+STRIP_WIDTH = 240
+
+
+def _font(size: int):
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=size)
+    except TypeError:                                  # Pillow without FreeType sizes
+        return ImageFont.load_default()
+
+
+@dataclass(frozen=True)
+class MapFrame:
+    """World (x, y) -> picture pixel for one map picture: ``sx``/``sy`` pixels per cell, the map's
+    top-left corner at (0, ``header``), north (+y) up."""
+
+    origin_xy: tuple[float, float]
+    cell_size: float
+    rows: int
+    cols: int
+    sx: float
+    sy: float
+    header: int = HEADER
+
+    def to_pixel(self, x: float, y: float) -> tuple[float, float]:
+        return ((x - self.origin_xy[0]) / self.cell_size * self.sx,
+                self.header + (self.rows - (y - self.origin_xy[1]) / self.cell_size) * self.sy)
+
+
+def map_frame(trace: dict, max_px: int = MAP_PX) -> MapFrame:
+    rows, cols = trace["map"].shape
+    grid = trace["meta"]["grid"]
+    scale = min(12.0, max(1.0, max_px / max(rows, cols)))
+    w, h = max(1, round(cols * scale)), max(1, round(rows * scale))
+    return MapFrame(tuple(grid["origin_xy"]), float(grid["cell_size"]), rows, cols, w / cols, h / rows)
+
+
+def outcome_text(meta: dict) -> str:
+    out = meta["outcome"]
+    if out.get("success"):
+        return "success"
+    reason = out.get("failure_reason") or ("error" if out.get("error") else "unscored")
+    return f"failed: {reason}"
+
+
+def map_picture(trace: dict, max_px: int = MAP_PX):
+    """The top-down picture of one episode (a PIL image) and its :class:`MapFrame`."""
+    from PIL import Image, ImageDraw
+
+    meta = trace["meta"]
+    frame = map_frame(trace, max_px)
+    codes = np.clip(trace["map"], 0, len(MAP_COLORS) - 1)
+    rgb = MAP_COLORS[codes[::-1]]                      # row 0 (lowest y) at the bottom
+    w, h = round(frame.cols * frame.sx), round(frame.rows * frame.sy)
+    width = max(w, 420)
+    img = Image.new("RGB", (width, HEADER + h + FOOTER), (255, 255, 255))
+    img.paste(Image.fromarray(rgb).resize((w, h), Image.NEAREST), (0, HEADER))
+    d = ImageDraw.Draw(img)
+    small, label, title = _font(11), _font(12), _font(14)
+    P = frame.to_pixel
+    truth = meta.get("truth") or {}
+
+    def box(b, color, width):
+        (x0, y0), (x1, y1) = P(b["lo"][0], b["hi"][1]), P(b["hi"][0], b["lo"][1])
+        d.rectangle([x0, y0, x1, y1], outline=color, width=width)
+        d.text((x0 + 2, y1 + 1), b["name"], fill=color, font=small)
+
+    for b in truth.get("goals", []):
+        box(b, GOAL, 3)
+    if truth.get("start_receptacle"):
+        box(truth["start_receptacle"], START_RECEPTACLE, 2)
+    roles = {meta.get("goal_class"): "goal", meta.get("start_class"): "start", meta.get("object_class"): "object"}
+    for c in meta.get("candidates", []):
+        x, y = P(*c["xy"])
+        psi = c["psi"].get(c["class_name"])
+        color = CANDIDATE.get(roles.get(c["class_name"], "start"), CANDIDATE["start"])
+        d.ellipse([x - 4, y - 4, x + 4, y + 4], fill=color, outline=(0, 0, 0))
+        if psi is not None:
+            d.text((x + 6, y - 7), f"{psi:.2f}", fill=(0, 0, 0), font=small)
+    for key, color in (("pick", PICK_FRONTIER), ("place", PLACE_FRONTIER)):
+        seen: list[tuple[float, float]] = []
+        for fx, fy, _value in meta.get("frontiers", {}).get(key, []):
+            if any(abs(fx - a) < 1e-6 and abs(fy - b) < 1e-6 for a, b in seen):
+                continue
+            seen.append((fx, fy))
+            x, y = P(fx, fy)
+            d.rectangle([x - 6, y - 6, x + 6, y + 6], fill=color, outline=(0, 0, 0))
+            d.text((x - 3 if len(seen) < 10 else x - 6, y - 7), str(len(seen)), fill=(0, 0, 0), font=small)
+    path = trace["path"]
+    start = truth.get("start_pose") or (list(path[0, 1:3]) if len(path) else None)
+    if start is not None:
+        x, y = P(start[0], start[1])
+        d.ellipse([x - 8, y - 8, x + 8, y + 8], outline=(0, 0, 0), width=2)
+        d.text((x + 10, y + 4), "start", fill=(0, 0, 0), font=small)
+    pts = [P(float(px), float(py)) for px, py in path[:, 1:3]]
+    if len(pts) > 1:
+        d.line(pts, fill=PATH, width=3, joint="curve")
+    for x, y in pts[:1] + pts[-1:]:
+        d.ellipse([x - 2, y - 2, x + 2, y + 2], fill=PATH)
+    for ev in meta.get("events", []):
+        x, y = P(*ev["xy"])
+        color = EVENT.get(ev["kind"], (0, 0, 0))
+        if ev["kind"] == "collision":
+            d.line([x - 5, y - 5, x + 5, y + 5], fill=color, width=2)
+            d.line([x - 5, y + 5, x + 5, y - 5], fill=color, width=2)
+        else:
+            d.ellipse([x - 7, y - 7, x + 7, y + 7], outline=color, width=2)
+            d.text((x - 3, y - 7), ev["kind"][0].upper(), fill=color, font=small)
+    if len(path):
+        x, y = P(float(path[-1, 1]), float(path[-1, 2]))
+        d.rectangle([x - 7, y - 7, x + 7, y + 7], outline=(0, 0, 0), width=2)
+        d.text((x + 10, y - 8), f"end: {outcome_text(meta)}", fill=(0, 0, 0), font=label)
+    for o in sorted(truth.get("targets", []), key=lambda o: o["named"]):
+        x, y = P(o["xyz"][0], o["xyz"][1])
+        r = 7 if o["named"] else 5
+        d.polygon([(x, y - r), (x + r, y), (x, y + r), (x - r, y)], fill=TARGET if o["named"] else OTHER_TARGET,
+                  outline=(255, 255, 255))
+    head = f"{meta.get('episode_id')}  ·  {meta.get('agent')}  ·  {outcome_text(meta)}"
+    d.text((6, 4), head, fill=(0, 0, 0) if meta["outcome"].get("success") else FAILED_TEXT, font=title)
+    d.text((6, 24), str(meta.get("task") or ""), fill=(60, 60, 60), font=label)
+    _legend(d, 6, HEADER + h + 6, small, meta.get("has_map", False))
+    return img, frame
+
+
+def _legend(d, x: int, y: int, font, has_map: bool) -> None:
+    items = [("path", "line", PATH), ("target (truth)", "diamond", TARGET), ("goal receptacles", "box", GOAL),
+             ("start receptacle", "box", START_RECEPTACLE), ("end", "square", (0, 0, 0))]
+    if has_map:
+        items += [("frontiers: object", "fill", PICK_FRONTIER), ("goal", "fill", PLACE_FRONTIER),
+                  ("candidates (Psi): object", "dot", CANDIDATE["object"]), ("start", "dot", CANDIDATE["start"]),
+                  ("goal", "dot", CANDIDATE["goal"])]
+    x0 = x
+    for text, kind, color in items:
+        if x > 380:
+            x, y = x0, y + 18
+        if kind == "line":
+            d.line([x, y + 6, x + 14, y + 6], fill=color, width=3)
+        elif kind == "diamond":
+            d.polygon([(x + 7, y), (x + 14, y + 6), (x + 7, y + 12), (x, y + 6)], fill=color)
+        elif kind == "dot":
+            d.ellipse([x + 3, y + 2, x + 11, y + 10], fill=color, outline=(0, 0, 0))
+        elif kind == "fill":
+            d.rectangle([x + 1, y + 1, x + 13, y + 11], fill=color, outline=(0, 0, 0))
+        else:
+            d.rectangle([x + 1, y + 1, x + 13, y + 11], outline=color, width=2)
+        d.text((x + 18, y), text, fill=(0, 0, 0), font=font)
+        x += 26 + int(d.textlength(text, font=font))
+
+
+def key_frame_strip(trace: dict):
+    """The key hand-camera frames side by side with their captions (a PIL image), or None."""
+    from PIL import Image, ImageDraw
+
+    frames = []
+    for info, data in trace["key_frames"]:
+        try:
+            im = Image.open(io.BytesIO(data)).convert("RGB")
+        except Exception:  # noqa: BLE001 - a damaged frame is left out
+            continue
+        h = round(im.height * STRIP_WIDTH / im.width)
+        frames.append((info, im.resize((STRIP_WIDTH, h), Image.BILINEAR)))
+    if not frames:
+        return None
+    font = _font(11)
+    fh = max(im.height for _, im in frames)
+    strip = Image.new("RGB", (len(frames) * (STRIP_WIDTH + 6), fh + 34), (255, 255, 255))
+    d = ImageDraw.Draw(strip)
+    for i, (info, im) in enumerate(frames):
+        x = i * (STRIP_WIDTH + 6)
+        strip.paste(im, (x, 0))
+        d.text((x + 2, fh + 2), info["label"][:42], fill=(0, 0, 0), font=font)
+        d.text((x + 2, fh + 17), f"t = {info['t']:.1f} s", fill=(90, 90, 90), font=font)
+    return strip
+
+
+def hand_camera_gif(trace: dict, path: Path) -> bool:
+    """An animated GIF of the hand camera (the trace's thinned frames); False when there are none."""
+    from PIL import Image
+
+    frames = trace["frames"]
+    if len(frames) < 2:
+        return False
+    ims = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]
+    buf = io.BytesIO()
+    ims[0].save(buf, format="GIF", save_all=True, append_images=ims[1:], duration=200, loop=0)
+    path.write_bytes(buf.getvalue())
+    return True
+
+
+# ------------------------------------------------------------------------------------------------
+# Pages
+# ------------------------------------------------------------------------------------------------
+PAGE_CSS = ("body{font-family:sans-serif;margin:1.5em;max-width:1200px}table{border-collapse:collapse;margin:.6em 0}"
+            "td,th{border:1px solid #ccc;padding:3px 8px;text-align:left}img{max-width:100%}"
+            ".fail{color:#b00;font-weight:bold}.ok{color:#080;font-weight:bold}nav a{margin-right:1em}"
+            "pre{background:#f4f4f4;padding:.6em;white-space:pre-wrap}")
+
+
+@dataclass
+class EpisodePage:
+    episode_id: str
+    page: str                 # relative to the report folder
+    thumb: str | None         # likewise; None without a trace
+    outcome: str              # "success", a failure reason, or "unscored"
+
+
+def slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("._") or "run"
+
+
+def record_outcome(record: dict) -> str:
+    m = record.get("metrics")
+    if not m:
+        return "unscored"
+    return "success" if m.get("success") else (m.get("failure_reason") or "unscored")
+
+
+def write_episode_pages(report_dir: Path, run_index: int, run, index_name: str = "index.html") -> list[EpisodePage]:
+    """Pictures and one HTML page per episode of ``run`` under ``report_dir/episodes/<run>/``."""
+    from tasks.episode_trace import load_trace, trace_path
+
+    sub = f"episodes/{run_index + 1}-{slug(run.name)}"
+    folder = report_dir / sub
+    folder.mkdir(parents=True, exist_ok=True)
+    pages: list[EpisodePage] = []
+    ids = [r["episode_id"] for r in run.records]
+    for i, rec in enumerate(run.records):
+        eid = rec["episode_id"]
+        name = slug(eid)
+        trace, problem = None, None
+        tpath = trace_path(run.path, eid)
+        if tpath.exists():
+            try:
+                trace = load_trace(tpath)
+            except Exception as exc:  # noqa: BLE001 - a damaged trace: the page says so
+                problem = f"its picture data {tpath} cannot be read ({type(exc).__name__}: {exc})"
+        else:
+            problem = "no picture data: the episode was run with --no-pictures or by an older version"
+        files: dict[str, str] = {}
+        if trace is not None:
+            img, _ = map_picture(trace)
+            img.save(folder / f"{name}.png")
+            files["map"] = f"{name}.png"
+            only_map = img.crop((0, HEADER, img.width, img.height - FOOTER))       # title and legend: on the page
+            thumb = only_map.resize((THUMB_WIDTH, max(1, round(only_map.height * THUMB_WIDTH / only_map.width))))
+            thumb.save(folder / f"{name}.thumb.png")
+            files["thumb"] = f"{name}.thumb.png"
+            strip = key_frame_strip(trace)
+            if strip is not None:
+                strip.save(folder / f"{name}.frames.png")
+                files["strip"] = f"{name}.frames.png"
+            if hand_camera_gif(trace, folder / f"{name}.gif"):
+                files["gif"] = f"{name}.gif"
+        prev_id = ids[i - 1] if i > 0 else None
+        next_id = ids[i + 1] if i + 1 < len(ids) else None
+        (folder / f"{name}.html").write_text(_page_html(run, rec, trace, files, problem, prev_id, next_id, index_name))
+        pages.append(EpisodePage(eid, f"{sub}/{name}.html", f"{sub}/{files['thumb']}" if "thumb" in files else None,
+                                 record_outcome(rec)))
+    return pages
+
+
+def _page_html(run, rec: dict, trace: dict | None, files: dict, problem: str | None, prev_id, next_id,
+               index_name: str) -> str:
+    e = html.escape
+    m = rec.get("metrics") or {}
+    outcome = record_outcome(rec)
+    nav = [f"<a href='../../{e(index_name)}'>report</a>"]
+    if prev_id:
+        nav.append(f"<a href='{e(slug(prev_id))}.html'>&larr; {e(prev_id)}</a>")
+    if next_id:
+        nav.append(f"<a href='{e(slug(next_id))}.html'>{e(next_id)} &rarr;</a>")
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{e(rec['episode_id'])} ({e(run.name)})</title>"
+             f"<style>{PAGE_CSS}</style></head><body><nav>{''.join(nav)}</nav>",
+             f"<h1>{e(rec['episode_id'])} <small>({e(run.name)}, agent {e(str(rec.get('agent')))})</small></h1>",
+             f"<p>{e(str(rec.get('task')))}</p>"]
+    if outcome == "success":
+        parts.append("<p class='ok' id='outcome'>Success</p>")
+    else:
+        parts.append(f"<p class='fail' id='outcome'>Failed: <span id='failure-reason'>{e(outcome)}</span></p>")
+    if rec.get("error"):
+        parts.append(f"<p>Error:</p><pre>{e(str(rec['error']))}</pre>")
+    phases = "".join(f"<td>{'&#10003;' if m.get(k) else '&#10007;'}</td>" for k in
+                     ("find_obj", "pick", "find_rec", "place", "success"))
+    parts.append("<table><tr><th>FindObj</th><th>Pick</th><th>FindRec</th><th>Place</th><th>SR</th><th>commands</th>"
+                 "<th>sim s</th><th>wall s</th><th>collisions</th><th>pick attempts</th><th>released on</th>"
+                 f"<th>budget used up</th></tr><tr>{phases}<td>{rec.get('commands')}</td>"
+                 f"<td>{float(rec.get('sim_time') or 0):.1f}</td><td>{float(rec.get('wall_time') or 0):.1f}</td>"
+                 f"<td>{m.get('collisions', '-')}</td><td>{m.get('pick_attempts', '-')}</td>"
+                 f"<td>{e(str(m.get('released_on') or '-'))}</td><td>{'yes' if rec.get('limit_hit') else 'no'}</td>"
+                 "</tr></table>")
+    if problem:
+        parts.append(f"<p><i>{e(problem)}</i></p>")
+    if "map" in files:
+        parts.append(f"<h2>Top-down</h2><img id='map' alt='top-down picture of {e(rec['episode_id'])}' "
+                     f"src='{e(files['map'])}'>")
+    if "strip" in files:
+        parts.append(f"<h2>Hand camera at the key moments</h2><img id='frames' alt='key frames' "
+                     f"src='{e(files['strip'])}'>")
+    if "gif" in files:
+        parts.append(f"<h2>Hand camera</h2><img id='hand-camera' alt='hand camera animation' "
+                     f"src='{e(files['gif'])}' width='384'>")
+    events = rec.get("collision_events") or []
+    if events:
+        parts.append("<h2>Collisions</h2><ul>" + "".join(
+            f"<li>t={float(c.get('time', 0)):.1f} s: {e(str(c.get('robot_link')))} touched {e(str(c.get('body')))} "
+            f"({e(str(c.get('phase')))})</li>" for c in events) + "</ul>")
+    if trace is not None:
+        meta = trace["meta"]
+        if meta.get("log"):
+            parts.append("<h2>End of the agent's log</h2><pre>" + e("\n".join(meta["log"])) + "</pre>")
+        if meta.get("errors"):
+            parts.append("<p><i>picture problems: " + e("; ".join(meta["errors"])) + "</i></p>")
+    extra = rec.get("extra") or {}
+    if extra.get("decisions"):
+        d = {k: v for k, v in extra["decisions"].items() if not isinstance(v, list)}
+        parts.append("<h2>Decisions</h2><table><tr>" + "".join(f"<th>{e(k)}</th>" for k in d) + "</tr><tr>"
+                     + "".join(f"<td>{e(str(v))}</td>" for v in d.values()) + "</tr></table>")
+    if extra.get("activity_time"):
+        a = extra["activity_time"]
+        parts.append("<h2>Simulated time per phase (s)</h2><table><tr>" + "".join(f"<th>{e(k)}</th>" for k in a)
+                     + "</tr><tr>" + "".join(f"<td>{float(v):.1f}</td>" for v in a.values()) + "</tr></table>")
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def episode_table_html(run, pages: list[EpisodePage]) -> str:
+    """The per-episode table of one run: every row links to its episode page."""
+    e = html.escape
+    by_id = {p.episode_id: p for p in pages}
+    head = ("<tr><th>episode</th><th>outcome</th><th>FindObj</th><th>Pick</th><th>FindRec</th><th>Place</th>"
+            "<th>SR</th><th>collisions</th><th>commands</th><th>sim s</th><th>task</th></tr>")
+    rows = []
+    for rec in run.records:
+        p = by_id[rec["episode_id"]]
+        m = rec.get("metrics") or {}
+        marks = "".join(f"<td>{'&#10003;' if m.get(k) else '&middot;'}</td>"
+                        for k in ("find_obj", "pick", "find_rec", "place", "success"))
+        rows.append(f"<tr class='episode-row'><td><a href='{e(p.page)}'>{e(rec['episode_id'])}</a></td>"
+                    f"<td>{e(p.outcome)}</td>{marks}<td>{m.get('collisions', '-')}</td><td>{rec.get('commands')}</td>"
+                    f"<td>{float(rec.get('sim_time') or 0):.0f}</td><td>{e(str(rec.get('task', '')))}</td></tr>")
+    return f"<table class='episodes'><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
+
+
+def failure_gallery_html(pages: list[EpisodePage]) -> str:
+    """Thumbnails of the failed episodes, grouped by failure reason (each links to its page)."""
+    from tasks.metrics import FAILURE_REASONS
+
+    e = html.escape
+    failed = [p for p in pages if p.outcome != "success"]
+    if not failed:
+        return "<p>No failed episodes.</p>"
+    order = [r for r in FAILURE_REASONS] + sorted({p.outcome for p in failed} - set(FAILURE_REASONS))
+    parts = ["<div class='gallery'>"]
+    for reason in order:
+        group = [p for p in failed if p.outcome == reason]
+        if not group:
+            continue
+        parts.append(f"<h3 class='reason'>{e(reason)} ({len(group)})</h3><div class='thumbs'>")
+        for p in group:
+            pic = f"<img alt='{e(p.episode_id)}' src='{e(p.thumb)}' width='{THUMB_WIDTH}'>" if p.thumb else \
+                "<span class='nopic'>no picture</span>"
+            parts.append(f"<figure><a href='{e(p.page)}'>{pic}</a><figcaption><a href='{e(p.page)}'>"
+                         f"{e(p.episode_id)}</a></figcaption></figure>")
+        parts.append("</div>")
+    parts.append("</div>")
+    return "".join(parts)
