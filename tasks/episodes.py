@@ -5,7 +5,9 @@ string and its categories, the target object instance and the receptacle it star
 goal receptacle instances, and the robot's start pose. Loading validates every field and reports
 ``FILE:LINE`` for the first bad record. Datasets are generated deterministically from a seed:
 the committed splits (``tasks/data/{smoke,val,train}.jsonl``) come out of
-``python -m tools episodes generate`` and a test regenerates a sample to check they still match.
+``python -m tools episodes generate`` with the seeds and counts of ``SPLIT_RECIPES`` (smoke: seed
+0, 20 easy episodes; val: seed 1, 1000; train: seed 2, 1200), and a test regenerates a sample to
+check they still match. ``SCHEMA_VERSION`` changes whenever the homes a seed builds change.
 """
 
 from __future__ import annotations
@@ -23,9 +25,19 @@ from robots.hal import SE2Pose
 from sim.scenes.catalog import GRASPABLE_CATEGORIES
 from tasks.spec import TaskSpec, TaskSpecError, parse_task
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+# What changed with each version: an episode names instances of the home its seed builds, so a
+# change of the home generator makes older files point at furniture and objects that moved or no
+# longer exist. Older files are refused with this explanation.
+SCHEMA_CHANGES = {
+    1: "the first format",
+    2: "homes from the same seed changed (several instances of the common receptacle categories per room, "
+       "chairs drawn up to tables), so version-1 episodes name instances that moved or no longer exist",
+}
 DATA_DIR = Path(__file__).with_name("data")
 SPLITS = ("smoke", "val", "train")
+# How the committed splits are made: name -> (seed, count, difficulty) of `python -m tools episodes generate`.
+SPLIT_RECIPES = {"smoke": (0, 20, "easy"), "val": (1, 1000, "normal"), "train": (2, 1200, "normal")}
 
 
 class DatasetError(ValueError):
@@ -105,8 +117,12 @@ def episode_from_dict(d: dict, where: str) -> Episode:
     if not isinstance(d, dict):
         raise DatasetError(f"{where}: expected a JSON object, got {type(d).__name__}")
     if d.get("schema_version") != SCHEMA_VERSION:
-        raise DatasetError(f"{where}: schema_version {_short(d.get('schema_version'))} is not supported "
-                           f"(this version reads {SCHEMA_VERSION}); regenerate the file with `python -m tools episodes generate`")
+        v = d.get("schema_version")
+        why = (f": in version {SCHEMA_VERSION} {SCHEMA_CHANGES[SCHEMA_VERSION]}"
+               if isinstance(v, int) and not isinstance(v, bool) and v < SCHEMA_VERSION else "")
+        raise DatasetError(f"{where}: schema_version {_short(v)} is not supported (this version reads {SCHEMA_VERSION}"
+                           f"{why}); regenerate the file with `python -m tools episodes generate --name NAME "
+                           f"--seed SEED --count N --out FILE`")
     missing = sorted(set(_FIELDS) - set(d))
     if missing:
         raise DatasetError(f"{where}: missing field(s) {', '.join(missing)}")
@@ -308,8 +324,8 @@ def _sample_start(scene, rng: np.random.Generator, room=None):
 def generate_episodes(name: str, seed: int, count: int, difficulty: str = "normal",
                       progress: Callable[[int, int], None] | None = None) -> list[Episode]:
     """``count`` validated episodes for a split called ``name``, deterministic in (name, seed, count)."""
-    from sim.scenes.home import SceneValidationError, build_home
-    from sim.scenes.layout import generate_layout
+    from sim.scenes.home import build_home
+    from sim.scenes.layout import LayoutError, generate_layout
     from sim.world import World
 
     if difficulty not in DIFFICULTIES:
@@ -330,8 +346,8 @@ def generate_episodes(name: str, seed: int, count: int, difficulty: str = "norma
         try:
             scene = build_home(world, generate_layout(scene_ref.seed, scene_ref.layout_config()))
             new = _episodes_for_scene(scene, scene_ref, rng, settings, name, lambda: next(counter))
-        except SceneValidationError:
-            new = []   # rare: a scene that does not validate is skipped, deterministically
+        except LayoutError:
+            new = []   # rare: a scene that cannot be laid out or does not validate is skipped, deterministically
         finally:
             world.close()
         episodes += new[:count - len(episodes)]

@@ -54,8 +54,11 @@ class OracleAgent:
             size = self._world.bodies[body].extra.get("size", (0.08, 0.08, 0.08))
             here = robot.observe().body_pose
             front = self._scene.front(self._support[body]) if self._support.get(body) else None
-            # aim for a reach that leaves room to lift the object afterwards
-            for pose in self._scene.nav.approach_poses(target + [0.0, 0.0, 0.15], (here.x, here.y), front)[:6]:
+            # aim for a reach that leaves room to lift the object afterwards; where no pose reaches that
+            # point (a tight spot), the object's centre + 0.15 m, which episode generation proved reachable
+            poses = self._scene.nav.approach_poses(target + [0.0, 0.0, 0.15], (here.x, here.y), front) or \
+                self._scene.nav.approach_poses(target + [0.0, 0.0, 0.5 * size[2] + 0.15], (here.x, here.y), front)
+            for pose in poses[:6]:
                 if attempts >= self.max_attempts:
                     return False
                 if not self._walk(robot, pose):

@@ -1,6 +1,7 @@
-"""Measuring the simulated detector on random views of val scenes: per-class precision and recall
-at the paper's thresholds, recall against distance, and multi-view consistency (how often one
-view's top label for an object is wrong while the majority over 5 views is right).
+"""Measuring the simulated detector on random views of a split's scenes (train by default: tune
+there, not on val): per-class precision and recall at the paper's thresholds, recall against
+distance, and multi-view consistency (how often one view's top label for an object is wrong while
+the majority over 5 views is right).
 
 Views come in groups: a random target (a small object 70 % of the time, else furniture) is seen
 from random free viewpoints (``sim.perception.views``) until ``group`` of them detect it (at most
@@ -53,7 +54,7 @@ class _ClassCounts:
 
 @dataclass
 class CalibrationSettings:
-    split: str = "val"
+    split: str = "train"          # tune on train; val is for evaluation
     views: int = 1500
     group: int = 5
     scenes: int = 8

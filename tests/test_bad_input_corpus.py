@@ -55,6 +55,11 @@ def snapshot(root: Path) -> dict[str, bytes | None]:
 # ------------------------------------------------------------------------------------------------
 # The workspace: valid and damaged inputs, made once
 # ------------------------------------------------------------------------------------------------
+# smoke-00001's first goal receptacle, and one more of its category that its home does not have
+GOAL_1 = load_split("smoke")[1].goal_receptacles[0]
+GOAL_77 = GOAL_1.rsplit("_", 1)[0] + "_77"
+
+
 def _episode(**changes) -> str:
     d = json.loads(load_split("smoke")[1].to_json())
     for key, value in changes.items():
@@ -102,14 +107,14 @@ def ws(tmp_path_factory):
         "target_missing.jsonl": _episode(target_object="cup_99").encode(),
         "target_category.jsonl": _episode(target_object="stool_2").encode(),
         "start_missing.jsonl": _episode(start_receptacle="stool_9").encode(),
-        "goal_missing.jsonl": _episode(goal_receptacles=["chair_1", "chair_77"]).encode(),
+        "goal_missing.jsonl": _episode(goal_receptacles=[GOAL_1, GOAL_77]).encode(),
         "start_1e308.jsonl": _episode(robot_start=[1e308, 4.2, 0.0]).encode(),
         "start_outside.jsonl": _episode(robot_start=[-5.0, -5.0, 0.0]).encode(),
         "start_nan.jsonl": _episode(robot_start=[float("nan"), 4.2, 0.0]).encode(),
         "long_task.jsonl": _episode(task=f"Move the {LONG} from the stool to the chair").encode(),
         "bad_id.jsonl": _episode(episode_id="smoke-../../etc").encode(),
         "long_id.jsonl": _episode(episode_id="smoke-" + LONG).encode(),
-        "schema.jsonl": _episode(schema_version=2).encode(),
+        "schema.jsonl": _episode(schema_version=1).encode(),
         "duplicate.jsonl": (_episode() + "\n" + _episode()).encode(),
     }
     for name, data in files.items():
@@ -306,14 +311,14 @@ CASES: list[tuple[str, list[str], str]] = [
     ("ep-target-missing", [*T, "--episodes-file", E + "target_missing.jsonl"], "'cup_99' is not in its home"),
     ("ep-target-category", [*T, "--episodes-file", E + "target_category.jsonl"], "is not in its home"),
     ("ep-start-missing", [*T, "--episodes-file", E + "start_missing.jsonl"], "'stool_9' is not in its home"),
-    ("ep-goal-missing", [*T, "--episodes-file", E + "goal_missing.jsonl"], "'chair_77' is not in its home"),
+    ("ep-goal-missing", [*T, "--episodes-file", E + "goal_missing.jsonl"], f"{GOAL_77!r} is not in its home"),
     ("ep-start-1e308", [*T, "--episodes-file", E + "start_1e308.jsonl"], "outside its home"),
     ("ep-start-outside", [*T, "--episodes-file", E + "start_outside.jsonl"], "outside its home"),
     ("ep-start-nan", [*T, "--episodes-file", E + "start_nan.jsonl"], "3 finite numbers"),
     ("ep-long-task", [*T, "--episodes-file", E + "long_task.jsonl"], "unknown object"),
     ("ep-bad-id", [*T, "--episodes-file", E + "bad_id.jsonl"], "episode_id"),
     ("ep-long-id", [*T, "--episodes-file", E + "long_id.jsonl"], "episode_id"),
-    ("ep-schema", [*T, "--episodes-file", E + "schema.jsonl"], "schema_version 2"),
+    ("ep-schema", [*T, "--episodes-file", E + "schema.jsonl"], "schema_version 1 is not supported"),
     ("ep-duplicate", [*T, "--episodes-file", E + "duplicate.jsonl"], "duplicate episode_id"),
     ("ep-tsdf-target-missing", ["tsdf", "smoke-00001", "--episodes-file", E + "target_missing.jsonl",
                                 "--out", "{ws}/new_tsdf"], "is not in its home"),

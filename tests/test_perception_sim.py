@@ -26,20 +26,39 @@ from sim.perception import (
     make_sim_perception,
 )
 from sim.perception.geometry import camera_around
-from sim.scenes.catalog import ALL_CATEGORIES
+from sim.scenes.catalog import ALL_CATEGORIES, OBJECT_CATEGORIES
 from sim.spot import SpotBody
 from sim.world import World
 
-KITCHEN_TABLE_OBJECTS = ("plate_1", "can_1", "phone_1", "remote_2", "bottle_2")
+def _pick_home():
+    """The first val home with a table carrying at least 5 objects and a counter in a kitchen (the
+    look-alikes on a busy table are the detector's hard cases): (episode, table, its objects, counter)."""
+    from sim.scenes.layout import generate_layout
+    from tasks.episodes import load_split
+
+    seen = set()
+    for ep in load_split("val"):
+        if ep.scene.seed in seen:
+            continue
+        seen.add(ep.scene.seed)
+        layout = generate_layout(ep.scene.seed, ep.scene.layout_config())
+        counters = [r.name for r in layout.receptacles if r.category == "counter" and r.room == "kitchen"]
+        for r in layout.receptacles:
+            on = sorted(o.name for o in layout.objects if o.receptacle == r.name)
+            if r.category == "table" and len(on) >= 5 and counters:
+                return ep, r.name, tuple(on), counters[0]
+    raise AssertionError("no val home with a busy table and a kitchen counter")
 
 
 @pytest.fixture(scope="module")
 def home():
-    """The home of val episode 0: a kitchen with a counter and a table full of look-alikes."""
-    from tasks.episodes import load_split
+    """A val home with a kitchen counter and a table full of objects (``home.table``,
+    ``home.table_objects``, ``home.counter`` name them)."""
     from tasks.runner import SimEpisode
 
-    sim = SimEpisode.create(load_split("val")[0])
+    episode, table, objects, counter = _pick_home()
+    sim = SimEpisode.create(episode)
+    sim.table, sim.table_objects, sim.counter = table, objects, counter
     yield sim
     sim.close()
 
@@ -70,16 +89,15 @@ def _centre(world, body):
 
 # --------------------------------------------------------------------------------- determinism
 def test_detections_are_deterministic_for_a_seed():
-    from tasks.episodes import load_split
     from tasks.runner import SimEpisode
 
-    episode = load_split("val")[0]
+    episode, table, _objects, _counter = _pick_home()
     names = list(ALL_CATEGORIES)
 
     def run(seed):
         sim = SimEpisode.create(episode)     # a fresh simulation: the same frames in the same order
         try:
-            target = _centre(sim.world, sim.scene.receptacle_ids["table_2"])
+            target = _centre(sim.world, sim.scene.receptacle_ids[table])
             det, scorer = make_sim_perception(sim.backend, seed, rooms=sim.scene.layout.rooms)
             out = []
             for a in (0.3, 1.9, 3.5):
@@ -98,7 +116,7 @@ def test_detections_are_deterministic_for_a_seed():
 
 
 def test_the_same_frame_gives_the_same_instance_outcome_whatever_else_is_queried(home):
-    obs = home.backend.render_at(camera_around(_centre(home.world, home.scene.receptacle_ids["table_2"]),
+    obs = home.backend.render_at(camera_around(_centre(home.world, home.scene.receptacle_ids[home.table]),
                                                1.6, 2.0, math.radians(35)))
     det = SimDetector(home.backend, seed=3)
     both = {d.class_name: d.score for d in det(obs.rgb, obs.depth, ["table", "can"])}
@@ -109,7 +127,7 @@ def test_the_same_frame_gives_the_same_instance_outcome_whatever_else_is_queried
 # --------------------------------------------------------------------------------- ground truth
 def test_gt_mode_detects_a_fully_visible_large_object_with_its_true_class(home):
     world, backend = home.world, home.backend
-    table = home.scene.receptacle_ids["table_2"]
+    table = home.scene.receptacle_ids[home.table]
     detector, scorer = make_sim_perception(backend, 5, SimPerceptionConfig(mode="gt"), rooms=home.scene.layout.rooms)
     assert isinstance(detector, GroundTruthDetector) and isinstance(scorer, GroundTruthScorer)
     obs = backend.render_at(camera_around(_centre(world, table), 2.8, 3.14, math.radians(35)))
@@ -122,11 +140,18 @@ def test_gt_mode_detects_a_fully_visible_large_object_with_its_true_class(home):
     assert np.array_equal(tables[0].mask, truth) and tables[0].score == 1.0
     assert all(world.bodies[int(np.bincount(ids[d.mask] + 1).argmax() - 1)].category == d.class_name for d in dets)
     # every visible instance of a queried object class, exactly
-    visible_cans = {b for b in np.unique(ids) if b >= 0 and world.bodies[b].category == "can"}
-    cans = detector(obs.rgb, obs.depth, ["can"])
-    assert len(cans) == len(visible_cans) >= 1
-    assert scorer(obs.rgb, [value_prompt("table")])[0] > 0.6    # 10 % of the image
-    assert scorer(obs.rgb, [value_prompt("bed")])[0] == 0.0
+    on_table = {world.bodies[home.scene.object_ids[n]].category for n in home.table_objects}
+    cat = next(world.bodies[b].category for b in np.unique(ids) if b >= 0 and world.bodies[b].category in on_table)
+    visible = {b for b in np.unique(ids) if b >= 0 and world.bodies[b].category == cat}
+    found = detector(obs.rgb, obs.depth, [cat])
+    assert len(found) == len(visible) >= 1 and {d.class_name for d in found} == {cat}
+    share = truth.mean()                                          # the scorer: the table's true visibility
+    assert scorer(obs.rgb, [value_prompt("table")])[0] == pytest.approx(
+        1 - math.exp(-share / SimPerceptionConfig().scorer_saturation_receptacle), abs=1e-9)
+    assert share > 0.05 and scorer(obs.rgb, [value_prompt("table")])[0] > 0.45
+    in_view = {world.bodies[b].category for b in np.unique(ids) if b >= 0 and b in world.bodies}
+    absent = next(c for c in ALL_CATEGORIES if c not in in_view)
+    assert scorer(obs.rgb, [value_prompt(absent)])[0] == 0.0
 
 
 # --------------------------------------------------------------------------------- view-dependent errors
@@ -135,7 +160,7 @@ def test_a_bad_viewpoint_bin_repeats_its_wrong_label_while_the_majority_over_8_v
     det = SimDetector(backend, seed=home.episode.seed)
     elevation, distance = math.radians(40), 1.1
     case = None
-    for name in KITCHEN_TABLE_OBJECTS:       # the first object on the table with a bad bin among 8 sides
+    for name in home.table_objects:          # the first object on the table with a bad bin among 8 sides
         body = home.scene.object_ids[name]
         cat = world.bodies[body].category
         query = [cat, *det.confusion.lookalikes(cat)]
@@ -153,7 +178,7 @@ def test_a_bad_viewpoint_bin_repeats_its_wrong_label_while_the_majority_over_8_v
         if any(bad for _, bad, label in views if label is not None):
             case = (name, body, cat, query, centre, views)
             break
-    assert case is not None, "no object on the kitchen table has a bad viewpoint bin"
+    assert case is not None, "no object on the table has a bad viewpoint bin"
     name, body, cat, query, centre, views = case
     assert len(views) >= 7
     labels = [label for _, _, label in views if label is not None]
@@ -195,14 +220,15 @@ def test_recall_falls_monotonically_with_distance(open_floor):
 
 
 def test_scores_are_class_conditional_so_thresholds_matter(home):
+    """Small objects (receptacle scores overlap more on purpose: test_perception_receptacles.py)."""
     world, backend = home.world, home.backend
     rng = np.random.default_rng(0)
     from sim.perception.views import random_view
 
     det = SimDetector(backend, seed=2)
-    names = list(ALL_CATEGORIES)
+    names = list(OBJECT_CATEGORIES)
     right, wrong = [], []
-    bodies = [home.scene.object_ids[n] for n in KITCHEN_TABLE_OBJECTS]
+    bodies = [home.scene.object_ids[n] for n in home.table_objects]
     for i in range(60):
         T = random_view(home.scene, world, bodies[i % len(bodies)], rng)
         if T is None:
@@ -225,7 +251,7 @@ def test_masks_are_noisy_but_close_and_furniture_parts_give_false_positives(home
 
     det = SimDetector(backend, seed=9)
     ious, part_fps = [], 0
-    table = home.scene.receptacle_ids["table_2"]
+    table = home.scene.receptacle_ids[home.table]
     for _ in range(40):
         T = random_view(home.scene, world, table, rng)
         if T is None:
@@ -238,8 +264,10 @@ def test_masks_are_noisy_but_close_and_furniture_parts_give_false_positives(home
                 continue
             if world.bodies[b].kind == "furniture" and d.class_name in ("mug", "cup"):
                 part_fps += 1
-                assert d.mask.sum() < 0.5 * (ids == b).sum()     # a part of it, not all of it
-            elif world.bodies[b].category == d.class_name and (ids == b).sum() > 500:
+                if (ids == b).sum() > 500:                        # (not a sliver of furniture at the image edge)
+                    assert d.mask.sum() < 0.5 * (ids == b).sum()     # a part of it, not all of it
+            elif world.bodies[b].category == d.class_name and (ids == b).sum() > 3000:
+                # large masks (a thin table top or its legs seen from afar lose more to the +-2 px morphology)
                 truth = ids == b
                 ious.append((d.mask & truth).sum() / (d.mask | truth).sum())
     assert len(ious) > 10
@@ -248,16 +276,30 @@ def test_masks_are_noisy_but_close_and_furniture_parts_give_false_positives(home
 
 
 # --------------------------------------------------------------------------------- scorer
+def _blank_kitchen_wall(home):
+    """An observation of a kitchen wall from 0.7 m inside the kitchen showing only walls and floor."""
+    world, backend = home.world, home.backend
+    room = next(r for r in home.scene.layout.rooms if r.kind == "kitchen" and r.contains(*home.scene.receptacle(
+        home.counter).footprint_corners().mean(axis=0)))
+    for t in np.linspace(0.15, 0.85, 15):
+        for (wx, wy), (nx, ny) in (((room.x0 + t * (room.x1 - room.x0), room.y0), (0, 1)),
+                                   ((room.x0 + t * (room.x1 - room.x0), room.y1), (0, -1)),
+                                   ((room.x0, room.y0 + t * (room.y1 - room.y0)), (1, 0)),
+                                   ((room.x1, room.y0 + t * (room.y1 - room.y0)), (-1, 0))):
+            obs = backend.render_at(look_at([wx + 0.75 * nx, wy + 0.75 * ny, 1.0], [wx, wy, 1.0]))
+            ids = decode_body_ids(backend.segmentation_for(obs))
+            if {world.bodies[b].kind for b in np.unique(ids) if b >= 0} <= {"structure", "ground"}:
+                return obs
+    raise AssertionError("no blank stretch of kitchen wall")
+
+
 def test_scorer_ranks_the_kitchen_counter_above_a_blank_wall(home):
     world, backend = home.world, home.backend
-    counter = home.scene.receptacle_ids["counter_1"]
+    counter = home.scene.receptacle_ids[home.counter]
     c = _centre(world, counter)
-    counter_view = look_at([c[0], c[1] + 1.8, 1.3], c)
-    wall_view = look_at([12.5, 2.8, 1.0], [13.5, 2.8, 1.0])     # the kitchen's east wall, 0.7 m away
-    obs_c = backend.render_at(counter_view)
-    obs_w = backend.render_at(wall_view)
-    ids_w = decode_body_ids(backend.segmentation_for(obs_w))
-    assert {world.bodies[b].kind for b in np.unique(ids_w) if b >= 0} <= {"structure", "ground"}
+    front = home.scene.front(home.counter)
+    obs_w = _blank_kitchen_wall(home)          # a kitchen wall 0.7 m away, nothing else in view
+    obs_c = backend.render_at(look_at([c[0] + 1.8 * front[0], c[1] + 1.8 * front[1], 1.3], c))
     ids_c = decode_body_ids(backend.segmentation_for(obs_c))
     assert (ids_c == counter).mean() > 0.1
     prompt = [value_prompt("counter"), value_prompt("bed")]

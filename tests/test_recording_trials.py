@@ -94,7 +94,8 @@ def _entities(path: Path) -> str:
 
 def test_a_recorded_episode_holds_robot_camera_map_plans_and_metrics(mapping_agent, tmp_path):
     out = tmp_path / "run"
-    records = run_batch(mapping_agent, load_split("smoke")[:1], out, record=1)
+    ep = load_split("smoke")[0]
+    records = run_batch(mapping_agent, [ep], out, record=1)
     rec = records[0]
     assert rec["recording"] == {"path": "recordings/smoke-00000.rrd", "errors": []}
     path = out / rec["recording"]["path"]
@@ -102,9 +103,10 @@ def test_a_recorded_episode_holds_robot_camera_map_plans_and_metrics(mapping_age
     verify = subprocess.run([str(RERUN), "rrd", "verify", str(path)], capture_output=True, text=True, timeout=60)
     assert verify.returncode == 0, verify.stderr
     stats = _entities(path)
+    value_layers = (f"/maps/value/{ep.start_receptacle_category}", f"/maps/value/{ep.goal_receptacle_category}")
     for entity in ("/world/hand_camera/rgb", "/world/hand_camera/depth", "/transforms",       # robot + camera
                    "/world/hand_camera/detections/boxes", "/world/hand_camera/detections/masks",
-                   "/maps/occupancy", "/maps/value/counter", "/maps/value/cabinet",          # map layers as images
+                   "/maps/occupancy", *value_layers,                                         # map layers as images
                    "/world/map/gaussians", "/world/map/obstacles", "/world/map/frontiers",    # map in 3D
                    "/world/plans/navigate_to", "/world/plans/plan",                          # planned paths
                    "/world/scene/target", "/world/scene/goal_receptacles", "/world/scene/walls",

@@ -115,3 +115,32 @@ def test_validation_rejects_an_object_left_in_the_air():
             build_home(world, layout)
     finally:
         world.close()
+
+
+def test_homes_have_several_instances_of_the_common_receptacles_and_chairs_at_tables():
+    """As real homes: several chairs, cabinets, shelves and counters per home, more than two of a
+    category in some rooms, and chairs drawn up to tables (facing them, with no objects on them)."""
+    layouts = [generate_layout(seed) for seed in range(12)]
+    per_home = {c: np.mean([sum(r.category == c for r in L.receptacles) for L in layouts])
+                for c in ("chair", "cabinet", "shelf", "counter", "table")}
+    assert per_home["chair"] >= 3 and per_home["cabinet"] >= 3 and per_home["shelf"] >= 3, per_home
+    assert per_home["counter"] >= 2 and per_home["table"] >= 1.2, per_home
+    most_in_a_room = max(sum(r.category == c and room.contains(r.x, r.y) for r in L.receptacles)
+                         for L in layouts for room in L.rooms for c in RECEPTACLE_CATEGORIES)
+    assert most_in_a_room >= 3
+    at_tables = [(L, r) for L in layouts for r in L.receptacles if r.at is not None]
+    assert len(at_tables) >= 10
+    for L, chair in at_tables:
+        table = L.receptacle(chair.at)
+        assert chair.category == "chair" and table.category == "table"
+        to_table = np.array([table.x - chair.x, table.y - chair.y])
+        assert np.hypot(*to_table) < 1.5
+        front = np.array([math.sin(chair.yaw), -math.cos(chair.yaw)])       # a chair is sat on from its front
+        assert front @ to_table / np.hypot(*to_table) > 0.7                  # facing the table
+        assert not [o for o in L.objects if o.receptacle == chair.name]
+    for L in layouts:   # one long side of every table is left free of its chairs
+        for table in (r for r in L.receptacles if r.category == "table"):
+            c, s = math.cos(table.yaw), math.sin(table.yaw)
+            sides = {np.sign(-s * (r.x - table.x) + c * (r.y - table.y)) for r in L.receptacles
+                     if r.at == table.name and abs(-s * (r.x - table.x) + c * (r.y - table.y)) > table.model.half_footprint[1]}
+            assert len(sides) <= 1

@@ -3,8 +3,8 @@ backend: same agent code, same judge, same outcome flags; and the teardown leave
 
 The two runs need not issue identical commands: the SDK delivers 16-bit depth (1 mm steps at the
 fake's depth_scale), and the agent's drop-place picks the surface point nearest the 99th height
-percentile, which a millimetre moves across the seat (on smoke-00001 the place point moves ~8 cm;
-raw vs JPEG colour makes no difference, the simulated detector reads ground truth). The SDK place
+percentile, which a millimetre moves across a seat (on the schema-1 smoke-00001, a chair, the place
+point moved ~8 cm; raw vs JPEG colour makes no difference, the simulated detector reads ground truth). The SDK place
 also releases from its own grip estimate, not the sim's true object extent. The outcome flags
 must still agree.
 """
@@ -59,8 +59,12 @@ def test_sdk_observation_resolves_to_the_frame_the_fake_rendered():
         ep.stop()
 
 
+# A smoke episode HELIOS completes on the sim backend at seed 0 (the same as tests/test_helios_agent.py).
+SUCCESS_EPISODE = "smoke-00000"
+
+
 def test_smoke_episode_through_sdk_matches_sim_backend():
-    episode = _episode("smoke-00001")
+    episode = _episode(SUCCESS_EPISODE)
     sim = run_sim_episode(lambda s: make_agent("helios", s), episode, seed=0)
     assert sim.success, sim.as_dict()
 

@@ -1,9 +1,14 @@
-"""Measure the simulated detector on random views of val scenes: per-class precision/recall at the
-paper's thresholds, recall against distance, and how often one view's top label is wrong while
-the majority over 5 views is right. Prints tables, writes calibration.json and calibration.png.
+"""Measure the simulated detector on random views of train scenes: per-class precision/recall at
+the paper's thresholds, recall against distance, and how often one view's top label is wrong while
+the majority over 5 views is right. Prints tables, the receptacle targets against the measured
+numbers (``sim.perception.config.RECEPTACLE_TARGETS``), writes calibration.json and
+calibration.png.
 
-    python -m tools calibrate-perception                      # 1500 views of 8 val scenes (~1 min)
+    python -m tools calibrate-perception                      # 1500 views of 8 train scenes (~1 min)
     python -m tools calibrate-perception --views 200 --out runs/pc bad_view_object=0.2
+    python -m tools calibrate-perception --baseline runs/old/calibration.json   # before/after lines
+
+Tune on ``train`` (the default); ``--split val`` measures the evaluation homes.
 
 Trailing ``key=value`` arguments override ``sim.perception.config.SimPerceptionConfig`` fields.
 """
@@ -23,11 +28,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--views", type=int, default=1500, help="views rendered in all (default 1500)")
     parser.add_argument("--group", type=int, default=5, help="views per target for the majority vote (default 5)")
     parser.add_argument("--scenes", type=int, default=8, help="distinct scenes of the split to use (default 8)")
-    parser.add_argument("--split", default="val", help="episode split whose scenes are viewed (default val)")
+    parser.add_argument("--split", default="train",
+                        help="episode split whose scenes are viewed (default train: tune there, not on val)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the view sampling (default 0)")
     parser.add_argument("--min-pixels", type=int, default=50,
                         help="an instance counts for recall when at least this many pixels show (default 50)")
     parser.add_argument("--out", default="runs/perception_calibration", help="output folder for the JSON and the plot")
+    parser.add_argument("--baseline", metavar="JSON", default=None,
+                        help="a calibration.json of an earlier run: print its receptacle numbers as 'before'")
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="SimPerceptionConfig overrides")
 
 
@@ -67,6 +75,36 @@ def tables(result: dict) -> str:
                              f"{g}-view majority right %", "single wrong but majority right %"], rows,
                             title=f"Multi-view consistency (top label of the target per view, majority over {g} views)"))
     return "\n\n".join(out)
+
+
+def receptacle_lines(result: dict, baseline: dict | None = None) -> str:
+    """Targets vs measured for the targeted receptacle role, plus before/after rows when given a
+    baseline result (the same settings on other code or parameters)."""
+    from sim.perception.config import RECEPTACLE_TARGET_ROLE, RECEPTACLE_TARGETS
+
+    t = RECEPTACLE_TARGETS
+    tol = t["tolerance"]
+    r = result["task_query"][RECEPTACLE_TARGET_ROLE]
+    verdicts = []
+    for key in ("precision", "recall"):
+        v = r[key]
+        ok = v is not None and abs(v - t[key]) <= tol + 1e-9
+        verdicts.append(f"{key} {_pct(v)} % (target {100 * t[key]:.0f} +- {100 * tol:.0f}: {'met' if ok else 'NOT met'})")
+    lines = [f"Receptacle targets ({RECEPTACLE_TARGET_ROLE}, single view, od_a="
+             f"{result['thresholds']['od_start_receptacle']:.2f}): " + "; ".join(verdicts)]
+    rows = []
+    for label, res in (("before", baseline), ("after" if baseline else "measured", result)):
+        if res is None:
+            continue
+        for role in ("start receptacle", "goal receptacle"):
+            x = res["task_query"][role]
+            rows.append((label, role, _pct(x["precision"]), _pct(x["recall"]), x["tp"], x["fp"], x["instances"]))
+        x = res["pooled"]["receptacles"]
+        rows.append((label, "all receptacles (full vocabulary)", _pct(x["precision"]), _pct(x["recall"]), x["tp"],
+                     x["fp"], x["instances"]))
+    lines.append(format_table(["run", "receptacles", "precision %", "recall %", "TP", "FP", "instances"], rows,
+                              title="Receptacles, single view" + (" (before / after)" if baseline else "")))
+    return "\n".join(lines)
 
 
 def plot(result: dict, path: Path) -> None:
@@ -135,6 +173,16 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--seed must be >= 0, got {args.seed}")
     if args.min_pixels < 1:
         raise CliError(f"--min-pixels must be >= 1, got {args.min_pixels}")
+    baseline = None
+    if args.baseline:
+        from helios.schema import short_repr
+
+        try:
+            baseline = json.loads(Path(args.baseline).read_text())
+            baseline["task_query"]["start receptacle"], baseline["pooled"]["receptacles"]
+        except (OSError, ValueError, KeyError, TypeError, RecursionError) as exc:
+            raise CliError(f"--baseline {short_repr(args.baseline, 100)}: not a calibration.json of this tool "
+                           f"({short_repr(str(exc), 100)})") from None
     config = with_overrides(SimPerceptionConfig(), args.overrides)
     if config.mode != "noisy":
         raise CliError("calibration measures the noisy simulated detector; mode=gt is perfect by construction")
@@ -151,6 +199,8 @@ def run(args: argparse.Namespace) -> int:
     result = calibrate(settings, config, progress=lambda line: print(line, flush=True))
     print()
     print(tables(result))
+    print()
+    print(receptacle_lines(result, baseline))
     (out / "calibration.json").write_text(json.dumps(result, indent=1, default=str))
     plot(result, out / "calibration.png")
     print(f"\nwrote {out / 'calibration.json'} and {out / 'calibration.png'} ({result['seconds']:.0f} s)")

@@ -1,10 +1,13 @@
 """The confusion table of the simulated detector: which categories each category is mistaken for.
 
 It starts from the catalogue's look-alike families (``sim.scenes.catalog.LOOKALIKES``: mug / cup /
-glass / jar, bowl / plate, table / desk / counter, stool / chair, ...), every pair of a family
-with weight 1, and adds a few cross-family confusions open-vocabulary detectors make
-(``EXTRA_LOOKALIKES``, weight ``SimPerceptionConfig.lookalike_weight_extra``): a banana for a toy,
-a counter for a cabinet, a plastic box (furniture) for a box (object), ...
+glass / jar, bowl / plate, table / desk / counter, stool / chair, shelf / cabinet / filing cabinet,
+sofa / bed, ...), every pair of a family with weight 1, and adds a few cross-family confusions
+open-vocabulary detectors make (``EXTRA_LOOKALIKES``, weight
+``SimPerceptionConfig.lookalike_weight_extra``): a banana for a toy, a counter for a cabinet, a
+chair or a stool for a sofa, a stool for a table, a plastic box (furniture) for a box (object), ...
+Furniture confusions drive both the persistent bad-view labels and the phantom receptacles on
+parts of other furniture (``SimPerceptionConfig.receptacle_part_false_positive``).
 """
 
 from __future__ import annotations
@@ -15,6 +18,8 @@ EXTRA_LOOKALIKES: tuple[tuple[str, str], ...] = (
     ("banana", "toy"), ("banana", "remote"), ("counter", "cabinet"), ("desk", "filing cabinet"),
     ("plastic box", "box"), ("chair", "sofa"), ("shelf", "desk"), ("bowl", "mug"), ("vase", "glass"),
     ("apple", "toy"), ("book", "phone"), ("soap", "box"),
+    # furniture: seats (chair / stool / sofa), a stool for a small table, a desk for a low cabinet
+    ("stool", "sofa"), ("table", "stool"), ("cabinet", "desk"),
 )
 
 

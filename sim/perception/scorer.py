@@ -9,8 +9,8 @@ clipped to [0, 1], where f_c is the fraction of the image showing instances of t
 category and f_k that of its look-alikes (confusion weights w_k). The room the camera looks into
 comes from the depth image (world points seen, assigned to the home's rooms) when the rooms are
 given, else from the room tags of the visible furniture. Room priors come from the home generator
-(``sim.scenes.layout.ROOM_FURNITURE``): a kitchen always has a counter (prior 1), a kitchen
-sometimes has a cabinet (0.6), a bed is never in a kitchen (0). Small objects are placed on any
+(``sim.scenes.layout.ROOM_FURNITURE``, ``TABLE_CHAIRS``): a kitchen always has a counter (prior 1),
+a kitchen sometimes has a cabinet (0.65), a bed is never in a kitchen (0). Small objects are placed on any
 surface in any room, so they get no room prior.
 
 Ground-truth mode (:class:`GroundTruthScorer`): 1 - exp(-f_c / saturation_c), no priors, no noise.
@@ -32,19 +32,26 @@ from sim.perception.confusion import ConfusionTable, category_group
 from sim.perception.frames import FrameAnalysis, FrameAnalyzer
 from sim.perception.geometry import normal
 from sim.scenes.catalog import ALL_CATEGORIES
-from sim.scenes.layout import OPTIONAL_PROBABILITY, ROOM_FURNITURE
+from sim.scenes.layout import OPTIONAL_PROBABILITY, ROOM_FURNITURE, TABLE_CHAIRS
 
 _NOISE = 201
 _CAT_KEY = {c: zlib.crc32(c.encode()) for c in ALL_CATEGORIES}
 
 
 def room_prior(category: str, room_kind: str) -> float:
-    """How typical ``category`` is for a room kind, in [0, 1] (from the home generator's rules)."""
+    """How typical ``category`` is for a room kind, in [0, 1] (from the home generator's rules;
+    chairs also come with the room's tables, ``TABLE_CHAIRS``)."""
     entries = ROOM_FURNITURE.get(room_kind, [])
+    prior = 0.0
     for i, (c, _p, _n) in enumerate(entries):
         if c == category:
-            return 1.0 if i == 0 else OPTIONAL_PROBABILITY
-    return 0.0
+            prior = 1.0 if i == 0 else OPTIONAL_PROBABILITY
+            break
+    if category == "chair":
+        lo, hi = TABLE_CHAIRS.get(room_kind, (0, 0))
+        if hi > 0:
+            prior = max(prior, room_prior("table", room_kind) * (1.0 if lo > 0 else 0.5))
+    return prior
 
 
 def parse_prompts(prompts: Sequence[str]) -> list[str]:

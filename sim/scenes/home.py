@@ -15,13 +15,14 @@ import numpy as np
 from robots.hal import SE2Pose
 from sim import assets
 from sim.grasping import support_body
-from sim.scenes.layout import HomeLayout, LayoutConfig, PlacedObject, PlacedReceptacle, generate_layout
+from sim.scenes.layout import HomeLayout, LayoutConfig, LayoutError, PlacedObject, PlacedReceptacle, generate_layout
 from sim.scenes.navigation import NavConfig, NavGrid
 from sim.world import FURNITURE, World
 
 
-class SceneValidationError(RuntimeError):
-    """A generated scene failed a physical or reachability check (names the seed and the problem)."""
+class SceneValidationError(LayoutError):
+    """A generated scene failed a physical or reachability check (names the seed and the problem).
+    A ``LayoutError`` too (like a layout that cannot be completed): ``except LayoutError`` skips both."""
 
 
 @dataclass

@@ -5,18 +5,20 @@ knows nothing of PyBullet; ``sim.scenes.home`` turns it into bodies. Generation:
 
 1. the footprint (8-15 m a side) is split recursively (binary space partition) into 3-6 rooms, each
    split line getting one doorway, so every room is reachable;
-2. rooms get types (kitchen, living room, bedroom, office, hallway) and furniture typical for them:
-   wall-standing pieces along walls away from doorways, free-standing ones inside with at least a
-   robot's width of clearance;
+2. rooms get types (kitchen, living room, bedroom, office, hallway) and furniture typical for them,
+   several instances of the common categories as real homes have (up to 3 counters, cabinets,
+   stools or chairs in a room, 2 tables, shelves, desks): wall-standing pieces along walls away
+   from doorways, free-standing ones inside with at least a robot's width of clearance, and chairs
+   drawn up to tables (``TABLE_CHAIRS``; one long side of a table is always left free to reach it);
 3. small objects go on receptacle surfaces with an edge margin, several instances per category and
-   look-alike families side by side;
+   look-alike families side by side (not on the chairs at a table: they are not reachable);
 4. Spot starts at a random free spot.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -32,16 +34,22 @@ from sim.scenes.catalog import (
 ROOM_FURNITURE: dict[str, list[tuple[str, float, int]]] = {
     # room type -> (category, probability of each extra copy after the first, max count); first entries are
     # always placed when they fit.
-    "kitchen": [("counter", 0.5, 2), ("table", 0.3, 1), ("stool", 0.5, 2), ("cabinet", 0.3, 1), ("plastic box", 0.0, 1)],
-    "living room": [("sofa", 0.0, 1), ("table", 0.3, 1), ("shelf", 0.3, 1), ("chair", 0.5, 2), ("cabinet", 0.0, 1),
-                    ("stool", 0.0, 1)],
-    "bedroom": [("bed", 0.0, 1), ("cabinet", 0.3, 1), ("chair", 0.0, 1), ("shelf", 0.0, 1), ("desk", 0.0, 1)],
-    "office": [("desk", 0.3, 1), ("chair", 0.3, 2), ("filing cabinet", 0.5, 2), ("shelf", 0.0, 1),
+    "kitchen": [("counter", 0.6, 3), ("table", 0.3, 2), ("stool", 0.5, 3), ("cabinet", 0.5, 3), ("shelf", 0.0, 1),
+                ("plastic box", 0.0, 1)],
+    "living room": [("sofa", 0.3, 2), ("table", 0.5, 2), ("shelf", 0.5, 2), ("chair", 0.5, 3), ("cabinet", 0.5, 2),
+                    ("stool", 0.3, 2)],
+    "bedroom": [("bed", 0.0, 1), ("cabinet", 0.5, 2), ("chair", 0.3, 2), ("shelf", 0.5, 2), ("desk", 0.0, 1),
+                ("table", 0.0, 1)],
+    "office": [("desk", 0.5, 2), ("chair", 0.5, 3), ("filing cabinet", 0.5, 2), ("shelf", 0.5, 2), ("cabinet", 0.3, 2),
                ("plastic box", 0.3, 1), ("table", 0.0, 1)],
-    "hallway": [("cabinet", 0.0, 1), ("shelf", 0.0, 1), ("stool", 0.0, 1), ("plastic box", 0.0, 1)],
+    "hallway": [("cabinet", 0.3, 2), ("shelf", 0.3, 2), ("stool", 0.0, 1), ("plastic box", 0.0, 1), ("table", 0.0, 1)],
 }
 # Probability that an optional (non-first) furniture entry is placed at all.
-OPTIONAL_PROBABILITY = 0.6
+OPTIONAL_PROBABILITY = 0.65
+# room type -> (min, max) chairs drawn up to each table placed there (where they fit).
+TABLE_CHAIRS: dict[str, tuple[int, int]] = {"kitchen": (2, 4), "living room": (0, 2), "office": (1, 2),
+                                            "bedroom": (0, 1), "hallway": (0, 0)}
+CHAIR_PASSAGE = 0.7   # m kept free between a chair at a table and other furniture
 
 
 @dataclass(frozen=True)
@@ -99,6 +107,7 @@ class PlacedReceptacle:
     y: float
     yaw: float
     room: str
+    at: str | None = None     # a chair drawn up to this table (no objects on it; not reachable)
 
     @property
     def category(self) -> str:
@@ -347,7 +356,58 @@ def _place_furniture(rng, cfg: LayoutConfig, room: Room, kind_list, walls, doors
                 counters[category] = counters.get(category, 0) + 1
                 candidate.name = f"{category.replace(' ', '_')}_{counters[category]}"
                 placed.append(candidate)
+                if category == "table":
+                    _place_table_chairs(rng, cfg, room, candidate, walls, doors, placed, counters)
                 break
+
+
+def _place_table_chairs(rng, cfg: LayoutConfig, room: Room, table: PlacedReceptacle, walls, doors, placed,
+                        counters) -> None:
+    """Chairs drawn up to ``table`` (facing it, 5-15 cm from its edge): at most two along one long
+    side and one at each end, so the other long side stays free for the robot. A slot is skipped
+    where the chair would block a wall, a doorway, another piece's passage or the room's paths."""
+    lo, hi = TABLE_CHAIRS.get(room.kind, (0, 0))
+    n = int(rng.integers(lo, hi + 1)) if hi > 0 else 0
+    if n == 0:
+        return
+    hx, hy = table.model.half_footprint
+    side = 1.0 if rng.random() < 0.5 else -1.0
+    # (x, y) in the table frame of the chair centre before the chair's half depth is added, and the
+    # chair's yaw relative to the table (its front, the body's -y side, faces the table)
+    long_xs = (-hx / 2, hx / 2) if hx >= 0.55 else (0.0,)
+    slots = [((x, side * hy), 0.0 if side > 0 else math.pi) for x in long_xs]
+    slots += [((hx, 0.0), -math.pi / 2), ((-hx, 0.0), math.pi / 2)]
+    order = rng.permutation(len(slots))
+    c, s = math.cos(table.yaw), math.sin(table.yaw)
+    group = [table]
+    # a chair may stand closer to other furniture than free-standing pieces do (room for Spot's
+    # width, not its turning circle); the room's paths are still checked below
+    chair_cfg = replace(cfg, passage=CHAIR_PASSAGE)
+    for k in order[:n]:
+        (sx, sy), dyaw = slots[int(k)]
+        model = make_receptacle("chair", rng)
+        chx, chy = model.half_footprint
+        gap = float(rng.uniform(0.05, 0.15)) + chy
+        if abs(sy) > 0:                       # a long side: push out along y
+            lx, ly = sx, sy + math.copysign(gap, sy)
+        else:                                 # an end: push out along x
+            lx, ly = sx + math.copysign(gap, sx), sy
+        x, y = table.x + c * lx - s * ly, table.y + s * lx + c * ly
+        yaw = table.yaw + dyaw + float(rng.uniform(-0.15, 0.15))
+        others = [p for p in placed if p not in group]
+        if _blocked(x, y, yaw, chx, chy, walls, doors, others, chair_cfg, True):
+            continue
+        corners = _obb_corners(x, y, yaw, chx + 0.02, chy + 0.02)
+        if any(obb_overlap(corners, g.footprint_corners(0.02)) for g in group):
+            continue
+        candidate = PlacedReceptacle("", model, x, y, yaw, room.kind, at=table.name)
+        in_room = [p for p in placed if room.contains(p.x, p.y)] + [candidate]
+        if not _room_stays_open(room, doors, in_room):
+            continue
+        counters["chair"] = counters.get("chair", 0) + 1
+        candidate.name = f"chair_{counters['chair']}"
+        placed.append(candidate)
+        group.append(candidate)
 
 
 def _surface_world(rec: PlacedReceptacle, surface_index: int):
@@ -360,7 +420,7 @@ def _surface_world(rec: PlacedReceptacle, surface_index: int):
 
 def _place_objects(rng, cfg: LayoutConfig, receptacles, n_objects: int) -> list[PlacedObject]:
     """Objects on surfaces; categories drawn so that several instances and look-alikes co-occur."""
-    surfaces = [(r, i) for r in receptacles for i in range(len(r.model.surfaces))]
+    surfaces = [(r, i) for r in receptacles if r.at is None for i in range(len(r.model.surfaces))]
     if not surfaces:
         return []
     families = [f for f in LOOKALIKES if all(c in OBJECT_CATEGORIES for c in f)]
@@ -402,18 +462,31 @@ def _place_objects(rng, cfg: LayoutConfig, receptacles, n_objects: int) -> list[
     return objects
 
 
-def _robot_start(rng, rooms, walls, receptacles, cfg: LayoutConfig):
+class LayoutError(RuntimeError):
+    """A layout could not be completed (no free start pose for the robot); names the seed."""
+
+
+def _start_free(x: float, y: float, walls, receptacles, cfg: LayoutConfig) -> bool:
+    foot = _obb_corners(float(x), float(y), 0.0, 0.75, 0.75)   # room to turn in place
+    if any(obb_overlap(foot, r.footprint_corners(0.05)) for r in receptacles):
+        return False
+    return not any(obb_overlap(foot, _segment_rect(w.x0, w.y0, w.x1, w.y1, cfg.wall_thickness / 2)) for w in walls)
+
+
+def _robot_start(rng, rooms, walls, receptacles, cfg: LayoutConfig, seed: int = 0):
     for _ in range(200):
         room = rooms[int(rng.integers(len(rooms)))]
         x, y = rng.uniform(room.x0 + 0.8, room.x1 - 0.8), rng.uniform(room.y0 + 0.8, room.y1 - 0.8)
         yaw = float(rng.uniform(-math.pi, math.pi))
-        foot = _obb_corners(float(x), float(y), 0.0, 0.75, 0.75)   # room to turn in place
-        if any(obb_overlap(foot, r.footprint_corners(0.05)) for r in receptacles):
-            continue
-        if any(obb_overlap(foot, _segment_rect(w.x0, w.y0, w.x1, w.y1, cfg.wall_thickness / 2)) for w in walls):
-            continue
-        return (float(x), float(y), yaw)
-    raise RuntimeError("no free start pose found for the robot")
+        if _start_free(x, y, walls, receptacles, cfg):
+            return (float(x), float(y), yaw)
+    # furnished homes: scan every room on a 0.2 m grid before giving up
+    for room in rooms:
+        for x in np.arange(room.x0 + 0.8, room.x1 - 0.8 + 1e-9, 0.2):
+            for y in np.arange(room.y0 + 0.8, room.y1 - 0.8 + 1e-9, 0.2):
+                if _start_free(x, y, walls, receptacles, cfg):
+                    return (float(x), float(y), float(rng.uniform(-math.pi, math.pi)))
+    raise LayoutError(f"home seed {seed}: no free start pose found for the robot")
 
 
 def generate_layout(seed: int, config: LayoutConfig = LayoutConfig()) -> HomeLayout:
@@ -433,5 +506,5 @@ def generate_layout(seed: int, config: LayoutConfig = LayoutConfig()) -> HomeLay
         _place_furniture(rng, config, room, ROOM_FURNITURE[room.kind], walls, doors, placed, counters)
     n_objects = max(config.min_objects, int(round(config.objects_per_m2 * w * d)))
     objects = _place_objects(rng, config, placed, n_objects)
-    start = _robot_start(rng, rooms, walls, placed, config)
+    start = _robot_start(rng, rooms, walls, placed, config, seed)
     return HomeLayout(seed, w, d, rooms, walls, doors, placed, objects, start, config)
