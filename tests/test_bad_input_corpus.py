@@ -506,7 +506,7 @@ def test_every_numeric_config_field_has_a_range():
     from robots.spot.sdk_backend import SdkBackendConfig
     from tasks.tsdf import TsdfConfig
 
-    exempt_prefixes = ("perception.",)
+    exempt_prefixes = ()
 
     def numeric_fields(cls, prefix=""):
         hints = typing.get_type_hints(cls)

@@ -38,7 +38,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
-from helios.schema import require
+from helios.schema import require, require_range
 
 
 RECEPTACLE_TARGETS: dict[str, float] = {"precision": 0.65, "recall": 0.60, "tolerance": 0.05}
@@ -226,3 +226,8 @@ class SimPerceptionConfig:
         require(self.mask_morph_px >= 0 and self.mask_shift_px >= 0, "mask noise sizes must be >= 0")
         require(self.lookalike_weight_extra >= 0 and self.scorer_lookalike_gain >= 0, "weights must be >= 0")
         require(self.scorer_noise >= 0, "scorer_noise must be >= 0")
+        # logits beyond +-10 are scores of 0.99995 / 0.00005: no detector calibration needs them
+        require_range(self, "score_correct_logit score_wrong_logit score_false_positive_logit "
+                            "score_correct_logit_receptacle score_wrong_logit_receptacle "
+                            "score_false_positive_logit_receptacle", -10.0, 10.0)
+        require_range(self, "scorer_base scorer_evidence_gain scorer_room_gain", 0.0, 1.0)
