@@ -34,15 +34,9 @@ from __future__ import annotations
 import statistics
 from typing import Iterable
 
-ACTIVITIES = ("start_scan", "exploration", "local_search", "pick", "carry", "place")
-"""The activities in table order; the same as ``helios.agents.helios_agent.ACTIVITIES`` (kept here
-so a report does not import the agent; a test checks they agree). Unknown ones follow in the
-order they appear."""
+from helios.agents.activities import ACTIVITIES, DECISION_COUNTS
 
-DECISION_COUNTS = ("global_with_candidates", "chose_candidate_before_f0", "chose_frontier_before_f0",
-                   "chose_candidate_after_f0", "chose_frontier_after_f0", "extra_views_object",
-                   "extra_views_goal", "gaze_point_visits")
-"""The integer counts of ``extra["decisions"]`` (``helios.agents.helios_agent.DECISION_COUNTS``)."""
+# ACTIVITIES: table order; activities not in it follow in the order they appear.
 
 
 def _extra(record: dict, key: str):

@@ -166,7 +166,7 @@ def run_episode(agent: Agent, backend: RobotBackend, episode: Episode, config: R
 
 class _ActivityClock:
     """Simulated seconds per activity, for agents that name what each ``act`` did in an optional
-    ``activity`` attribute (HELIOS: ``helios.agents.helios_agent.ACTIVITIES``). After every act,
+    ``activity`` attribute (HELIOS: ``helios.agents.activities.ACTIVITIES``). After every act,
     the robot time that act took (``MonitoredBackend.elapsed`` before and after, so the sim clock
     only) goes to the activity the agent names then; time before the first act (the agent's
     ``reset``) goes to the first. ``totals`` stays None for agents without ``activity``; otherwise

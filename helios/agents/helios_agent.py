@@ -40,6 +40,7 @@ from typing import Sequence
 
 import numpy as np
 
+from helios.agents.activities import ACTIVITIES, DECISION_COUNTS  # noqa: F401  (ACTIVITIES: re-exported)
 from helios.agents.body import Body
 from helios.agents.candidates import candidate_targets, is_candidate
 from helios.agents.config import AgentConfig
@@ -67,16 +68,6 @@ class Phase(Enum):
     PICK = "pick"
     PLACE = "place"
     DONE = "done"
-
-
-ACTIVITIES = ("start_scan", "exploration", "local_search", "pick", "carry", "place")
-"""What an ``act`` can be doing: the start scan; exploring frontiers (rescue and revisits too);
-local search of a candidate pick location or an extra view of a target candidate; the pick skill;
-carrying the object while searching for the goal receptacle (its extra views too); the place skill."""
-
-DECISION_COUNTS = ("global_with_candidates", "chose_candidate_before_f0", "chose_frontier_before_f0",
-                   "chose_candidate_after_f0", "chose_frontier_after_f0", "extra_views_object",
-                   "extra_views_goal", "gaze_point_visits")
 
 
 @dataclass
