@@ -20,7 +20,7 @@ from typing import Callable
 from tasks.episodes import Episode
 from tasks.metrics import EpisodeJudge, MetricsConfig
 from tasks.registry import RunContext, make_agent
-from tasks.runner import EpisodeResult, RunnerConfig, build_episode_scene, run_episode
+from tasks.runner import EpisodeResult, RunnerConfig, build_episode_world, run_episode
 
 
 def start_episode_fake(pki, episode: Episode, username: str, password: str, sim_config=None,
@@ -36,16 +36,12 @@ def start_episode_fake(pki, episode: Episode, username: str, password: str, sim_
     from robots.spot.fake_spot.sim_robot import FakeRobotSim
     from robots.spot.fake_spot.sim_view import FakeSimView, LockedJudge
     from robots.spot.sim_backend import SimBackendConfig
-    from sim.spot import SpotBody
-    from sim.world import World
 
     if not isinstance(pki, TestPKI):
         pki = make_test_pki(pki)
     sim_config = sim_config or SimBackendConfig()
-    world = World(sim_config.world)
+    world, scene, spot = build_episode_world(episode, sim_config)
     try:
-        scene = build_episode_scene(world, episode)
-        spot = SpotBody(world, episode.start_pose)
         sim = FakeRobotSim(world, spot, sim_config)
         fake = FakeSpot(sim, pki, username, password, **fake_kwargs)
         view = FakeSimView(fake)

@@ -208,6 +208,22 @@ def build_episode_scene(world, episode: Episode):
     return scene
 
 
+def build_episode_world(episode: Episode, sim_config):
+    """A world holding ``episode``'s home with Spot at its start pose: (world, scene, spot). The
+    simulated episode and the fake Spot both start here; the world is closed if building fails."""
+    from sim.spot import SpotBody
+    from sim.world import World
+
+    world = World(sim_config.world)
+    try:
+        scene = build_episode_scene(world, episode)
+        spot = SpotBody(world, episode.start_pose)
+    except Exception:
+        world.close()
+        raise
+    return world, scene, spot
+
+
 @dataclass
 class SimEpisode:
     """Everything a simulated episode needs: world, scene, Spot, the HAL backend and the judge."""
@@ -221,15 +237,11 @@ class SimEpisode:
     @classmethod
     def create(cls, episode: Episode, sim_config=None, metrics: MetricsConfig = MetricsConfig()) -> "SimEpisode":
         from robots.spot.sim_backend import SimBackendConfig, SimSpotBackend
-        from sim.spot import SpotBody
-        from sim.world import World
         from tasks.metrics import EpisodeJudge
 
         sim_config = sim_config or SimBackendConfig()
-        world = World(sim_config.world)
+        world, scene, spot = build_episode_world(episode, sim_config)
         try:
-            scene = build_episode_scene(world, episode)
-            spot = SpotBody(world, episode.start_pose)
             backend = SimSpotBackend(world, spot, sim_config)
             judge = EpisodeJudge(backend, scene, episode, metrics)
         except Exception:
