@@ -31,6 +31,9 @@ def configure_threads(n: int = 1) -> None:
         pass
     import sys
 
+    import cv2     # OpenCV's pool (erosions, distance transforms) would use every core
+
+    cv2.setNumThreads(n)
     if "torch" in sys.modules:
         import torch
 

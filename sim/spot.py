@@ -166,16 +166,10 @@ class SpotBody:
         hi = [v + pad for v in hi]
         hits: list[tuple[str, int]] = []
         skip = set(exclude_bodies) | {self.id}
-        for info in self.world.bodies.values():
-            if info.body_id in skip or info.kind == GROUND:
-                continue
-            blo, bhi = self.world.body_aabb(info.body_id)
-            if (bhi[0] < lo[0] or bhi[1] < lo[1] or bhi[2] < lo[2]
-                    or blo[0] > hi[0] or blo[1] > hi[1] or blo[2] > hi[2]):
-                continue
-            for pt in c.getClosestPoints(self.id, info.body_id, distance=margin):
+        for body_id in self.world.bodies_overlapping(lo, hi, skip):
+            for pt in c.getClosestPoints(self.id, body_id, distance=margin):
                 link_name = self.link_name.get(pt[3], str(pt[3]))
                 if pt[3] in exclude_links:
                     continue
-                hits.append((link_name, info.body_id))
+                hits.append((link_name, body_id))
         return hits

@@ -70,12 +70,20 @@ VISUAL_CALLS = frozenset({
 })
 
 
-class _LoggedClient:
-    """A BulletClient proxy that records visual-scene calls (name, args, kwargs) before forwarding."""
+# Client calls that move bodies: the one named by the first argument, or (None) any body.
+MOVING_CALLS = {"resetBasePositionAndOrientation": 0, "resetJointState": 0, "resetJointStateMultiDof": 0,
+                "resetJointStatesMultiDof": 0, "resetJointStates": 0, "removeBody": 0,
+                "stepSimulation": None, "resetSimulation": None}
 
-    def __init__(self, client, log: list):
+
+class _LoggedClient:
+    """A BulletClient proxy that records visual-scene calls (name, args, kwargs) before forwarding,
+    and tells ``moved`` which body a call may move (None: any), so cached boxes can be refreshed."""
+
+    def __init__(self, client, log: list, moved=None):
         self._client = client
         self._log = log
+        self._moved = moved
 
     def __getattr__(self, name: str):
         attr = getattr(self._client, name)
@@ -87,6 +95,14 @@ class _LoggedClient:
                 return call(*args, **kwargs)
 
             attr = logged
+        if name in MOVING_CALLS and self._moved is not None:
+            inner, which, moved = attr, MOVING_CALLS[name], self._moved
+
+            def moving(*args, **kwargs):
+                moved(args[which] if which is not None and args else None)
+                return inner(*args, **kwargs)
+
+            attr = moving
         # Cache the bound call: BulletClient builds a new partial (through inspect) on every
         # lookup, which was ~10% of an episode's wall time in collision checks.
         if name != "disconnect":     # BulletClient marks itself closed on that lookup
@@ -141,12 +157,13 @@ class World:
         self.config = config
         self.pb = pybullet
         self.visual_log: list[tuple[str, tuple, dict]] = []
-        self.client = _LoggedClient(self._raw_client, self.visual_log)
+        self.client = _LoggedClient(self._raw_client, self.visual_log, self._body_moved)
         self.time = 0.0
         self.steps = 0
         self.bodies: dict[int, BodyInfo] = {}
         self._static_aabbs: dict[int, tuple] = {}
         self._joint_counts: dict[int, int] = {}
+        self._aabb_table: _AabbTable | None = None
         self._closed = False
         self._reset_physics()
         self.ground_id = self._add_ground()
@@ -176,6 +193,7 @@ class World:
             raise ValueError(f"a body named {name!r} already exists in this world")
         info = BodyInfo(body_id, name, category, kind, extra=dict(extra))
         self.bodies[body_id] = info
+        self._aabb_table = None
         if kind == OBJECT and self.config.physics.enable_sleeping:
             self.client.changeDynamics(body_id, -1, activationState=self.pb.ACTIVATION_STATE_ENABLE_SLEEPING)
         return info
@@ -239,10 +257,10 @@ class World:
         if n_links is None:
             n_links = self._joint_counts[body_id] = c.getNumJoints(body_id)
         lo, hi = c.getAABB(body_id, -1)
-        for link in range(n_links):
-            llo, lhi = c.getAABB(body_id, link)
-            lo = tuple(map(min, lo, llo))
-            hi = tuple(map(max, hi, lhi))
+        if n_links:
+            boxes = [c.getAABB(body_id, link) for link in range(n_links)]
+            lo = tuple(map(min, lo, *(b[0] for b in boxes)))
+            hi = tuple(map(max, hi, *(b[1] for b in boxes)))
         box = (tuple(lo), tuple(hi))
         if n_links == 0 and c.getDynamicsInfo(body_id, -1)[0] == 0.0:
             self._static_aabbs[body_id] = box
@@ -251,6 +269,55 @@ class World:
     def forget_aabb(self, body_id: int) -> None:
         """Drop a cached static AABB (after moving a fixed body by hand)."""
         self._static_aabbs.pop(body_id, None)
+        self._aabb_table = None
+
+    def bodies_overlapping(self, lo, hi, skip=()) -> list[int]:
+        """Ids, in registration order, of the non-ground bodies whose AABB (see :meth:`body_aabb`)
+        overlaps the box ``lo``-``hi`` (touching counts), except those in ``skip``.
+
+        The same answer as testing each body's ``body_aabb`` in turn, but with the fixed bodies'
+        boxes in one array: a kinematic walk asks this at every 50 ms pose, against ~60 bodies."""
+        table = self._aabb_table
+        if table is None:
+            table = self._aabb_table = self._build_aabb_table()
+        asked = np.ones(len(table.ids), dtype=bool)
+        for body_id in skip:
+            row = table.row_of.get(body_id)
+            if row is not None:
+                asked[row] = False
+        rows = [row for row in table.moving_rows if asked[row] and not table.fresh[row]]
+        if rows:
+            get_aabb = self.client.getAABB      # a loose object (no links): its base box is its box
+            boxes = [get_aabb(table.id_list[row], -1) if table.link_counts[row] == 0
+                     else self.body_aabb(table.id_list[row]) for row in rows]
+            table.lo[rows] = [b[0] for b in boxes]
+            table.hi[rows] = [b[1] for b in boxes]
+            table.fresh[rows] = True         # until a step or a reset may move them again
+        lo = np.asarray(lo, dtype=float)
+        hi = np.asarray(hi, dtype=float)
+        overlap = asked & ~((table.hi < lo).any(axis=1) | (table.lo > hi).any(axis=1))
+        return table.ids[overlap].tolist()
+
+    def _body_moved(self, body_id) -> None:
+        """Client hook: ``body_id`` (None: any body) may have moved; its cached box is stale."""
+        table = getattr(self, "_aabb_table", None)
+        if table is None:
+            return
+        if body_id is None:
+            table.fresh[:] = False
+        else:
+            row = table.row_of.get(body_id)
+            if row is not None:
+                table.fresh[row] = False
+
+    def _build_aabb_table(self) -> "_AabbTable":
+        ids = [b.body_id for b in self.bodies.values() if b.kind != GROUND]
+        boxes = [self.body_aabb(i) for i in ids]
+        lo = np.array([b[0] for b in boxes], dtype=float).reshape(-1, 3)
+        hi = np.array([b[1] for b in boxes], dtype=float).reshape(-1, 3)
+        moving = [row for row, i in enumerate(ids) if i not in self._static_aabbs]
+        return _AabbTable(np.array(ids, dtype=np.int64), lo, hi, moving, [self._joint_counts[i] for i in ids],
+                          ids, {i: row for row, i in enumerate(ids)}, np.ones(len(ids), dtype=bool))
 
     def is_at_rest(self, body_id: int) -> bool:
         s = self.config.settle
@@ -300,3 +367,18 @@ class World:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+@dataclass
+class _AabbTable:
+    """Every non-ground body's AABB as arrays; rows of bodies that can move are refreshed per query."""
+
+    ids: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    moving_rows: list[int]
+    link_counts: list[int]
+    id_list: list[int]
+    row_of: dict[int, int]
+    fresh: np.ndarray        # (N,) bool: the row's box is current (no step or reset since it was read)
+

@@ -1,22 +1,45 @@
-"""``python -m tools bench agent``: HELIOS agent costs on this machine.
+"""``python -m tools bench agent``: what a HELIOS episode costs on this machine, and where it goes.
 
-1. Planner replans on the default 2000 x 2000 (2.5 cm) grid: the map a HELIOS agent built in a
-   real val episode (the usual case: a home of 8-15 m explored), and the worst case of the whole
-   50 m x 50 m grid explored. Random start/goal pairs on free explored cells, timed one by one.
-2. Wall time of whole HELIOS val episodes, with the agent's own split into perception, map
-   updates and planning (the rest is the simulator: physics, rendering, arm and base motion).
+1. Wall time of whole val episodes (1 torch/BLAS thread, as a trial worker), split per phase:
+   the simulator's share (time inside HAL commands: physics, rendering, motion, collision
+   queries), the agent's perception, map update and planning, its decisions and the rest, and
+   the scene build; then the projected hours of the paper's ablation table (5 agents and their
+   gt twins) on the 1000-episode val split with 2 workers.
+2. Planner replans on the default 2000 x 2000 (2.5 cm) grid: the maps HELIOS built in the first
+   two episodes (a home of 8-15 m explored) and the whole grid explored; random start/goal pairs.
+3. ``--agent-profile``: every episode under cProfile, with the cumulative seconds per profiled
+   phase (simulator stepping, rendering, collisions; map rendering, update, re-clustering;
+   planning's FMM solve, clearance transforms, footprint checks, action generation; view
+   information gain; perception) and the top functions by own time.
+4. ``--agent-baseline REF``: the same episodes and replans for another commit (its files are
+   extracted with ``git archive``) or a JSON file written by ``--agent-save``, printed side by
+   side. Two worker processes answer in turn, episode by episode, so load hits both alike.
 
-Targets (issue): replan <= 100 ms, median val episode <= 60 s on the 2-core machine.
+Targets (issue "Twice as fast"): median val episode <= 5 s wall; replan p90 <= 100 ms on the home
+maps and whole-grid median <= 150 ms; peak RSS per worker not above ~765 MB.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
+import json
+import queue
 import statistics
-import time
+import subprocess
+import sys
+import tempfile
+import threading
+from pathlib import Path
 
 import numpy as np
+
+from tools.cli import CliError
+
+ROOT = Path(__file__).resolve().parents[1]
+WORKER = Path(__file__).resolve().with_name("bench_agent_worker.py")
+TABLE_RUNS, TABLE_EPISODES, TABLE_WORKERS = 10, 1000, 2     # the paper's table: 5 agents + gt twins
+EPISODE_TIMEOUT_S = 1800.0
+SAVE_FORMAT = "helios-bench-agent/1"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,111 +47,227 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--agent-name", default="helios", help="registered agent to time (default helios)")
     group.add_argument("--agent-episodes", type=int, default=6, help="val episodes to run (default 6; --quick: 2)")
     group.add_argument("--agent-replans", type=int, default=40, help="planner calls per map (default 40)")
+    group.add_argument("--agent-profile", action="store_true",
+                       help="profile the episodes (cProfile) and print the cost per phase and the top functions")
+    group.add_argument("--agent-baseline", default=None, metavar="REF",
+                       help="a git commit (e.g. HEAD~3) or a file saved with --agent-save: run/read it too and "
+                            "print before and after side by side")
+    group.add_argument("--agent-save", default=None, metavar="FILE",
+                       help="write this run's numbers as JSON (a later run's --agent-baseline)")
 
 
 def _percentile(values, q):
     return float(np.percentile(np.asarray(values, dtype=float), q)) if len(values) else float("nan")
 
 
-def _replans(planner, geometry, obstacle, explored, max_height, bounds, rng, n: int) -> dict:
-    from robots.hal import SE2Pose
+class _WorkerProcess:
+    """One bench worker on a source tree; requests and answers are JSON lines, each with a timeout."""
 
-    free = np.argwhere(explored & ~obstacle)
-    if len(free) < 2:
-        return {"n": 0}
-    times, ok = [], 0
-    for _ in range(n):
-        a, b = free[rng.integers(len(free), size=2)]
-        start = SE2Pose(*geometry.cell_to_world(a[0], a[1]), float(rng.uniform(-math.pi, math.pi)))
-        goal = geometry.cell_to_world(b[0], b[1])
-        t0 = time.perf_counter()
-        res = planner.plan(geometry, obstacle, explored, start, goal, 0.5, None, max_height, None, bounds)
-        times.append(time.perf_counter() - t0)
-        ok += res.success
-    return {"n": n, "median_ms": 1e3 * statistics.median(times), "p90_ms": 1e3 * _percentile(times, 90),
-            "max_ms": 1e3 * max(times), "ok": ok}
+    def __init__(self, root: Path, agent: str, profile: bool, label: str):
+        self.label = label
+        cmd = [sys.executable, str(WORKER), str(root), agent, "1"] + (["--profile"] if profile else [])
+        env = dict(__import__("os").environ, PYTHONPATH=str(root))
+        self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True, cwd=str(root), env=env)
+        self._lines: queue.Queue = queue.Queue()
+        self._stderr: list[str] = []
+        threading.Thread(target=self._pump, args=(self.proc.stdout, self._lines), daemon=True).start()
+        threading.Thread(target=self._pump_err, daemon=True).start()
+        self._read(300.0, "start up")
+
+    @staticmethod
+    def _pump(stream, q):
+        for line in stream:
+            q.put(line)
+        q.put(None)
+
+    def _pump_err(self):
+        for line in self.proc.stderr:
+            self._stderr.append(line)
+            del self._stderr[:-20]
+
+    def _read(self, timeout: float, what: str) -> dict:
+        try:
+            line = self._lines.get(timeout=timeout)
+        except queue.Empty:
+            self.close()
+            raise CliError(f"bench worker ({self.label}) did not {what} within {timeout:.0f} s; stopped it") from None
+        if line is None:
+            tail = "".join(self._stderr[-8:]).strip()
+            raise CliError(f"bench worker ({self.label}) exited while asked to {what}"
+                           + (f":\n{tail}" if tail else ""))
+        return json.loads(line)
+
+    def ask(self, request: dict, timeout: float, what: str) -> dict:
+        self.proc.stdin.write(json.dumps(request) + "\n")
+        self.proc.stdin.flush()
+        return self._read(timeout, what)
+
+    def close(self) -> None:
+        try:
+            if self.proc.poll() is None:
+                self.proc.stdin.write(json.dumps({"quit": True}) + "\n")
+                self.proc.stdin.flush()
+                self.proc.wait(timeout=10)
+        except (OSError, subprocess.TimeoutExpired, ValueError):
+            pass
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(timeout=10)
 
 
-def _worst_case_map(geometry, rng):
-    """The whole grid explored, walls every 6 m with doors, scattered boxes."""
-    size = geometry.size
-    obstacle = np.zeros(geometry.shape, dtype=bool)
-    cells = int(round(6.0 / geometry.cell_size))
-    door = int(round(1.0 / geometry.cell_size))
-    for k in range(cells, size, cells):
-        obstacle[k:k + 4, :] = True
-        obstacle[:, k:k + 4] = True
-        for j in range(cells // 2, size, cells):
-            obstacle[k:k + 4, j:j + door] = False
-            obstacle[j:j + door, k:k + 4] = False
-    for _ in range(400):
-        r, c = rng.integers(0, size - 40, size=2)
-        h, w = rng.integers(10, 40, size=2)
-        obstacle[r:r + h, c:c + w] = True
-    explored = np.ones(geometry.shape, dtype=bool)
-    max_height = np.where(obstacle, 1.0, 0.0).astype(np.float32)
-    return obstacle, explored, max_height, (0, size, 0, size)
+def _resolve_baseline(ref: str | None, tmp: Path) -> tuple[str, Path | None, dict | None]:
+    """(label, source tree to run, or saved results) of ``--agent-baseline``; checked before any work."""
+    if ref is None:
+        return "", None, None
+    path = Path(ref)
+    if path.is_file():
+        try:
+            saved = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise CliError(f"--agent-baseline {ref!r}: not a readable JSON file ({exc})") from None
+        if not isinstance(saved, dict) or saved.get("format") != SAVE_FORMAT:
+            raise CliError(f"--agent-baseline {ref!r}: not a file written by `bench agent --agent-save` "
+                           f"(format {SAVE_FORMAT!r})")
+        return saved.get("label", path.name), None, saved
+    try:
+        commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--verify", "--quiet", f"{ref}^{{commit}}"],
+                                capture_output=True, text=True, timeout=30).stdout.strip()
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise CliError(f"--agent-baseline {ref!r}: git is not usable here ({exc})") from None
+    if not commit:
+        raise CliError(f"--agent-baseline {ref!r} is neither a file nor a commit of {ROOT}")
+    tree = tmp / commit[:12]
+    tree.mkdir()
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", "--format=tar", commit], capture_output=True,
+                             timeout=120)
+    if archive.returncode != 0:
+        raise CliError(f"--agent-baseline {ref!r}: git archive failed: {archive.stderr.decode(errors='replace')[:200]}")
+    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive.stdout, check=True, timeout=120)
+    if not (tree / "tasks" / "runner.py").is_file():
+        raise CliError(f"--agent-baseline {ref!r} ({commit[:12]}) has no tasks/runner.py: too old to bench")
+    return f"{ref} ({commit[:10]})", tree, None
+
+
+def _summary(episodes: list[dict], replans: list[dict]) -> dict:
+    walls = [e["wall"] for e in episodes]
+    phases: dict[str, float] = {}
+    profile: dict[str, float] = {}
+    for e in episodes:
+        for k, v in e["phases"].items():
+            phases[k] = phases.get(k, 0.0) + v / len(episodes)
+        for k, v in (e.get("profile") or {}).items():
+            profile[k] = profile.get(k, 0.0) + v / len(episodes)
+    per_episode = statistics.mean(e["wall"] + e["phases"].get("scene build and judge", 0.0) for e in episodes)
+    hours = TABLE_RUNS * TABLE_EPISODES * per_episode / TABLE_WORKERS / 3600.0
+    return {"median_wall": statistics.median(walls), "p90_wall": _percentile(walls, 90),
+            "mean_wall": statistics.mean(walls), "phases": phases, "profile": profile, "table_hours": hours,
+            "peak_rss_mb": max(e.get("peak_rss_mb", 0.0) for e in episodes),
+            "replans": [{"map": r["map"], "n": len(r["times_ms"]), "ok": r["ok"],
+                         "median_ms": statistics.median(r["times_ms"]) if r["times_ms"] else float("nan"),
+                         "p90_ms": _percentile(r["times_ms"], 90), "max_ms": max(r["times_ms"], default=float("nan"))}
+                        for r in replans]}
 
 
 def run(args: argparse.Namespace) -> str:
-    from helios.planning import FMMPlanner
-    from helios.runtime import configure_threads
     from tasks.episodes import load_split
-    from tasks.registry import check_agent, make_agent
-    from tasks.runner import run_sim_episode
+    from tasks.registry import check_agent
 
-    configure_threads(1)
     check_agent(args.agent_name)
     n_eps = 2 if args.quick else args.agent_episodes
     n_plans = 10 if args.quick else args.agent_replans
-    rng = np.random.default_rng(args.seed)
-    episodes = load_split("val")[:n_eps]
-    holder: dict = {}
+    n_val = len(load_split("val"))
+    if n_eps > n_val:
+        raise CliError(f"--agent-episodes {n_eps} is more than the {n_val} val episodes")
+    if args.agent_save:
+        save = Path(args.agent_save)
+        if not save.parent.is_dir():
+            raise CliError(f"--agent-save {args.agent_save!r}: folder {str(save.parent)!r} does not exist")
+    with tempfile.TemporaryDirectory(prefix="bench-agent-") as tmp:
+        base_label, base_tree, base_saved = _resolve_baseline(args.agent_baseline, Path(tmp))
+        workers = {"after": _WorkerProcess(ROOT, args.agent_name, args.agent_profile, "this checkout")}
+        try:
+            if base_tree is not None:
+                workers["before"] = _WorkerProcess(base_tree, args.agent_name, args.agent_profile, base_label)
+            results: dict[str, dict] = {k: {"episodes": [], "replans": []} for k in workers}
+            for i in range(n_eps):
+                for key in sorted(workers, reverse=True):       # before, then after
+                    r = workers[key].ask({"episode": i}, EPISODE_TIMEOUT_S, f"finish val episode {i}")
+                    results[key]["episodes"].append(r)
+                    print(f"[bench agent] {key:6s} {i + 1}/{n_eps} {r['episode']}: {r['wall']:.1f} s wall, "
+                          f"{r['sim']:.0f} s simulated, success={r['success']}", flush=True)
+            for key in sorted(workers, reverse=True):
+                results[key]["replans"] = workers[key].ask({"replans": n_plans, "seed": args.seed}, EPISODE_TIMEOUT_S,
+                                                           "finish the replans")["replans"]
+        finally:
+            for w in workers.values():
+                w.close()
+    after = {"label": "this checkout", **results["after"], **_summary(**results["after"])}
+    before = None
+    if "before" in results:
+        before = {"label": base_label, **results["before"], **_summary(**results["before"])}
+    elif base_saved is not None:
+        before = base_saved
+    if args.agent_save:
+        Path(args.agent_save).write_text(json.dumps({"format": SAVE_FORMAT, **after}, indent=1), encoding="utf-8")
+    return format_report(after, before, args.agent_name)
 
-    def make(sim):
-        holder["agent"] = make_agent(args.agent_name, sim)
-        return holder["agent"]
 
-    rows, maps = [], []
-    for i, ep in enumerate(episodes):
-        res = run_sim_episode(make, ep)
-        agent = holder["agent"]
-        t = agent.timings
-        rows.append({"episode": ep.episode_id, "wall": res.wall_time, "sim": res.sim_time, "commands": res.commands,
-                     "success": res.success, "perception": t["perception"], "map": t["map"],
-                     "planning": t["planning"], "plans": int(t["plans"])})
-        if agent.map is not None:
-            occ = agent.map.occupancy
-            maps.append((agent.map.geometry, occ.obstacle.copy(), occ.explored.copy(), occ.max_height.copy(),
-                         occ.explored_bounds))
-        print(f"[bench agent] {i + 1}/{len(episodes)} {ep.episode_id}: {res.wall_time:.1f} s wall, "
-              f"{res.sim_time:.0f} s simulated, success={res.success}", flush=True)
+def _fmt(v, spec=".1f") -> str:
+    return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, spec)
 
-    planner = FMMPlanner()
-    plan_rows = []
-    for geometry, obstacle, explored, max_height, bounds in maps[:2]:
-        r = _replans(planner, geometry, obstacle, explored, max_height, bounds, rng, n_plans)
-        area = explored.sum() * geometry.cell_size ** 2
-        plan_rows.append((f"home map after a val episode ({area:.0f} m^2 explored)", r))
-    if maps:
-        geometry = maps[0][0]
-        worst = _worst_case_map(geometry, rng)
-        plan_rows.append(("whole 2000x2000 grid explored (2500 m^2)", _replans(planner, geometry, *worst, rng, max(3, n_plans // 4))))
 
-    out = [f"HELIOS agent benchmark ({args.agent_name}; 1 torch/BLAS thread)", "",
-           "planner replan (FMM^2 + footprint-checked actions), 2000 x 2000 grid of 2.5 cm:",
-           f"{'map':58s} {'n':>4s} {'median ms':>10s} {'p90 ms':>8s} {'max ms':>8s} {'ok':>4s}"]
-    for name, r in plan_rows:
-        if r.get("n"):
-            out.append(f"{name:58s} {r['n']:4d} {r['median_ms']:10.1f} {r['p90_ms']:8.1f} {r['max_ms']:8.1f} {r['ok']:4d}")
-    out += ["", "val episodes (wall seconds; perception/map/planning are the agent's own share):",
-            f"{'episode':12s} {'wall s':>7s} {'sim s':>6s} {'cmds':>5s} {'perc s':>7s} {'map s':>6s} {'plan s':>7s} "
-            f"{'plans':>6s} {'success':>8s}"]
-    for r in rows:
-        out.append(f"{r['episode']:12s} {r['wall']:7.1f} {r['sim']:6.0f} {r['commands']:5d} {r['perception']:7.2f} "
-                   f"{r['map']:6.2f} {r['planning']:7.2f} {r['plans']:6d} {str(r['success']):>8s}")
-    walls = [r["wall"] for r in rows]
-    if walls:
-        out.append(f"median wall per episode: {statistics.median(walls):.1f} s (target <= 60 s); "
-                   f"p90 {_percentile(walls, 90):.1f} s; real-time factor {sum(r['sim'] for r in rows) / sum(walls):.1f}x")
+def format_report(after: dict, before: dict | None, agent: str) -> str:
+    """The benchmark's tables; ``before`` (a baseline run or saved file) adds columns and ratios."""
+    cols = [("after", after)] if before is None else [("before", before), ("after", after)]
+    head = "".join(f"{name:>10s}" for name, _ in cols) + ("" if before is None else f"{'ratio':>8s}")
+
+    def row(label, values, spec=".1f", width=44):
+        cells = "".join(f"{_fmt(v, spec):>10s}" for v in values)
+        if before is not None and len(values) == 2 and values[0] and values[1]:
+            cells += f"{values[0] / values[1]:7.2f}x"
+        return f"{label:{width}s}{cells}"
+
+    out = [f"HELIOS agent benchmark ({agent}; 1 torch/BLAS thread per worker)"]
+    if before is not None:
+        out.append(f"before: {before.get('label', '?')}    after: {after.get('label', 'this checkout')}"
+                   "    (ratio = before / after: above 1 is faster)")
+    out += ["", "val episodes, wall seconds:", f"{'episode':44s}{head}"]
+    by_id = {e["episode"]: e for e in (before or {}).get("episodes", [])}
+    for e in after["episodes"]:
+        vals = ([by_id[e["episode"]]["wall"]] if before is not None and e["episode"] in by_id else
+                [None] if before is not None else []) + [e["wall"]]
+        out.append(row(f"{e['episode']} ({e['sim']:.0f} s simulated, success={e['success']})", vals))
+    out.append(row("median", [c["median_wall"] for _, c in cols]) + "   target <= 5 s")
+    out.append(row("p90", [c["p90_wall"] for _, c in cols]))
+    if before is not None and by_id:
+        same = all(by_id.get(e["episode"], {}).get("sim") == e["sim"] and
+                   by_id.get(e["episode"], {}).get("success") == e["success"] for e in after["episodes"])
+        out.append(f"same simulated time and outcome on every episode: {'yes' if same else 'NO (behaviour differs)'}")
+    out += ["", "mean seconds per episode, by phase:", f"{'phase':44s}{head}"]
+    for phase in after["phases"]:
+        out.append(row(phase, [c["phases"].get(phase) for _, c in cols], ".2f"))
+    if after.get("profile"):
+        out += ["", "profiled phases (cumulative seconds per episode under cProfile; phases nest):", f"{'phase':44s}{head}"]
+        for phase in after["profile"]:
+            out.append(row(phase, [c.get("profile", {}).get(phase) for _, c in cols], ".2f"))
+        top: dict[str, float] = {}
+        for e in after["episodes"]:
+            for t, name in e.get("top", []):
+                top[name] = top.get(name, 0.0) + t / len(after["episodes"])
+        out += ["", "top functions by own time (after; seconds per episode):"]
+        out += [f"  {t:7.2f}  {name}" for name, t in sorted(top.items(), key=lambda kv: -kv[1])[:15]]
+    out += ["", f"projected hours for the paper's table ({TABLE_RUNS} runs x {TABLE_EPISODES} val episodes, "
+                f"{TABLE_WORKERS} workers, every agent costing what {agent} does):",
+            row("hours", [c["table_hours"] for _, c in cols]),
+            row("peak RSS per worker, MB", [c["peak_rss_mb"] for _, c in cols], ".0f") + "   target <= ~765 MB"]
+    out += ["", "planner replans (FMM^2 + footprint-checked actions), 2000 x 2000 grid of 2.5 cm, ms:"]
+    base_plans = (before or {}).get("replans", [])
+    for i, r in enumerate(after["replans"]):
+        b = base_plans[i] if i < len(base_plans) else None
+        out.append(f"{r['map']}  (n={r['n']}, ok {r['ok']})")
+        for stat in ("median_ms", "p90_ms", "max_ms"):
+            vals = ([b[stat] if b else None] if before is not None else []) + [r[stat]]
+            out.append(row(f"  {stat[:-3]}", vals))
+    out.append("targets: replan p90 <= 100 ms on the home maps; whole-grid median <= 150 ms")
     return "\n".join(out)

@@ -21,7 +21,9 @@ instance bookkeeping is numpy on the host.
 
 from __future__ import annotations
 
+import hashlib
 import time
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import cv2
@@ -67,6 +69,10 @@ class RenderedImages:
     semantic_std: np.ndarray
     """(H, W, C) sum kappa sqrt(Var[theta]) (uncertainty image)."""
 
+VIEW_EVIDENCE_CACHE = 512
+"""Hypothetical-view evidences (index set, camera) a map keeps for reuse: a pure speed knob,
+results are identical at any size (an entry is 8 bytes per Gaussian of the instance, ~13 kB)."""
+
 
 def _square(k: int) -> np.ndarray:
     return np.ones((k, k), dtype=np.uint8)
@@ -93,6 +99,7 @@ class GaussianMap:
         self.last_updated = np.zeros(0, dtype=np.int64)
         self.frame = 0
         self._next_instance = 0
+        self._view_evidence: OrderedDict[tuple, torch.Tensor] = OrderedDict()
 
     # ------------------------------------------------------------------ state
     def __len__(self) -> int:
@@ -164,6 +171,32 @@ class GaussianMap:
         sel = torch.as_tensor(np.asarray(indices, dtype=np.int64), device=self.device)
         return render_gaussians(self.means[sel], self.scales[sel], self.opacities[sel], intrinsics,
                                 T_world_cam, self.cfg.render, pixel_mask)
+
+    def view_evidence(self, indices: np.ndarray, intrinsics: CameraIntrinsics, T_world_cam: np.ndarray) -> torch.Tensor:
+        """(n,) float64 evidence one view from the pose adds to each of ``indices`` if every pixel
+        labelled them: ``evidence_scale * sum_p S(p) kappa_n(p)`` rendered at the working resolution
+        (the paper's optimistic measurement, see :mod:`helios.search.information`).
+
+        Memoised: Gaussians are append-only (means, scales and opacities never change once added),
+        so the result is a pure function of the index set and the camera. A HELIOS decision asks
+        for the same (instance, gaze point) again and again while it weighs candidates against
+        frontiers; the cache serves about three of four such renders. Callers get their own copy.
+        """
+        idx = np.ascontiguousarray(indices, dtype=np.int64)
+        cam, _ = self.working_intrinsics(intrinsics)
+        pose = np.ascontiguousarray(T_world_cam, dtype=np.float64)
+        key = (hashlib.blake2b(idx.tobytes(), digest_size=16).digest(), idx.size, pose.tobytes(),
+               (cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy))
+        hit = self._view_evidence.get(key)
+        if hit is None:
+            rendering = self.render(cam, pose, indices=idx)
+            hit = self.evidence_scale * rendering.per_gaussian_sum(rendering.silhouette, idx.size)
+            self._view_evidence[key] = hit
+            if len(self._view_evidence) > VIEW_EVIDENCE_CACHE:
+                self._view_evidence.popitem(last=False)
+        else:
+            self._view_evidence.move_to_end(key)
+        return hit.clone()
 
     def render_images(self, intrinsics: CameraIntrinsics, T_world_cam: np.ndarray) -> RenderedImages:
         """Silhouette, depth, colour and semantic expectation/uncertainty images from a camera."""
@@ -312,7 +345,7 @@ class GaussianMap:
         pix = rendering.pixel_index[inside]
         lab_t = torch.as_tensor(np.ascontiguousarray(labels).reshape(-1), dtype=torch.int64, device=self.device)
         dirichlet.add_pixel_evidence(self.concentrations, g, lab_t[pix], rendering.weight[inside], self.evidence_scale)
-        updated[torch.unique(g).cpu().numpy()] = True
+        updated[g.cpu().numpy()] = True
         return updated
 
     def _recluster(self, updated: np.ndarray) -> None:

@@ -33,6 +33,8 @@ from robots.transforms import invert_transform
 _RADIUS_BUCKETS = (1, 2, 3, 4, 5, 6, 8, 10, 12, 14, 16, 20, 24, 28, 32, 40, 48, 56, 64, 80, 96, 128)
 # Upper bound on candidate pairs materialised at once (memory: ~40 B per candidate pair).
 _CHUNK_PAIRS = 2_000_000
+# Bits of the pair index packed under the sort key on the CPU (up to 16.7 M pairs per render).
+_PACK_BITS = 24
 
 
 @dataclass
@@ -106,6 +108,19 @@ class Rendering:
         return sum(t.numel() * t.element_size() for t in tensors)
 
 
+def _sorting_permutation(key: torch.Tensor) -> torch.Tensor:
+    """The permutation sorting ``key`` (int64, all distinct, so any sort gives the same one).
+
+    On the CPU the pair index is packed into the low bits of the key and the packed values are
+    sorted with numpy's SIMD sort: about 5x faster than ``torch.sort`` returning indices."""
+    n = key.numel()
+    if key.device.type == "cpu" and n < (1 << _PACK_BITS) and int(key.max()) < (1 << (62 - _PACK_BITS)):
+        packed = (key.numpy() << _PACK_BITS) | np.arange(n, dtype=np.int64)
+        packed.sort()
+        return torch.from_numpy(packed & ((1 << _PACK_BITS) - 1))
+    return torch.sort(key).indices
+
+
 def empty_rendering(height: int, width: int, device: torch.device) -> Rendering:
     zi = torch.zeros(0, dtype=torch.int64, device=device)
     zf = torch.zeros(0, dtype=torch.float32, device=device)
@@ -170,11 +185,15 @@ def render_gaussians(means: torch.Tensor, scales: torch.Tensor, opacities: torch
     order = torch.argsort(z[idx], stable=True)
     idx = idx[order]
     n_vis = idx.numel()
-    rank = torch.arange(n_vis, device=device, dtype=torch.int64)
     r_vis = radius[idx]
     buckets = torch.as_tensor([r for r in _RADIUS_BUCKETS if r < cfg.max_radius_px] + [cfg.max_radius_px],
                               dtype=r_vis.dtype, device=device)
     bucket_of = torch.bucketize(r_vis, buckets)
+    # Per-Gaussian terms of the pair test. With the window centre (uc, vc) and integer offsets,
+    # du = (uc - u) + dx rounds the same exact value as (uc + dx) - u (both operands of uc - u
+    # are within a factor of two, so it is exact), and pixels are integers: no float pixel grid.
+    ru, rv = uc - u, vc - v
+    base_pix = vc.to(torch.int64) * W + uc.to(torch.int64)
     pair_g, pair_pix, pair_alpha, pair_rank = [], [], [], []
     candidates = 0
     for k in torch.unique(bucket_of).tolist():
@@ -184,28 +203,35 @@ def render_gaussians(means: torch.Tensor, scales: torch.Tensor, opacities: torch
         dy, dx = torch.meshgrid(off, off, indexing="ij")
         disc = dx * dx + dy * dy <= (R + 0.5) ** 2     # the footprint ellipse lies within radius R
         dx, dy = dx[disc].reshape(1, -1), dy[disc].reshape(1, -1)
+        offset_pix = (dy.to(torch.int64) * W + dx.to(torch.int64)).flatten()
         per = dx.shape[1]
         step = max(1, _CHUNK_PAIRS // per)
-        for s in range(0, members.numel(), step):
-            m = members[s:s + step]
-            g = idx[m]
-            pu = uc[g][:, None] + dx
-            pv = vc[g][:, None] + dy
-            du = pu - u[g][:, None]
-            dv = pv - v[g][:, None]
-            power = -0.5 * (conic_a[g][:, None] * du * du + 2.0 * conic_b[g][:, None] * du * dv
-                            + conic_c[g][:, None] * dv * dv)
-            alpha = (opacities[g][:, None] * torch.exp(power)).clamp_max(cfg.alpha_max)
-            keep = (alpha >= cfg.alpha_min) & (pu >= 0) & (pu <= W - 1) & (pv >= 0) & (pv <= H - 1)
-            pix = pv.to(torch.int64) * W + pu.to(torch.int64)
-            if pixel_mask is not None:
-                keep &= pm_flat[pix.clamp(0, H * W - 1)]
-            candidates += keep.numel()
-            rows_k, cols_k = torch.nonzero(keep, as_tuple=True)
-            pair_g.append(g[rows_k])
-            pair_rank.append(rank[m][rows_k])
-            pair_pix.append(pix[rows_k, cols_k])
-            pair_alpha.append(alpha[rows_k, cols_k])
+        # windows wholly inside the image need no bounds test (the bucket radius R >= radius)
+        ucm, vcm = uc[idx[members]], vc[idx[members]]
+        whole = (ucm - R >= 0) & (ucm + R <= W - 1) & (vcm - R >= 0) & (vcm + R <= H - 1)
+        for group, bounded in ((members[whole], False), (members[~whole], True)):
+            for s in range(0, group.numel(), step):
+                m = group[s:s + step]
+                g = idx[m]
+                du = ru[g][:, None] + dx
+                dv = rv[g][:, None] + dy
+                power = (conic_a[g][:, None] * du).mul_(du)
+                power.add_((2.0 * conic_b[g][:, None] * du).mul_(dv))
+                power.add_((conic_c[g][:, None] * dv).mul_(dv))
+                alpha = power.mul_(-0.5).exp_().mul_(opacities[g][:, None]).clamp_max_(cfg.alpha_max)
+                keep = alpha >= cfg.alpha_min
+                if bounded:
+                    ucg, vcg = uc[g][:, None], vc[g][:, None]
+                    keep &= (dx >= -ucg) & (dx <= (W - 1) - ucg) & (dy >= -vcg) & (dy <= (H - 1) - vcg)
+                if pixel_mask is not None:
+                    pix = base_pix[g][:, None] + offset_pix
+                    keep &= pm_flat[pix.clamp(0, H * W - 1)]
+                candidates += keep.numel()
+                rows_k, cols_k = torch.nonzero(keep, as_tuple=True)
+                pair_g.append(g[rows_k])
+                pair_rank.append(m[rows_k])
+                pair_pix.append(base_pix[g][rows_k] + offset_pix[cols_k])
+                pair_alpha.append(alpha[rows_k, cols_k])
     g_all = torch.cat(pair_g)
     if g_all.numel() == 0:
         return empty_rendering(H, W, device)
@@ -215,8 +241,8 @@ def render_gaussians(means: torch.Tensor, scales: torch.Tensor, opacities: torch
 
     # Sort by (pixel, depth rank) in one key, then composite each pixel's run front to back.
     key = pix_all * n_vis + rank_all
-    key, perm = torch.sort(key)
-    g_all, pix_all, alpha_all = g_all[perm], pix_all[perm], alpha_all[perm]
+    perm = _sorting_permutation(key)
+    g_all, pix_all, alpha_all = g_all.index_select(0, perm), pix_all.index_select(0, perm), alpha_all.index_select(0, perm)
     log_one_minus = torch.log1p(-alpha_all.to(torch.float64))
     inclusive = torch.cumsum(log_one_minus, 0)
     exclusive = inclusive - log_one_minus
@@ -224,10 +250,10 @@ def render_gaussians(means: torch.Tensor, scales: torch.Tensor, opacities: torch
     starts[1:] = pix_all[1:] != pix_all[:-1]
     segment = torch.cumsum(starts.to(torch.int64), 0) - 1
     log_T = exclusive - exclusive[starts][segment]
-    keep = log_T >= math.log(cfg.transmittance_min)
-    weight = (alpha_all.to(torch.float64) * torch.exp(log_T))[keep].to(torch.float32)
-    g_all, pix_all = g_all[keep], pix_all[keep]
-    depth = z[g_all]
+    kept = torch.nonzero(log_T >= math.log(cfg.transmittance_min)).flatten()    # one scan, four gathers
+    g_all, pix_all, log_T = g_all.index_select(0, kept), pix_all.index_select(0, kept), log_T.index_select(0, kept)
+    weight = (alpha_all.index_select(0, kept).to(torch.float64) * torch.exp(log_T)).to(torch.float32)
+    depth = z.index_select(0, g_all)
 
     sil = torch.zeros(H * W, dtype=torch.float32, device=device)
     sil.index_add_(0, pix_all, weight)

@@ -73,6 +73,7 @@ class PlannerConfig:
         require_range(self, "horizon", 0.0, 100.0, lo_open=True)
 
 
+
 @dataclass(frozen=True)
 class Action:
     kind: str        # "rotate" (rad, signed), "forward"/"backward" (m), "strafe" (m, left +)
@@ -140,10 +141,9 @@ class FMMPlanner:
         sr, sc = to_cell((start.x, start.y))
         near_start = (rs - sr) ** 2 + (cs - sc) ** 2 <= (cfg.start_clearance / cell) ** 2
         coarse_exp = coarse_exp | near_start
-        clearance = ndimage.distance_transform_edt(~coarse_obs) * cell
+        clearance = _clearance(coarse_obs, cell)
         # the whole body width must lie in seen space, not just the centre line
-        seen_clearance = ndimage.distance_transform_edt(coarse_exp) * cell
-        traversable = (seen_clearance >= cfg.robot_radius) & (clearance >= cfg.robot_radius)
+        traversable = _far_enough_inside(coarse_exp, cell, cfg.robot_radius) & (clearance >= cfg.robot_radius)
         goal_region = np.zeros(traversable.shape, dtype=bool)
         in_obstacle = 0
         ys, xs = origin[1] + (rs + 0.5) * cell, origin[0] + (cs + 0.5) * cell     # cell centres, m
@@ -162,7 +162,7 @@ class FMMPlanner:
         start_cell = self._nearest(traversable, sr, sc, int(math.ceil(0.5 / cell)))
         if start_cell is None:
             return PlanResult(False, "start_blocked", np.zeros((0, 2)))
-        times = self._travel_time(traversable, goal_region, clearance)
+        times = self._travel_time(traversable, goal_region, clearance, start_cell)
         if not np.isfinite(times[start_cell]):
             return PlanResult(False, "unreachable", np.zeros((0, 2)))
         cells = _descend(times, start_cell)
@@ -228,18 +228,41 @@ class FMMPlanner:
         i = int(np.argmin((rr + max(r - k, 0) - r) ** 2 + (cc + max(c - k, 0) - c) ** 2))
         return (int(rr[i] + max(r - k, 0)), int(cc[i] + max(c - k, 0)))
 
-    def _travel_time(self, traversable: np.ndarray, goal_region: np.ndarray, clearance: np.ndarray) -> np.ndarray:
+    def _travel_time(self, traversable: np.ndarray, goal_region: np.ndarray, clearance: np.ndarray,
+                     start: tuple[int, int] | None = None) -> np.ndarray:
+        """Travel time to the goal region (coarse cells; inf where unreachable).
+
+        With ``start`` given, the march stops once it is past the start: scikit-fmm's narrow band
+        accepts cells in order of travel time, so every cell it returns carries exactly the value
+        of the full solution, and the descent from the start only looks at smaller values (cells
+        beyond the band read inf, which the descent treats like any larger value). The band
+        starts at 2.5x the straight-line distance (speed is at most 1) and triples until the
+        start is inside it; on a home map this marches a fraction of the grid."""
         import skfmm
 
         cfg = self.config
         phi = np.where(goal_region, -1.0, 1.0)
         speed = np.clip(clearance / cfg.speed_saturation, cfg.min_speed, 1.0)
-        try:
-            t = skfmm.travel_time(np.ma.MaskedArray(phi, ~traversable), speed, dx=1.0)
-        except ValueError:  # no zero contour inside the unmasked region
-            return np.full(traversable.shape, np.inf)
-        out = np.ma.filled(t.astype(float), np.inf)
-        out[goal_region] = 0.0
+        masked = np.ma.MaskedArray(phi, ~traversable)
+        bands = [0.0]
+        if start is not None:
+            gr, gc = np.nonzero(goal_region)
+            straight = float(np.sqrt(((gr - start[0]) ** 2 + (gc - start[1]) ** 2).min()))
+            band = 2.5 * straight + 20.0
+            bands = []
+            while band < traversable.size:      # no travel time exceeds the cell count / min speed
+                bands.append(band)               # ... times 1/min_speed; the last try is the full march
+                band *= 3.0
+            bands.append(0.0)
+        for band in bands:
+            try:
+                t = skfmm.travel_time(masked, speed, dx=1.0, narrow=band)
+            except ValueError:  # no zero contour inside the unmasked region
+                return np.full(traversable.shape, np.inf)
+            out = np.ma.filled(t.astype(float), np.inf)
+            out[goal_region] = 0.0
+            if start is None or band == 0.0 or np.isfinite(out[start]):
+                return out
         return out
 
     def _actions(self, path: np.ndarray, start: SE2Pose, goal_yaw, checker: FootprintChecker, corridor,
@@ -389,7 +412,44 @@ def _pool(grid: np.ndarray, f: int) -> np.ndarray:
     if f == 1:
         return grid.copy()
     h, w = grid.shape[0] // f * f, grid.shape[1] // f * f
-    return grid[:h, :w].reshape(h // f, f, w // f, f).any(axis=(1, 3))
+    out = grid[0:h:f, 0:w:f].copy()          # f * f strided ORs: several times faster than
+    for i in range(f):                       # reshape(...).any(axis=(1, 3)) on a 2000 x 2000 map
+        for j in range(f):
+            if i or j:
+                out |= grid[i:h:f, j:w:f]
+    return out
+
+
+def _clearance(obstacle: np.ndarray, cell: float) -> np.ndarray:
+    """``distance_transform_edt(~obstacle) * cell``, bit for bit, about 3x faster: OpenCV's exact
+    (Felzenszwalb) Euclidean transform gives float32 distances whose squares round back to the
+    integer squared distances, which then take scipy's float64 sqrt. Used while those squares
+    stay below 2^21 (float32 keeps them within 0.25 of the integer); scipy otherwise, and for a
+    map without obstacles (scipy's answer for that case is its own)."""
+    import cv2
+
+    h, w = obstacle.shape
+    if h * h + w * w >= 1 << 21 or not obstacle.any():
+        return ndimage.distance_transform_edt(~obstacle) * cell
+    d = cv2.distanceTransform((~obstacle).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return np.sqrt(np.rint(d.astype(np.float64) ** 2)) * cell
+
+
+def _far_enough_inside(mask: np.ndarray, cell: float, radius: float) -> np.ndarray:
+    """``distance_transform_edt(mask) * cell >= radius``, the same booleans at a fraction of the
+    cost: a cell passes when no False cell lies at an offset whose distance (computed with the
+    same float operations) falls short of ``radius``, i.e. an erosion with that disc. A mask with
+    no False cell at all gets scipy's answer for it (distances to a virtual cell above row 0)."""
+    import cv2
+
+    if mask.all():
+        rows, cols = np.indices(mask.shape)
+        return np.sqrt(((rows + 1) ** 2 + cols ** 2).astype(float)) * cell >= radius
+    k = int(math.ceil(radius / cell)) + 1
+    off = np.arange(-k, k + 1)
+    near = np.sqrt((off[:, None] ** 2 + off[None, :] ** 2).astype(float)) * cell < radius
+    return cv2.erode(mask.astype(np.uint8), near.astype(np.uint8), borderType=cv2.BORDER_CONSTANT,
+                     borderValue=1).astype(bool)
 
 
 def _descend(times: np.ndarray, start: tuple[int, int]) -> list[tuple[int, int]]:

@@ -90,6 +90,40 @@ class FootprintChecker:
         return float(np.max(np.linalg.norm(np.concatenate([self._body, self._arm]), axis=1)))
 
     def _hits(self, poses: np.ndarray, pts: np.ndarray, grid: np.ndarray) -> np.ndarray:
+        """(M,) bool: some point of ``pts`` (body frame) at each pose lands on a True cell of ``grid``.
+
+        Exact, but most points are never transformed. The points are cut into tiles of about
+        ``_TILE`` metres; every point of a tile lies within the tile's reach of its centre, so a
+        tile whose bounding square of cells (one cell of slack for rounding) holds no True cell
+        cannot hit anything. One integral image over the batch's cell window answers that for
+        every (pose, tile) at once, and only tiles next to something take the point-by-point test
+        (thousands of points per pose at half-cell spacing)."""
+        hit = np.zeros(len(poses), dtype=bool)
+        if not len(poses):
+            return hit
+        geo = self.geometry
+        tiles = _tiles_of(pts, geo.cell_size)
+        c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+        cx = poses[:, 0:1] + c * tiles.centres[None, :, 0] - s * tiles.centres[None, :, 1]     # (M, T)
+        cy = poses[:, 1:2] + s * tiles.centres[None, :, 0] + c * tiles.centres[None, :, 1]
+        last = geo.size - 1
+        r0, c0 = geo.xy_to_cell(cx - tiles.reach, cy - tiles.reach)
+        r1, c1 = geo.xy_to_cell(cx + tiles.reach, cy + tiles.reach)
+        r0, c0, r1, c1 = (np.clip(a, 0, last) for a in (r0, c0, r1, c1))
+        wr0, wr1, wc0, wc1 = int(r0.min()), int(r1.max()), int(c0.min()), int(c1.max())
+        if (wr1 - wr0 + 1) * (wc1 - wc0 + 1) > len(poses) * len(pts):    # scattered poses: test them all
+            return self._hits_exhaustive(poses, pts, grid)
+        window = np.zeros((wr1 - wr0 + 2, wc1 - wc0 + 2), dtype=np.int32)
+        np.cumsum(np.cumsum(grid[wr0:wr1 + 1, wc0:wc1 + 1], axis=0, dtype=np.int32), axis=1, out=window[1:, 1:])
+        r0, r1, c0, c1 = r0 - wr0, r1 - wr0 + 1, c0 - wc0, c1 - wc0 + 1
+        near = (window[r1, c1] - window[r0, c1] - window[r1, c0] + window[r0, c0]) > 0      # (M, T)
+        for t in np.nonzero(near.any(axis=0))[0]:
+            todo = near[:, t] & ~hit
+            if todo.any():
+                hit[todo] = self._hits_exhaustive(poses[todo], tiles.points[t], grid)
+        return hit
+
+    def _hits_exhaustive(self, poses: np.ndarray, pts: np.ndarray, grid: np.ndarray) -> np.ndarray:
         c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
         rows, cols = self.geometry.xy_to_cell(poses[:, 0:1] + c * pts[None, :, 0] - s * pts[None, :, 1],
                                               poses[:, 1:2] + s * pts[None, :, 0] + c * pts[None, :, 1])
@@ -125,6 +159,36 @@ class FootprintChecker:
         n = max(2, int(abs(delta) / step) + 2)
         yaws = yaw0 + np.linspace(0.0, delta, n)
         return bool(np.all(self.poses_free(np.stack([np.full(n, x), np.full(n, y), yaws], axis=1))))
+
+
+_TILE = 0.15
+"""Edge (m) of the tiles footprint points are grouped into for the quick test in ``_hits``."""
+
+
+@dataclass(frozen=True)
+class _Tiles:
+    centres: np.ndarray     # (T, 2) body frame, m
+    reach: np.ndarray       # (T,) m: every point of the tile is closer than this to its centre (+ a cell)
+    points: list            # T arrays (n_t, 2)
+
+
+_TILE_CACHE: dict[tuple, _Tiles] = {}
+
+
+def _tiles_of(pts: np.ndarray, cell_size: float) -> _Tiles:
+    """``pts`` grouped into square tiles of about ``_TILE`` m (memoised per point set)."""
+    key = (pts.tobytes(), cell_size)
+    tiles = _TILE_CACHE.get(key)
+    if tiles is None:
+        cell = np.floor((pts - pts.min(axis=0)) / _TILE).astype(np.int64)
+        labels = cell[:, 0] * (int(cell[:, 1].max()) + 1) + cell[:, 1]
+        groups = [pts[labels == k] for k in np.unique(labels)]
+        centres = np.array([0.5 * (g.min(axis=0) + g.max(axis=0)) for g in groups])
+        reach = np.array([np.sqrt(((g - c) ** 2).sum(axis=1).max()) for g, c in zip(groups, centres)]) + cell_size
+        tiles = _TILE_CACHE[key] = _Tiles(centres, reach, groups)
+        if len(_TILE_CACHE) > 64:
+            _TILE_CACHE.pop(next(iter(_TILE_CACHE)))
+    return tiles
 
 
 def _box_points(box, margin: float, step: float) -> np.ndarray:

@@ -41,10 +41,7 @@ def optimistic_evidence(gmap: GaussianMap, instance_id: int, intrinsics: CameraI
                         T_world_cam: np.ndarray) -> tuple[np.ndarray, torch.Tensor]:
     """(Gaussian indices of the instance, (n,) float64 evidence one view from the pose adds)."""
     idx = gmap.instance_indices(instance_id)
-    cam, _ = gmap.working_intrinsics(intrinsics)
-    rendering = gmap.render(cam, T_world_cam, indices=idx)
-    delta = gmap.evidence_scale * rendering.per_gaussian_sum(rendering.silhouette, idx.size)
-    return idx, delta
+    return idx, gmap.view_evidence(idx, intrinsics, T_world_cam)
 
 
 def _gain_for_class(gamma: torch.Tensor, cls: int, delta: torch.Tensor) -> float:

@@ -1,0 +1,370 @@
+"""Speed-ups that must not change a single result (issue "Twice as fast"): each fast path is
+checked bit for bit against the straightforward computation it replaced."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy import ndimage
+
+from helios.config import RenderConfig
+from helios.maps.grid import GridGeometry
+from helios.maps.renderer import Rendering, _sorting_permutation, empty_rendering, render_gaussians
+from helios.planning.fmm import FMMPlanner, _clearance, _descend, _far_enough_inside, _pool
+from helios.planning.footprint import FootprintChecker, FootprintConfig
+from robots.hal import CameraIntrinsics
+from robots.transforms import invert_transform, look_at_camera
+
+_RADIUS_BUCKETS = (1, 2, 3, 4, 5, 6, 8, 10, 12, 14, 16, 20, 24, 28, 32, 40, 48, 56, 64, 80, 96, 128)
+_CHUNK_PAIRS = 2_000_000
+
+
+def _empty(h, w, device):
+    return empty_rendering(h, w, device)
+
+
+def check_pose(T):
+    return np.asarray(T, dtype=float)
+
+
+def reference_render(means: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
+                     intrinsics: CameraIntrinsics, T_world_cam: np.ndarray, cfg: RenderConfig,
+                     pixel_mask: torch.Tensor | None = None) -> Rendering:
+    """The renderer before the speed-up (torch.sort, float pixel grid, bounds tested per pair).
+    Rasterise isotropic Gaussians (means (N, 3) world, scales (N,) std-dev in m, opacities (N,)).
+
+    ``pixel_mask`` (H, W) bool restricts the output to those pixels (others get no pairs).
+    """
+    device = means.device
+    H, W = intrinsics.height, intrinsics.width
+    if means.shape[0] == 0:
+        return _empty(H, W, device)
+    T_cam_world = torch.as_tensor(invert_transform(check_pose(T_world_cam)), dtype=torch.float32, device=device)
+    p = means @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+
+    front = z > cfg.near
+    zc = torch.where(front, z, torch.ones_like(z))
+    u = fx * x / zc + cx
+    v = fy * y / zc + cy
+    # EWA screen covariance of an isotropic Gaussian; x/z, y/z clamped as in 3DGS for stability.
+    lim_x = 1.3 * max(cx, W - cx) / fx
+    lim_y = 1.3 * max(cy, H - cy) / fy
+    tx = (x / zc).clamp(-lim_x, lim_x)
+    ty = (y / zc).clamp(-lim_y, lim_y)
+    s2 = (scales / zc) ** 2
+    a = s2 * fx * fx * (1 + tx * tx) + cfg.blur_px2
+    b = s2 * fx * fy * tx * ty
+    c = s2 * fy * fy * (1 + ty * ty) + cfg.blur_px2
+    det = (a * c - b * b).clamp_min(1e-12)
+    conic_a, conic_b, conic_c = c / det, -b / det, a / det
+    mid = 0.5 * (a + c)
+    lam_max = mid + torch.sqrt((mid * mid - det).clamp_min(0.0))
+    # alpha >= alpha_min  <=>  mahalanobis^2 <= 2 log(o / alpha_min)
+    cutoff = 2.0 * torch.log((opacities / cfg.alpha_min).clamp_min(1.0))
+    radius = torch.ceil(torch.sqrt(cutoff * lam_max)).clamp(1, cfg.max_radius_px)
+    uc = torch.floor(u + 0.5)
+    vc = torch.floor(v + 0.5)
+    ok = (front & (cutoff > 0) & (uc + radius >= 0) & (uc - radius <= W - 1)
+          & (vc + radius >= 0) & (vc - radius <= H - 1))
+    if pixel_mask is not None:
+        pm = pixel_mask.to(device=device, dtype=torch.bool)
+        if not bool(pm.any()):
+            return _empty(H, W, device)
+        rows = torch.nonzero(pm.any(dim=1)).flatten()
+        cols = torch.nonzero(pm.any(dim=0)).flatten()
+        ok &= ((uc + radius >= cols[0]) & (uc - radius <= cols[-1])
+               & (vc + radius >= rows[0]) & (vc - radius <= rows[-1]))
+        pm_flat = pm.reshape(-1)
+    idx = torch.nonzero(ok).flatten()
+    if idx.numel() == 0:
+        return _empty(H, W, device)
+
+    # Global depth order of the visible Gaussians.
+    order = torch.argsort(z[idx], stable=True)
+    idx = idx[order]
+    n_vis = idx.numel()
+    rank = torch.arange(n_vis, device=device, dtype=torch.int64)
+    r_vis = radius[idx]
+    buckets = torch.as_tensor([r for r in _RADIUS_BUCKETS if r < cfg.max_radius_px] + [cfg.max_radius_px],
+                              dtype=r_vis.dtype, device=device)
+    bucket_of = torch.bucketize(r_vis, buckets)
+    pair_g, pair_pix, pair_alpha, pair_rank = [], [], [], []
+    candidates = 0
+    for k in torch.unique(bucket_of).tolist():
+        R = int(buckets[k])
+        members = torch.nonzero(bucket_of == k).flatten()
+        off = torch.arange(-R, R + 1, device=device, dtype=torch.float32)
+        dy, dx = torch.meshgrid(off, off, indexing="ij")
+        disc = dx * dx + dy * dy <= (R + 0.5) ** 2     # the footprint ellipse lies within radius R
+        dx, dy = dx[disc].reshape(1, -1), dy[disc].reshape(1, -1)
+        per = dx.shape[1]
+        step = max(1, _CHUNK_PAIRS // per)
+        for s in range(0, members.numel(), step):
+            m = members[s:s + step]
+            g = idx[m]
+            pu = uc[g][:, None] + dx
+            pv = vc[g][:, None] + dy
+            du = pu - u[g][:, None]
+            dv = pv - v[g][:, None]
+            power = -0.5 * (conic_a[g][:, None] * du * du + 2.0 * conic_b[g][:, None] * du * dv
+                            + conic_c[g][:, None] * dv * dv)
+            alpha = (opacities[g][:, None] * torch.exp(power)).clamp_max(cfg.alpha_max)
+            keep = (alpha >= cfg.alpha_min) & (pu >= 0) & (pu <= W - 1) & (pv >= 0) & (pv <= H - 1)
+            pix = pv.to(torch.int64) * W + pu.to(torch.int64)
+            if pixel_mask is not None:
+                keep &= pm_flat[pix.clamp(0, H * W - 1)]
+            candidates += keep.numel()
+            rows_k, cols_k = torch.nonzero(keep, as_tuple=True)
+            pair_g.append(g[rows_k])
+            pair_rank.append(rank[m][rows_k])
+            pair_pix.append(pix[rows_k, cols_k])
+            pair_alpha.append(alpha[rows_k, cols_k])
+    g_all = torch.cat(pair_g)
+    if g_all.numel() == 0:
+        return _empty(H, W, device)
+    pix_all = torch.cat(pair_pix)
+    rank_all = torch.cat(pair_rank)
+    alpha_all = torch.cat(pair_alpha)
+
+    # Sort by (pixel, depth rank) in one key, then composite each pixel's run front to back.
+    key = pix_all * n_vis + rank_all
+    key, perm = torch.sort(key)
+    g_all, pix_all, alpha_all = g_all[perm], pix_all[perm], alpha_all[perm]
+    log_one_minus = torch.log1p(-alpha_all.to(torch.float64))
+    inclusive = torch.cumsum(log_one_minus, 0)
+    exclusive = inclusive - log_one_minus
+    starts = torch.ones_like(pix_all, dtype=torch.bool)
+    starts[1:] = pix_all[1:] != pix_all[:-1]
+    segment = torch.cumsum(starts.to(torch.int64), 0) - 1
+    log_T = exclusive - exclusive[starts][segment]
+    keep = log_T >= math.log(cfg.transmittance_min)
+    weight = (alpha_all.to(torch.float64) * torch.exp(log_T))[keep].to(torch.float32)
+    g_all, pix_all = g_all[keep], pix_all[keep]
+    depth = z[g_all]
+
+    sil = torch.zeros(H * W, dtype=torch.float32, device=device)
+    sil.index_add_(0, pix_all, weight)
+    acc = torch.zeros(H * W, dtype=torch.float32, device=device)
+    acc.index_add_(0, pix_all, weight * depth)
+    return Rendering(H, W, g_all, pix_all, weight, depth, sil.reshape(H, W), acc.reshape(H, W),
+                     candidate_pairs=candidates)
+
+
+# ----------------------------------------------------------------------------- renderer
+def _random_scene(rng, n):
+    means = np.stack([rng.uniform(-2.5, 2.5, n), rng.uniform(-1.5, 1.5, n), rng.uniform(-0.5, 6.0, n)], axis=1)
+    scales = rng.uniform(0.005, 0.15, n)
+    opacities = rng.uniform(0.05, 0.95, n)
+    return (torch.tensor(means, dtype=torch.float32), torch.tensor(scales, dtype=torch.float32),
+            torch.tensor(opacities, dtype=torch.float32))
+
+
+def _same(a: Rendering, b: Rendering) -> bool:
+    return all(torch.equal(getattr(a, f), getattr(b, f)) for f in
+               ("gaussian_index", "pixel_index", "weight", "pair_depth", "silhouette", "accumulated_depth")) \
+        and a.candidate_pairs == b.candidate_pairs
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_renderer_matches_the_previous_implementation_bit_for_bit(seed):
+    rng = np.random.default_rng(seed)
+    cam = CameraIntrinsics(160, 120, 130.0, 130.0, 79.5, 59.5)
+    cfg = RenderConfig()
+    means, scales, opacities = _random_scene(rng, 3000)
+    pose = look_at_camera(np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), -1.0]), np.array([0.0, 0.0, 3.0]))
+    fast = render_gaussians(means, scales, opacities, cam, pose, cfg)
+    assert fast.weight.numel() > 10_000                     # a real scene, windows cut by the image edge
+    assert _same(fast, reference_render(means, scales, opacities, cam, pose, cfg))
+    mask = torch.zeros(120, 160, dtype=torch.bool)
+    mask[30:70, 50:140] = True
+    assert _same(render_gaussians(means, scales, opacities, cam, pose, cfg, mask),
+                 reference_render(means, scales, opacities, cam, pose, cfg, mask))
+
+
+def test_sorting_permutation_is_torch_sort_for_distinct_keys():
+    key = torch.as_tensor(np.random.default_rng(0).permutation(5_000_000)[:300_000].astype(np.int64))
+    assert torch.equal(_sorting_permutation(key), torch.sort(key).indices)
+    huge = key + (1 << 40)                                  # too large to pack: torch.sort path
+    assert torch.equal(_sorting_permutation(huge), torch.sort(huge).indices)
+
+
+# ----------------------------------------------------------------------------- footprint
+@pytest.mark.parametrize("seed", range(3))
+def test_footprint_tiles_give_the_exhaustive_answer(seed):
+    rng = np.random.default_rng(seed)
+    geometry = GridGeometry(0.025, 400, -5.0, -5.0)
+    obstacle = np.zeros(geometry.shape, dtype=bool)
+    for _ in range(60):
+        r, c = rng.integers(0, 390, size=2)
+        obstacle[r:r + rng.integers(1, 12), c:c + rng.integers(1, 12)] = True
+    checker = FootprintChecker(FootprintConfig(), geometry, obstacle)
+    for grid, pts in ((checker.obstacle, checker._body), (checker.tall, checker._arm)):
+        # a walk across the map (one window), scattered poses, and poses hanging off the grid
+        line = np.stack([np.linspace(-3, 3, 400), np.linspace(-2, 2.5, 400), rng.uniform(-np.pi, np.pi, 400)], axis=1)
+        scattered = np.stack([rng.uniform(-6, 6, 300), rng.uniform(-6, 6, 300), rng.uniform(-np.pi, np.pi, 300)], axis=1)
+        for poses in (line, scattered, line[:1]):
+            fast = checker._hits(poses, pts, grid)
+            assert np.array_equal(fast, checker._hits_exhaustive(poses, pts, grid))
+        assert 0 < checker._hits(line, pts, grid).sum() < len(line)     # both answers occur
+
+
+# ----------------------------------------------------------------------------- planner
+def _random_obstacles(rng, shape, boxes):
+    obstacle = np.zeros(shape, dtype=bool)
+    for _ in range(boxes):
+        r, c = rng.integers(0, shape[0]), rng.integers(0, shape[1])
+        obstacle[r:r + rng.integers(1, 30), c:c + rng.integers(1, 30)] = True
+    return obstacle
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_clearance_and_seen_space_match_scipy(seed):
+    rng = np.random.default_rng(seed)
+    shape = tuple(rng.integers(20, 500, size=2))
+    obstacle = _random_obstacles(rng, shape, int(rng.integers(1, 150)))
+    assert np.array_equal(_clearance(obstacle, 0.05), ndimage.distance_transform_edt(~obstacle) * 0.05)
+    for cell, radius in ((0.05, 0.3), (0.025, 0.3), (0.1, 0.33)):
+        for mask in (~obstacle, np.ones(shape, dtype=bool)):        # all-seen: scipy's own convention
+            assert np.array_equal(_far_enough_inside(mask, cell, radius),
+                                  ndimage.distance_transform_edt(mask) * cell >= radius)
+    assert np.array_equal(_clearance(np.zeros((30, 40), bool), 0.05),
+                          ndimage.distance_transform_edt(np.ones((30, 40), bool)) * 0.05)
+
+
+def test_pooling_matches_block_any():
+    grid = np.random.default_rng(0).random((203, 117)) < 0.02
+    for f in (1, 2, 3):
+        h, w = 203 // f * f, 117 // f * f
+        assert np.array_equal(_pool(grid, f), grid[:h, :w].reshape(h // f, f, w // f, f).any(axis=(1, 3)))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_narrow_band_travel_time_gives_the_full_march_path(seed):
+    rng = np.random.default_rng(seed)
+    obstacle = _random_obstacles(rng, (300, 300), 120)
+    clearance = ndimage.distance_transform_edt(~obstacle) * 0.05
+    traversable = clearance >= 0.3
+    free = np.argwhere(traversable)
+    goal = np.zeros_like(traversable)
+    g = free[rng.integers(len(free))]
+    goal[g[0], g[1]] = True
+    planner = FMMPlanner()
+    full = planner._travel_time(traversable, goal, clearance)
+    for s in free[rng.integers(len(free), size=8)]:
+        start = (int(s[0]), int(s[1]))
+        banded = planner._travel_time(traversable, goal, clearance, start)
+        assert np.isfinite(banded[start]) == np.isfinite(full[start])
+        if np.isfinite(full[start]):
+            inside = np.isfinite(banded)
+            assert np.array_equal(banded[inside], full[inside]) and banded[start] == full[start]
+            assert _descend(banded, start) == _descend(full, start)
+
+
+# ----------------------------------------------------------------------------- view evidence cache
+def test_view_evidence_is_cached_unaliased_and_equal_to_a_fresh_render():
+    from helios.config import HeliosConfig
+    from helios.maps import ClassSet
+    from helios.maps.gaussians import GaussianMap
+    from sim.synthetic_boxes import pinhole
+
+    cfg = HeliosConfig()
+    gmap = GaussianMap(ClassSet.from_task(["cup", "table"]), cfg.gaussians, cfg.instances, cfg.scoring,
+                       GridGeometry(0.025, 400, -5, -5))
+    ys, zs = np.meshgrid(np.linspace(-0.05, 0.05, 5), np.linspace(0.95, 1.05, 5))
+    gmap.add_gaussians(np.stack([np.full(25, 2.0), ys.ravel(), zs.ravel()], axis=1), 0.02, 0.5)
+    cam, pose = pinhole(160, 120), look_at_camera([0.0, 0.0, 1.0], [2.0, 0.0, 1.0])
+    idx = np.arange(25)
+    calls = []
+    render = gmap.render
+    gmap.render = lambda *a, **k: calls.append(1) or render(*a, **k)
+    first = gmap.view_evidence(idx, cam, pose)
+    first += 100.0                                           # the caller's copy, not the cache's
+    again = gmap.view_evidence(idx, cam, pose)
+    assert len(calls) == 1
+    working, _ = gmap.working_intrinsics(cam)
+    r = render(working, pose, indices=idx)
+    assert torch.equal(again, gmap.evidence_scale * r.per_gaussian_sum(r.silhouette, 25))
+    gmap.view_evidence(idx[:10], cam, pose)                  # another index set is another entry
+    gmap.view_evidence(idx, cam, look_at_camera([0.0, 0.1, 1.0], [2.0, 0.0, 1.0]))
+    assert len(calls) == 3
+
+
+# ----------------------------------------------------------------------------- instances
+def test_instance_footprints_are_the_unique_cells_in_row_major_order():
+    from helios.config import HeliosConfig
+    from helios.maps import ClassSet
+    from helios.maps.instances import summarize_instances
+
+    rng = np.random.default_rng(0)
+    grid = GridGeometry(0.025, 400, -5, -5)
+    classes = ClassSet.from_task(["cup", "table"])
+    n = 3000
+    means = np.stack([rng.uniform(-6, 6, n), rng.uniform(-6, 6, n), rng.uniform(0, 1, n)], axis=1)  # some off-grid
+    ids = rng.integers(-1, 7, n)
+    exp = rng.dirichlet(np.ones(len(classes)), n)
+    out = summarize_instances(means, exp, exp * 0.1, exp.argmax(axis=1), ids, classes, HeliosConfig().scoring.alpha_cs,
+                              grid)
+    assert len(out) == 7
+    means = means.astype(np.float32)                         # as the map holds them
+    out = summarize_instances(means, exp, exp * 0.1, exp.argmax(axis=1), ids, classes, HeliosConfig().scoring.alpha_cs,
+                              grid)
+    labelled = np.nonzero(ids >= 0)[0]
+    uniq, inv = np.unique(ids[labelled], return_inverse=True)
+    S, centre, top = np.zeros((7, len(classes))), np.zeros((7, 3)), np.full(7, -np.inf)
+    np.add.at(S, inv, exp[labelled])                         # the sequential sums the code used to do
+    np.add.at(centre, inv, means[labelled])
+    np.maximum.at(top, inv, means[labelled, 2])
+    counts = np.bincount(inv).astype(np.float64)[:, None]
+    for k, inst in enumerate(out):
+        cells = np.stack(grid.world_to_cell(means[ids == inst.id, :2]), axis=1)
+        expected = np.unique(cells, axis=0)
+        assert np.array_equal(inst.footprint_xy, grid.cell_to_world(expected[:, 0], expected[:, 1]))
+        assert list(inst.class_scores.values()) == (S[k] / counts[k]).tolist()
+        assert np.array_equal(inst.centre, centre[k] / counts[k]) and inst.max_height == float(top[k])
+
+
+# ----------------------------------------------------------------------------- simulator broad phase
+def test_bodies_overlapping_is_the_per_body_aabb_test_after_objects_move():
+    from robots.spot.sim_backend import SimBackendConfig
+    from sim.world import GROUND
+    from tasks.episodes import load_split
+    from tasks.runner import build_episode_world
+
+    world, _scene, spot = build_episode_world(load_split("smoke")[0], SimBackendConfig())
+    try:
+        def slow(lo, hi, skip):
+            out = []
+            for info in world.bodies.values():
+                if info.body_id in skip or info.kind == GROUND:
+                    continue
+                blo, bhi = world.body_aabb(info.body_id)
+                if not (any(bhi[i] < lo[i] for i in range(3)) or any(blo[i] > hi[i] for i in range(3))):
+                    out.append(info.body_id)
+            return out
+
+        objects = [b.body_id for b in world.bodies.values() if b.kind == "object"]
+        rng = np.random.default_rng(0)
+        checked = 0
+        for step in range(40):
+            if step % 10 == 5:       # an object is put somewhere (carried, placed): its box must follow
+                world.client.resetBasePositionAndOrientation(objects[step % len(objects)],
+                                                             [*rng.uniform(-3, 3, 2), 0.5], [0, 0, 0, 1])
+            if step % 10 == 7:       # ... and falls under physics
+                world.step(60)
+            centre = np.array([*rng.uniform(-4, 4, 2), rng.uniform(0, 1.5)])
+            half = rng.uniform(0.2, 2.0, 3)
+            skip = {spot.id, objects[0]} if step % 2 else {spot.id}
+            lo, hi = list(centre - half), list(centre + half)
+            assert world.bodies_overlapping(lo, hi, skip) == slow(lo, hi, skip)
+            checked += bool(slow(lo, hi, skip))
+        assert checked > 10
+        # a box read while the object was in the air is not served after it fell
+        world.client.resetBasePositionAndOrientation(objects[1], [0.0, 0.0, 1.5], [0, 0, 0, 1])
+        assert objects[1] in world.bodies_overlapping([-0.05, -0.05, 1.45], [0.05, 0.05, 1.55], set())
+        world.step(240)
+        assert objects[1] not in world.bodies_overlapping([-0.05, -0.05, 1.45], [0.05, 0.05, 1.55], set())
+    finally:
+        world.close()
