@@ -556,3 +556,24 @@ def test_footprint_at_the_grid_edge_only_hits_cells_on_the_grid():
         hit = FootprintChecker(FootprintConfig(), geometry, grid)
         assert not hit.poses_free(pose[None])[0], (row, col)
         assert hit.poses_free(np.array([[1.0, 1.0, 0.0]]))[0]     # the same cell is far from the middle
+
+
+def test_a_huge_known_region_plans_on_coarser_cells_and_the_limit_can_be_lifted():
+    """max_plan_cells: a 20 m x 20 m explored map is 160,000 FMM cells at 5 cm; with a limit of
+    50,000 the planner doubles its cell (the path's cells are 10 cm apart) and still threads the
+    1 m door; with the limit off it plans at 5 cm; a home-sized window is never coarsened."""
+    geo = GridGeometry(0.025, 800, -10.0, -10.0)
+    s = Scene(geo).box(0.0, 0.1, -10.0, -0.5).box(0.0, 0.1, 0.5, 10.0)
+    start, goal = SE2Pose(-6.0, 3.0, 0.0), np.array([6.0, -3.0])
+    coarse = s.plan(start, goal, FMMPlanner(dataclasses.replace(CFG, max_plan_cells=50_000)), horizon=100.0)
+    fine = s.plan(start, goal, FMMPlanner(dataclasses.replace(CFG, max_plan_cells=0)), horizon=100.0)
+    default = s.plan(start, goal, horizon=100.0)
+    for r in (coarse, fine, default):
+        assert r.success and r.reaches_goal
+        assert_replay_free(s, start, r)
+    def steps(r):      # cell-to-cell steps of the descent: straight or diagonal
+        return set(np.round(np.linalg.norm(np.diff(r.path[1:-1], axis=0), axis=1), 4))
+    assert steps(coarse) <= {0.1, 0.1414} and steps(fine) <= {0.05, 0.0707}
+    assert np.array_equal(default.path, fine.path)          # 160,000 cells: under the default limit
+    with pytest.raises(ValueError, match="max_plan_cells"):
+        PlannerConfig(max_plan_cells=5)

@@ -53,6 +53,12 @@ class PlannerConfig:
     are tried to find room for it (Spot walks in any direction)."""
     horizon: float = 3.0
     """Metres of path turned into actions per plan (the agent replans after executing them)."""
+    max_plan_cells: int = 400_000
+    """Largest FMM grid (coarse cells). When the known region (plus start, goal and margin) would
+    need more, the plan cell grows by whole multiples until it fits: a fully explored 50 m grid
+    plans at 10 cm, homes up to ~30 m across stay at ``plan_cell_size``. Forward moves and turns
+    are still footprint-checked on the 2.5 cm map. 0 = never coarsen (replans of a whole 50 m grid
+    then take ~300 ms)."""
     unknown_is_obstacle: bool = True
     """Footprint checks treat never-seen cells (beyond ``start_clearance``) as occupied for the
     body, not for the raised arm; paths keep ``robot_radius`` inside seen space either way."""
@@ -71,7 +77,9 @@ class PlannerConfig:
         require_range(self, "forward_min forward_max", 0.0, 10.0, lo_open=True)
         require_range(self, "rotate_min rotate_max", 0.0, math.pi, lo_open=True)
         require_range(self, "horizon", 0.0, 100.0, lo_open=True)
-
+        require_range(self, "max_plan_cells", 0, 100_000_000)
+        if 0 < self.max_plan_cells < 100:
+            raise ValueError(f"max_plan_cells must be 0 (no limit) or >= 100, got {self.max_plan_cells}")
 
 
 @dataclass(frozen=True)
@@ -121,6 +129,10 @@ class FMMPlanner:
         window = self._window(geometry, explored, start, goals, f, explored_bounds)
         if window is None:
             return PlanResult(False, "unreachable", np.zeros((0, 2)))
+        cells = (window[1] - window[0]) * (window[3] - window[2]) / f ** 2
+        if cfg.max_plan_cells and cells > cfg.max_plan_cells:      # a huge known region: coarser FMM cells
+            f *= int(math.ceil(math.sqrt(cells / cfg.max_plan_cells)))
+            window = self._window(geometry, explored, start, goals, f, explored_bounds)
         r0, r1, c0, c1 = window
         coarse_obs = _pool(obstacle[r0:r1, c0:c1], f)
         coarse_exp = _pool(explored[r0:r1, c0:c1], f)
