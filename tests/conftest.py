@@ -42,3 +42,19 @@ def picture_runs(tmp_path_factory):
     records = {name: run_batch(cfg, episodes, root / name)[0] for name, cfg in configs.items()}
     report = make_report([root / "oracle", root / "helios"], root / "report")
     return {"root": root, "episode": episodes[0], "configs": configs, "records": records, "report": report}
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests marked ``gpu`` run the CUDA path where there is a CUDA device and are skipped, with
+    the reason, everywhere else (the fast suite must pass on a CPU-only machine)."""
+    gpu_items = [item for item in items if item.get_closest_marker("gpu")]
+    if not gpu_items:
+        return
+    import torch
+
+    if torch.cuda.is_available():
+        return
+    skip = pytest.mark.skip(reason="needs a CUDA device: torch.cuda.is_available() is False on this machine "
+                                   "(run `python -m pytest -m gpu` where one is)")
+    for item in gpu_items:
+        item.add_marker(skip)

@@ -439,6 +439,11 @@ CASES: list[tuple[str, list[str], str]] = [
     ("bench-trials-workers-zero", ["bench", "trials", "--trials-workers", "0"], "--trials-workers"),
     ("bench-agent-episodes", ["bench", "agent", "--agent-episodes", "0"], "--agent-episodes must be"),
     ("bench-maps-recording", ["bench", "maps", "--maps-recording", "{ws}/nope.npz"], "is not a file"),
+    ("bench-agent-baseline", ["bench", "agent", "--agent-baseline", "no-such-commit-or-file"],
+     "neither a file nor a commit"),
+    ("bench-agent-baseline-file", ["bench", "agent", "--agent-baseline", "{ws}/rec.txt"], "--agent-baseline"),
+    ("bench-agent-save", ["bench", "agent", "--agent-save", "{ws}/nope/bench.json"], "does not exist"),
+    ("bench-maps-device", ["bench", "agent", "maps", "--maps-device", "cuda"], "no CUDA device"),
     ("calibrate-views", ["calibrate-perception", "--views", "0", "--out", "{ws}/new_cal"], "--views"),
     ("calibrate-group", ["calibrate-perception", "--group", "0", "--out", "{ws}/new_cal"], "--group"),
     ("calibrate-scenes", ["calibrate-perception", "--scenes", "0", "--out", "{ws}/new_cal"], "--scenes"),
@@ -478,6 +483,11 @@ def test_the_corpus_is_big_and_covers_every_command():
 @pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])
 def test_bad_input_is_one_clear_line_and_changes_nothing(case, in_ws):
     name, argv, fragment = case
+    if name == "bench-maps-device":
+        import torch
+
+        if torch.cuda.is_available():
+            pytest.skip("this machine has a CUDA device")
     if UNWRITABLE in argv or any(UNWRITABLE in a for a in argv):
         if not _unwritable_works():
             pytest.skip("no unwritable folder on this machine")

@@ -65,6 +65,10 @@ def _check_options(args: argparse.Namespace) -> None:
 
             raise CliError(f"--trials-workers must be comma-separated worker counts within 1..1024, "
                            f"got {short_repr(workers, 60)}")
+    if "maps" in args.suites:
+        from tools.bench_maps import check_device
+
+        check_device(getattr(args, "maps_device", "cpu") or "cpu")
     recording = getattr(args, "maps_recording", None)
     if recording and not Path(recording).is_file():
         raise CliError(f"--maps-recording {recording!r} is not a file")

@@ -63,7 +63,7 @@ def _percentile(values, q):
 class _WorkerProcess:
     """One bench worker on a source tree; requests and answers are JSON lines, each with a timeout."""
 
-    def __init__(self, root: Path, agent: str, profile: bool, label: str):
+    def __init__(self, root: Path, agent: str, profile: bool, label: str, start_timeout: float = 300.0):
         self.label = label
         cmd = [sys.executable, str(WORKER), str(root), agent, "1"] + (["--profile"] if profile else [])
         env = dict(__import__("os").environ, PYTHONPATH=str(root))
@@ -73,7 +73,7 @@ class _WorkerProcess:
         self._stderr: list[str] = []
         threading.Thread(target=self._pump, args=(self.proc.stdout, self._lines), daemon=True).start()
         threading.Thread(target=self._pump_err, daemon=True).start()
-        self._read(300.0, "start up")
+        self._read(start_timeout, "start up")
 
     @staticmethod
     def _pump(stream, q):
@@ -90,7 +90,7 @@ class _WorkerProcess:
         try:
             line = self._lines.get(timeout=timeout)
         except queue.Empty:
-            self.close()
+            self.close(graceful=False)
             raise CliError(f"bench worker ({self.label}) did not {what} within {timeout:.0f} s; stopped it") from None
         if line is None:
             tail = "".join(self._stderr[-8:]).strip()
@@ -103,9 +103,10 @@ class _WorkerProcess:
         self.proc.stdin.flush()
         return self._read(timeout, what)
 
-    def close(self) -> None:
+    def close(self, graceful: bool = True) -> None:
+        """Ask the worker to quit (10 s), then kill it; an unresponsive one is killed at once."""
         try:
-            if self.proc.poll() is None:
+            if graceful and self.proc.poll() is None:
                 self.proc.stdin.write(json.dumps({"quit": True}) + "\n")
                 self.proc.stdin.flush()
                 self.proc.wait(timeout=10)

@@ -257,8 +257,9 @@ def _rss_bytes() -> int:
 
 
 def benchmark_frames(frames: Iterable[Frame], task_classes: Sequence[str], value_layers: Sequence[str],
-                     full_scene: bool, threads: int, frontier_every: int = 10) -> dict:
-    """Run one map over ``frames`` and measure it (call in a fresh process for clean peak RSS)."""
+                     full_scene: bool, threads: int, frontier_every: int = 10, device: str = "cpu") -> dict:
+    """Run one map over ``frames`` and measure it (call in a fresh process for clean peak RSS).
+    ``device`` is the Gaussian layer's torch device (``cpu`` or ``cuda``)."""
     import torch
 
     from helios.config import HeliosConfig
@@ -268,13 +269,15 @@ def benchmark_frames(frames: Iterable[Frame], task_classes: Sequence[str], value
     torch.set_num_threads(threads)
     frames = list(frames)
     gc.collect()
-    cfg = with_overrides(HeliosConfig(), [f"gaussians.full_scene={str(full_scene).lower()}"])
+    cfg = with_overrides(HeliosConfig(), [f"gaussians.full_scene={str(full_scene).lower()}", f"device={device}"])
     hmap = HierarchicalMap(cfg, task_classes, value_layers)
     baseline = _rss_bytes()
     gauss, layers2d, frontier_ms = [], [], []
     peak_map = peak_render = 0
     for i, (obs, detections, scores) in enumerate(frames):
         update = hmap.update(obs, detections, scores)
+        if device == "cuda":
+            torch.cuda.synchronize()
         gauss.append(update.seconds["gaussians"] * 1e3)
         layers2d.append((update.seconds["occupancy"] + update.seconds["value_map"]) * 1e3)
         peak_map = max(peak_map, hmap.objects.memory_bytes())
@@ -293,10 +296,24 @@ def benchmark_frames(frames: Iterable[Frame], task_classes: Sequence[str], value
     }
 
 
-def _benchmark_file(path: str, full_scene: bool, threads: int, limit: int | None) -> dict:
+def _benchmark_file(path: str, full_scene: bool, threads: int, limit: int | None, device: str = "cpu") -> dict:
     trajectory = Trajectory.load(path)
     return benchmark_frames(trajectory.frames(limit), trajectory.task_classes, trajectory.value_layers,
-                            full_scene, threads)
+                            full_scene, threads, device=device)
+
+
+def format_device_report(cpu: dict, gpu: dict, name: str) -> str:
+    """The object-only Gaussian update on the CPU and on CUDA, side by side."""
+    from tools.tables import format_table
+
+    rows = []
+    for label, q in (("median", 50), ("p90", 90)):
+        c, g = float(np.percentile(cpu["gauss_ms"], q)), float(np.percentile(gpu["gauss_ms"], q))
+        rows.append([f"Gaussian update, {label} (ms/frame)", c, g, c / g if g else float("inf")])
+    rows.append(["Gaussians at the end", cpu["n_gaussians"], gpu["n_gaussians"],
+                 cpu["n_gaussians"] / gpu["n_gaussians"] if gpu["n_gaussians"] else float("nan")])
+    return format_table(["metric", "CPU", f"CUDA ({name})", "CPU/GPU"], rows,
+                        title="maps on CPU vs CUDA: object-only Gaussian layer, same frames")
 
 
 def _in_fresh_process(*args) -> dict:
@@ -308,7 +325,7 @@ def _mb(n: float) -> float:
     return n / 2 ** 20
 
 
-def format_report(obj: dict, full: dict, source: str, threads: int) -> str:
+def format_report(obj: dict, full: dict, source: str, threads: int, device: str = "cpu") -> str:
     from tools.tables import format_table
 
     def stats(xs):
@@ -335,7 +352,7 @@ def format_report(obj: dict, full: dict, source: str, threads: int) -> str:
         ["Occupancy + value map, median (ms/frame)", ol[0], fl[0], ratio(ol[0], fl[0])],
         ["Occupancy + value map, p90 (ms/frame)", ol[1], fl[1], ratio(ol[1], fl[1])],
     ]
-    title = (f"maps: {obj['frames']} frames at {WIDTH}x{HEIGHT} from {source}; torch threads={threads}, CPU; "
+    title = (f"maps: {obj['frames']} frames at {WIDTH}x{HEIGHT} from {source}; torch threads={threads}, {device.upper()}; "
              f"each mode in its own process")
     table = format_table(["metric", "object-only", "full-scene", "full/object"], rows, title=title)
     mem_ratio = ratio(full["peak_map_bytes"], obj["peak_map_bytes"])
@@ -350,10 +367,25 @@ def format_report(obj: dict, full: dict, source: str, threads: int) -> str:
     return table + "\n" + "\n".join(checks)
 
 
+def check_device(device: str) -> None:
+    """A clear error, before any work, when CUDA is asked for and there is none."""
+    if device == "cpu":
+        return
+    import torch
+
+    if not torch.cuda.is_available():
+        from tools.cli import CliError
+
+        raise CliError(f"--maps-device {device}: no CUDA device here (torch.cuda.is_available() is False; "
+                       f"torch {torch.__version__}); use --maps-device cpu")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--maps-recording", default=None, help="trajectory .npz (see tools/bench_maps.py)")
     parser.add_argument("--maps-synthetic", action="store_true",
                         help="replay a synthetic two-room flat instead of a simulator recording")
+    parser.add_argument("--maps-device", choices=("cpu", "cuda", "both"), default="cpu",
+                        help="Gaussian layer on the CPU (default), on CUDA, or both with the CPU/GPU ratio")
     parser.add_argument("--maps-threads", type=int, default=None,
                         help="torch threads (default 1, or $HELIOS_BENCH_THREADS)")
 
@@ -374,9 +406,18 @@ def run(args: argparse.Namespace) -> str:
     else:
         path = sim_trajectory_file(DEFAULT_FRAMES)
         source = f"simulator recording: HELIOS on val episode 0 ({path})"
-    obj = _in_fresh_process(str(path), False, threads, limit)
-    full = _in_fresh_process(str(path), True, threads, limit)
-    return format_report(obj, full, source, threads)
+    device = getattr(args, "maps_device", "cpu") or "cpu"
+    check_device(device)
+    first = "cuda" if device == "cuda" else "cpu"
+    obj = _in_fresh_process(str(path), False, threads, limit, first)
+    full = _in_fresh_process(str(path), True, threads, limit, first)
+    report = format_report(obj, full, source, threads, first)
+    if device == "both":
+        import torch
+
+        gpu = _in_fresh_process(str(path), False, threads, limit, "cuda")
+        report += "\n\n" + format_device_report(obj, gpu, torch.cuda.get_device_name(0))
+    return report
 
 
 def main(argv: list[str] | None = None) -> int:

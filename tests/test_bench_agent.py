@@ -1,0 +1,88 @@
+"""``tools bench agent``: the before/after report, the profiled phases and the worker protocol
+(timings themselves are never asserted)."""
+
+import cProfile
+import json
+import math
+import sys
+
+import numpy as np
+import pytest
+
+from tools import bench_agent
+from tools.bench_agent_worker import PROFILE_PHASES, _profile_phases
+from tools.cli import CliError
+
+
+def _run(label, walls, sims, replan_ms):
+    episodes = [{"episode": f"val-{i:05d}", "wall": w, "sim": s, "success": False, "plans": 3, "peak_rss_mb": 500.0,
+                 "phases": {"simulator (HAL commands)": w / 4, "agent: map update": w / 2,
+                            "scene build and judge": 1.0}} for i, (w, s) in enumerate(zip(walls, sims))]
+    replans = [{"map": "home map", "times_ms": replan_ms, "ok": len(replan_ms)}]
+    return {"label": label, "episodes": episodes, "replans": replans, **bench_agent._summary(episodes, replans)}
+
+
+def test_report_puts_before_and_after_side_by_side_with_ratios_and_projection():
+    before = _run("3f77267", [10.0, 20.0, 4.0], [600.0, 600.0, 139.0], [50.0, 300.0, 60.0])
+    after = _run("this checkout", [5.0, 10.0, 2.0], [600.0, 600.0, 139.0], [20.0, 60.0, 25.0])
+    text = bench_agent.format_report(after, before, "helios")
+    assert "before: 3f77267" in text
+    median_line = next(line for line in text.splitlines() if line.startswith("median"))
+    assert "10.0" in median_line and "5.0" in median_line and "2.00x" in median_line
+    assert "same simulated time and outcome on every episode: yes" in text
+    # the projection: 10 runs x 1000 episodes x mean(wall + scene build) / 2 workers
+    hours = 10 * 1000 * np.mean([6.0, 11.0, 3.0]) / 2 / 3600
+    assert f"{hours:10.1f}" in next(line for line in text.splitlines() if line.startswith("hours"))
+    changed = _run("this checkout", [5.0, 10.0, 2.0], [600.0, 480.0, 139.0], [20.0])
+    assert "NO (behaviour differs)" in bench_agent.format_report(changed, before, "helios")
+    alone = bench_agent.format_report(after, None, "helios")
+    assert "before" not in alone.split("\n", 2)[1] and "ratio" not in alone
+
+
+def test_saved_results_are_a_baseline_and_foreign_files_are_refused(tmp_path):
+    after = _run("x", [5.0], [600.0], [20.0])
+    saved = tmp_path / "bench.json"
+    saved.write_text(json.dumps({"format": bench_agent.SAVE_FORMAT, **after}))
+    label, tree, data = bench_agent._resolve_baseline(str(saved), tmp_path)
+    assert tree is None and data["median_wall"] == 5.0
+    (tmp_path / "other.json").write_text(json.dumps({"median_wall": 1}))
+    with pytest.raises(CliError, match="not a file written by"):
+        bench_agent._resolve_baseline(str(tmp_path / "other.json"), tmp_path)
+
+
+def test_profiled_phases_add_up_the_planner_pieces():
+    from helios.maps.grid import GridGeometry
+    from helios.planning import FMMPlanner
+    from robots.hal import SE2Pose
+
+    geometry = GridGeometry(0.025, 400, -5.0, -5.0)
+    obstacle = np.zeros(geometry.shape, dtype=bool)
+    obstacle[190:210, 100:300] = True
+    explored = np.ones(geometry.shape, dtype=bool)
+    profiler = cProfile.Profile()
+    profiler.enable()
+    FMMPlanner().plan(geometry, obstacle, explored, SE2Pose(-2.0, -2.0, 0.0), np.array([2.0, 2.5]),
+                      max_height=np.zeros(geometry.shape, np.float32))
+    profiler.disable()
+    phases, top = _profile_phases(profiler)
+    assert set(phases) == {name for name, _ in PROFILE_PHASES}
+    assert phases["planning: all"] > 0 and phases["planning: FMM solve"] > 0
+    assert phases["planning: footprint checks"] > 0
+    assert phases["planning: all"] >= phases["planning: FMM solve"]
+    assert phases["simulator: camera rendering"] == 0.0
+    assert top and all(isinstance(t, float) and ":" in name for t, name in top)
+
+
+def test_a_worker_answers_in_turn_and_a_silent_one_is_one_error(tmp_path, monkeypatch):
+    worker = bench_agent._WorkerProcess(bench_agent.ROOT, "helios", False, "this checkout")
+    try:
+        answer = worker.ask({"replans": 2, "seed": 0}, 60.0, "plan")
+        assert answer == {"replans": []}          # no episode has built a map yet
+    finally:
+        worker.close()
+    assert worker.proc.poll() is not None
+    silent = tmp_path / "silent.py"
+    silent.write_text("import time\ntime.sleep(60)\n")
+    monkeypatch.setattr(bench_agent, "WORKER", silent)
+    with pytest.raises(CliError, match="did not start up within 1 s"):
+        bench_agent._WorkerProcess(bench_agent.ROOT, "helios", False, "silent", start_timeout=1.0)
