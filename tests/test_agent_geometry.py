@@ -152,3 +152,45 @@ def test_reach_distances_shrink_for_high_and_low_targets():
     assert d_low.max() < d_mid.max()
     assert d_mid.min() >= reach.min_standoff and c_mid < d_mid.max()
     assert len(d_mid) == 5 and np.all(np.diff(d_mid) >= 0)
+
+
+def test_merged_moves_drop_only_the_stops_between_continuing_moves():
+    import math
+
+    from helios.agents.geometry import merged_moves
+    from robots.hal import SE2Pose
+
+    r = math.radians
+    start = SE2Pose(0.0, 0.0, 0.0)
+    plan = [SE2Pose(0, 0, r(30)), SE2Pose(0, 0, r(60)), SE2Pose(0, 0, r(90)),          # a 90 degree turn in 3 steps
+            SE2Pose(0, 1, r(90)), SE2Pose(0, 2, r(90)), SE2Pose(0, 2.5, r(90)),        # 2.5 m straight in 3 moves
+            SE2Pose(0, 2.2, r(90)),                                                    # a step back: not merged
+            SE2Pose(0, 2.2, r(60)), SE2Pose(0.5, 2.2 + math.sqrt(0.75), r(60))]        # turn back, go on
+    merged = merged_moves(start, plan)
+    assert [(round(p.x, 6), round(p.y, 6), round(math.degrees(p.yaw))) for p in merged] == \
+        [(0, 0, 90), (0, 2.5, 90), (0, 2.2, 90), (0, 2.2, 60), (0.5, round(2.2 + math.sqrt(0.75), 6), 60)]
+    # a long-way turn (seven -30 degree steps, chosen because the short way was blocked) keeps
+    # its direction: no merged turn reaches half a turn, so the robot never turns the other way
+    long_way = merged_moves(start, [SE2Pose(0, 0, r(-30 * k)) for k in range(1, 8)])
+    yaw = 0.0
+    for p in long_way:
+        step = math.remainder(p.yaw - yaw, 2 * math.pi)
+        assert step < 0 and abs(step) < math.pi
+        yaw = p.yaw
+    assert math.isclose(math.remainder(yaw - r(-210), 2 * math.pi), 0.0, abs_tol=1e-9)
+
+
+def test_a_walk_with_merged_moves_ends_in_the_same_place_sooner():
+    import math
+
+    from robots.hal import SE2Pose
+    from robots.spot.motion import BaseLimits, plan_base
+    from helios.agents.geometry import merged_moves
+
+    start = SE2Pose(0.0, 0.0, 0.0)
+    plan = [SE2Pose(0, 0, math.radians(30 * k)) for k in range(1, 4)] + [SE2Pose(0, y, math.pi / 2) for y in (1, 2, 3)]
+    full, merged = plan_base(start, plan, BaseLimits()), plan_base(start, merged_moves(start, plan), BaseLimits())
+    end = lambda tr: tr.pose_at(tr.sample_times(0.05)[-1])
+    assert end(full).distance_to(end(merged)) < 1e-9
+    assert end(merged).yaw == pytest.approx(end(full).yaw)
+    assert merged.sample_times(0.05)[-1] < 0.7 * full.sample_times(0.05)[-1]

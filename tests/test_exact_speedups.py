@@ -290,6 +290,26 @@ def test_view_evidence_is_cached_unaliased_and_equal_to_a_fresh_render():
     gmap.view_evidence(idx[:10], cam, pose)                  # another index set is another entry
     gmap.view_evidence(idx, cam, look_at_camera([0.0, 0.1, 1.0], [2.0, 0.0, 1.0]))
     assert len(calls) == 3
+    assert gmap._view_evidence_bytes == (25 + 10 + 25) * 8
+
+
+def test_view_evidence_cache_stays_within_its_bytes(monkeypatch):
+    import helios.maps.gaussians as gaussians
+    from helios.config import HeliosConfig
+    from helios.maps import ClassSet
+    from helios.maps.gaussians import GaussianMap
+    from sim.synthetic_boxes import pinhole
+
+    monkeypatch.setattr(gaussians, "VIEW_EVIDENCE_CACHE_BYTES", 2 * 25 * 8)     # two entries
+    cfg = HeliosConfig()
+    gmap = GaussianMap(ClassSet.from_task(["cup"]), cfg.gaussians, cfg.instances, cfg.scoring,
+                       GridGeometry(0.025, 400, -5, -5))
+    gmap.add_gaussians(np.stack([np.full(25, 2.0), np.linspace(-0.1, 0.1, 25), np.full(25, 1.0)], axis=1), 0.02, 0.5)
+    cam = pinhole(160, 120)
+    poses = [look_at_camera([0.0, 0.05 * k, 1.0], [2.0, 0.0, 1.0]) for k in range(3)]
+    first = [gmap.view_evidence(np.arange(25), cam, p) for p in poses]     # the third evicts the first
+    assert len(gmap._view_evidence) == 2 and gmap._view_evidence_bytes == 2 * 25 * 8
+    assert torch.equal(gmap.view_evidence(np.arange(25), cam, poses[0]), first[0])     # re-rendered, same
 
 
 # ----------------------------------------------------------------------------- instances

@@ -69,9 +69,10 @@ class RenderedImages:
     semantic_std: np.ndarray
     """(H, W, C) sum kappa sqrt(Var[theta]) (uncertainty image)."""
 
-VIEW_EVIDENCE_CACHE = 512
-"""Hypothetical-view evidences (index set, camera) a map keeps for reuse: a pure speed knob,
-results are identical at any size (an entry is 8 bytes per Gaussian of the instance, ~13 kB)."""
+VIEW_EVIDENCE_CACHE_BYTES = 2 << 20
+"""Bytes of hypothetical-view evidences (index set, camera) a map keeps for reuse, oldest use
+dropped first: a pure speed knob, results are identical at any size. An entry is 8 bytes per
+Gaussian of the instance (~13 kB for a typical one); an episode asks for ~60 different ones."""
 
 
 def _square(k: int) -> np.ndarray:
@@ -100,6 +101,7 @@ class GaussianMap:
         self.frame = 0
         self._next_instance = 0
         self._view_evidence: OrderedDict[tuple, torch.Tensor] = OrderedDict()
+        self._view_evidence_bytes = 0
 
     # ------------------------------------------------------------------ state
     def __len__(self) -> int:
@@ -192,8 +194,10 @@ class GaussianMap:
             rendering = self.render(cam, pose, indices=idx)
             hit = self.evidence_scale * rendering.per_gaussian_sum(rendering.silhouette, idx.size)
             self._view_evidence[key] = hit
-            if len(self._view_evidence) > VIEW_EVIDENCE_CACHE:
-                self._view_evidence.popitem(last=False)
+            self._view_evidence_bytes += hit.numel() * hit.element_size()
+            while self._view_evidence_bytes > VIEW_EVIDENCE_CACHE_BYTES:
+                _, old = self._view_evidence.popitem(last=False)
+                self._view_evidence_bytes -= old.numel() * old.element_size()
         else:
             self._view_evidence.move_to_end(key)
         return hit.clone()

@@ -115,9 +115,11 @@ def _sorting_permutation(key: torch.Tensor) -> torch.Tensor:
     sorted with numpy's SIMD sort: about 5x faster than ``torch.sort`` returning indices."""
     n = key.numel()
     if key.device.type == "cpu" and n < (1 << _PACK_BITS) and int(key.max()) < (1 << (62 - _PACK_BITS)):
-        packed = (key.numpy() << _PACK_BITS) | np.arange(n, dtype=np.int64)
+        packed = key.numpy() << _PACK_BITS         # in place from here on: no more memory than torch.sort
+        packed |= np.arange(n, dtype=np.int64)
         packed.sort()
-        return torch.from_numpy(packed & ((1 << _PACK_BITS) - 1))
+        packed &= (1 << _PACK_BITS) - 1
+        return torch.from_numpy(packed)
     return torch.sort(key).indices
 
 
