@@ -17,7 +17,7 @@ from typing import Sequence
 import numpy as np
 
 from helios.agents.config import AgentConfig
-from helios.agents.geometry import approach_poses, merged_moves
+from helios.agents.geometry import approach_poses
 from helios.agents.observer import Observer
 from helios.planning.fmm import FMMPlanner, PlanResult
 from helios.planning.footprint import FootprintChecker
@@ -86,8 +86,7 @@ class Body:
         if not self.arm_stowed:
             self.stow(robot)
         start = self.xy()
-        waypoints = merged_moves(self.pose, plan.waypoints) if self.config.merge_moves else plan.waypoints
-        res = robot.navigate_to(waypoints[-1], via=waypoints[:-1])
+        res = robot.navigate_to(plan.waypoints[-1], via=plan.waypoints[:-1])
         self.pose = res.final_pose if res.final_pose is not None else robot.observe().body_pose
         self._mark_swept(start, plan, res.success)
         if not res.success:

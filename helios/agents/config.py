@@ -177,12 +177,6 @@ class AgentConfig:
     """Walking to a gaze point or grasp pose ends within this (m) of it."""
     max_walk_chunks: int = 8
     """Plan-walk-look cycles allowed to reach one gaze point or grasp pose."""
-    merge_moves: bool = False
-    """Walk a plan's consecutive forward moves along one line, and its consecutive turns the same
-    way (less than half a turn together), as one motion each instead of stopping after every
-    action. The path and every pose on it stay the same; only the stops go: a 3 m straight walk
-    takes 4.3 s instead of 6.8 s, a 90 degree turn 2.3 s instead of 3.9 s. Off (the paper's
-    action set, each action a separate motion) until measured on a full val comparison."""
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     gaze: GazeConfig = field(default_factory=GazeConfig)
     view: ViewConfig = field(default_factory=ViewConfig)

@@ -7,14 +7,13 @@ Spot works on the real one.
 from __future__ import annotations
 
 import math
-from typing import Sequence
 
 import numpy as np
 
 from helios.agents.config import ReachConfig, ViewConfig
 from helios.planning.footprint import FootprintChecker
 from robots.hal import CameraIntrinsics, Observation, SE2Pose
-from robots.transforms import invert_transform, look_at_camera, wrap_angle
+from robots.transforms import invert_transform, look_at_camera
 
 
 def project(points: np.ndarray, intrinsics: CameraIntrinsics, T_world_cam: np.ndarray):
@@ -74,34 +73,3 @@ def approach_poses(target, reach: ReachConfig, checker: FootprintChecker) -> np.
     order = np.argsort(np.abs(d - comfortable), kind="stable")
     order = order[free[order]]
     return poses[order]
-
-
-def merged_moves(start: SE2Pose, waypoints: Sequence[SE2Pose], tol: float = 1e-6) -> list[SE2Pose]:
-    """The same walk with fewer stops: drop a waypoint that only continues the previous move,
-    i.e. a straight move at the same heading that goes on along the same line in the same
-    direction, or a turn in place the same way round as the one before it (while the merged turn
-    stays under half a turn, so the robot's shortest turn to the next waypoint is the same turn).
-    Every pose the robot passes through stays on the planned path."""
-    out: list[SE2Pose] = []
-    prev = start
-    last_kind, last_dir, turned = None, None, 0.0
-    for wp in waypoints:
-        dx, dy = wp.x - prev.x, wp.y - prev.y
-        dyaw = wrap_angle(wp.yaw - prev.yaw)
-        dist = math.hypot(dx, dy)
-        if dist <= tol and abs(dyaw) > tol:
-            kind, direction = "turn", math.copysign(1.0, dyaw)
-            merge = last_kind == "turn" and direction == last_dir and abs(turned + dyaw) < math.pi - 0.05
-            turned = turned + dyaw if merge else dyaw
-        elif dist > tol and abs(dyaw) <= tol:
-            kind, direction = "line", (dx / dist, dy / dist)
-            merge = (last_kind == "line" and abs(direction[0] * last_dir[1] - direction[1] * last_dir[0]) < 1e-6
-                     and direction[0] * last_dir[0] + direction[1] * last_dir[1] > 0)
-        else:
-            kind, direction, merge = None, None, False
-        if merge:
-            out[-1] = wp
-        else:
-            out.append(wp)
-        last_kind, last_dir, prev = kind, direction, wp
-    return out
