@@ -35,6 +35,11 @@ def test_report_puts_before_and_after_side_by_side_with_ratios_and_projection():
     assert f"{hours:10.1f}" in next(line for line in text.splitlines() if line.startswith("hours"))
     changed = _run("this checkout", [5.0, 10.0, 2.0], [600.0, 480.0, 139.0], [20.0])
     assert "NO (behaviour differs)" in bench_agent.format_report(changed, before, "helios")
+    for e in before["episodes"]:
+        e["task"] = "home 1|Move the cup"
+    for e in changed["episodes"]:
+        e["task"] = "home 2|Move the cup"                 # a baseline with its own splits
+    assert "are other episodes" in bench_agent.format_report(changed, before, "helios")
     alone = bench_agent.format_report(after, None, "helios")
     assert "before" not in alone.split("\n", 2)[1] and "ratio" not in alone
 

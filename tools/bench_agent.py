@@ -242,9 +242,15 @@ def format_report(after: dict, before: dict | None, agent: str) -> str:
     out.append(row("median", [c["median_wall"] for _, c in cols]) + "   target <= 5 s")
     out.append(row("p90", [c["p90_wall"] for _, c in cols]))
     if before is not None and by_id:
-        same = all(by_id.get(e["episode"], {}).get("sim") == e["sim"] and
-                   by_id.get(e["episode"], {}).get("success") == e["success"] for e in after["episodes"])
-        out.append(f"same simulated time and outcome on every episode: {'yes' if same else 'NO (behaviour differs)'}")
+        other = [e["episode"] for e in after["episodes"]
+                 if by_id.get(e["episode"], {}).get("task", e.get("task")) != e.get("task")]
+        if other:
+            out.append(f"the baseline's {', '.join(other[:3])}{'...' if len(other) > 3 else ''} are other episodes "
+                       f"(its own splits): compare the medians and phases, not episode by episode")
+        else:
+            same = all(by_id.get(e["episode"], {}).get("sim") == e["sim"] and
+                       by_id.get(e["episode"], {}).get("success") == e["success"] for e in after["episodes"])
+            out.append(f"same simulated time and outcome on every episode: {'yes' if same else 'NO (behaviour differs)'}")
     out += ["", "mean seconds per episode, by phase:", f"{'phase':44s}{head}"]
     for phase in after["phases"]:
         out.append(row(phase, [c["phases"].get(phase) for _, c in cols], ".2f"))

@@ -129,7 +129,7 @@ class _Worker:
         t = agent.timings
         wall = result.wall_time
         own = {k: float(t.get(k, 0.0)) for k in ("perception", "map", "planning")}
-        out = {"episode": episode.episode_id, "wall": wall, "sim": result.sim_time, "success": result.success,
+        out = {"episode": episode.episode_id, "task": f"{episode.scene}|{episode.task}", "wall": wall, "sim": result.sim_time, "success": result.success,
                "plans": int(t.get("plans", 0)),
                "phases": {"simulator (HAL commands)": hal["seconds"], "agent: perception": own["perception"],
                           "agent: map update": own["map"], "agent: planning": own["planning"],
