@@ -16,7 +16,7 @@ from robots.hal import SE2Pose
 from robots.spot import model
 from robots.spot.urdf import SIM_URDF_PATH, UrdfError, parse_urdf
 from robots.transforms import pose_to_transform, transform_to_pose
-from sim.world import GROUND, ROBOT, World
+from sim.world import ROBOT, World
 
 GRIPPER_LINKS = ("arm0.link_wr1", "arm0.link_fngr")
 

@@ -163,6 +163,7 @@ class World:
         self.bodies: dict[int, BodyInfo] = {}
         self._static_aabbs: dict[int, tuple] = {}
         self._joint_counts: dict[int, int] = {}
+        self._movable: set[int] = set()
         self._aabb_table: _AabbTable | None = None
         self._closed = False
         self._reset_physics()
@@ -262,8 +263,11 @@ class World:
             lo = tuple(map(min, lo, *(b[0] for b in boxes)))
             hi = tuple(map(max, hi, *(b[1] for b in boxes)))
         box = (tuple(lo), tuple(hi))
-        if n_links == 0 and c.getDynamicsInfo(body_id, -1)[0] == 0.0:
-            self._static_aabbs[body_id] = box
+        if body_id not in self._movable:      # asked once per body: mass and joints do not change
+            if n_links == 0 and c.getDynamicsInfo(body_id, -1)[0] == 0.0:
+                self._static_aabbs[body_id] = box
+            else:
+                self._movable.add(body_id)
         return box
 
     def forget_aabb(self, body_id: int) -> None:
@@ -287,9 +291,7 @@ class World:
                 asked[row] = False
         rows = [row for row in table.moving_rows if asked[row] and not table.fresh[row]]
         if rows:
-            get_aabb = self.client.getAABB      # a loose object (no links): its base box is its box
-            boxes = [get_aabb(table.id_list[row], -1) if table.link_counts[row] == 0
-                     else self.body_aabb(table.id_list[row]) for row in rows]
+            boxes = [self.body_aabb(int(table.ids[row])) for row in rows]
             table.lo[rows] = [b[0] for b in boxes]
             table.hi[rows] = [b[1] for b in boxes]
             table.fresh[rows] = True         # until a step or a reset may move them again
@@ -316,8 +318,8 @@ class World:
         lo = np.array([b[0] for b in boxes], dtype=float).reshape(-1, 3)
         hi = np.array([b[1] for b in boxes], dtype=float).reshape(-1, 3)
         moving = [row for row, i in enumerate(ids) if i not in self._static_aabbs]
-        return _AabbTable(np.array(ids, dtype=np.int64), lo, hi, moving, [self._joint_counts[i] for i in ids],
-                          ids, {i: row for row, i in enumerate(ids)}, np.ones(len(ids), dtype=bool))
+        return _AabbTable(np.array(ids, dtype=np.int64), lo, hi, moving, {i: row for row, i in enumerate(ids)},
+                          np.ones(len(ids), dtype=bool))
 
     def is_at_rest(self, body_id: int) -> bool:
         s = self.config.settle
@@ -377,8 +379,6 @@ class _AabbTable:
     lo: np.ndarray
     hi: np.ndarray
     moving_rows: list[int]
-    link_counts: list[int]
-    id_list: list[int]
     row_of: dict[int, int]
     fresh: np.ndarray        # (N,) bool: the row's box is current (no step or reset since it was read)
 

@@ -234,8 +234,8 @@ def prepare_hardware_folder(out: Path, config: HardwareConfig, dry_run: bool = F
     """Create or reopen a hardware-trials run folder for ``config``; returns its configuration
     fingerprint. A folder holding trials of another configuration is refused (one line): results
     of different configurations never mix. ``dry_run``: only the checks."""
-    from tasks.trials import RunFolderError, _config_text, _write_atomic, check_folder_layout, config_fingerprint, \
-        scan_results
+    from tasks.trials import RunFolderError, check_folder_layout, config_fingerprint, config_text, read_config_body, \
+        scan_results, write_atomic
 
     out = Path(out)
     try:
@@ -244,7 +244,7 @@ def prepare_hardware_folder(out: Path, config: HardwareConfig, dry_run: bool = F
         cfg_path = out / "config.yaml"
         scan = scan_results(out / "episodes.jsonl")
         known = {r.get("config_fingerprint") for r in scan.records.values()} - {None}
-        if cfg_path.exists() and config_fingerprint(_saved_body(cfg_path)) != current:
+        if cfg_path.exists() and config_fingerprint(read_config_body(cfg_path)[1]) != current:
             raise HardwareTrialError(f"run folder {str(out)!r} holds trials of another configuration (agent, models, "
                                      f"limits or setting differ); use another --name or --out")
         if known and known != {current}:
@@ -254,24 +254,12 @@ def prepare_hardware_folder(out: Path, config: HardwareConfig, dry_run: bool = F
             return current
         out.mkdir(parents=True, exist_ok=True)
         if not cfg_path.exists():
-            _write_atomic(cfg_path, _config_text(config))
+            write_atomic(cfg_path, config_text(config))
     except RunFolderError as exc:
         raise HardwareTrialError(str(exc)) from None
     except OSError as exc:
         raise HardwareTrialError(f"cannot use run folder {str(out)!r}: {exc.strerror or exc}") from None
     return current
-
-
-def _saved_body(path: Path) -> dict:
-    """A run folder's config.yaml as written, without its provenance header."""
-    from helios.schema import read_text, yaml_load_text
-    from tasks.provenance import PROVENANCE_KEYS
-    from tasks.trials import RunFolderError
-
-    saved = yaml_load_text(read_text(path, str(path), RunFolderError), str(path), RunFolderError) or {}
-    if not isinstance(saved, dict):
-        raise HardwareTrialError(f"{path} is damaged: it holds a {type(saved).__name__}, not a trial config")
-    return {k: v for k, v in saved.items() if k not in PROVENANCE_KEYS}
 
 
 def hardware_record(result: EpisodeResult, metrics: EpisodeMetrics, fingerprint: str, *, setting: str,

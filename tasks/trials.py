@@ -105,7 +105,8 @@ def deterministic_view(record: dict) -> dict:
     return {k: v for k, v in record.items() if k not in NONDETERMINISTIC_FIELDS}
 
 
-def _config_text(config: TrialConfig | dict) -> str:
+def config_text(config: TrialConfig | dict) -> str:
+    """A run folder's config.yaml: the provenance header, then the configuration."""
     return dump_yaml(provenance()) + dump_yaml(config)
 
 
@@ -122,7 +123,8 @@ def config_fingerprint(config: TrialConfig | dict) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def _write_atomic(path: Path, text: str) -> None:
+def write_atomic(path: Path, text: str) -> None:
+    """Write a text file so that a reader sees the old or the new whole file, never a part."""
     _write_bytes_atomic(path, text.encode())
 
 
@@ -132,10 +134,9 @@ def read_run_config(out: Path) -> tuple[dict, TrialConfig]:
     return header, config
 
 
-def _read_saved_config(out: Path) -> tuple[dict, dict, TrialConfig]:
-    """A run folder's config.yaml: header, the body as written (for its fingerprint) and the trial
-    config; one-line RunFolderError when it is not a readable trial config."""
-    cfg_path = out / "config.yaml"
+def read_config_body(cfg_path: Path) -> tuple[dict, dict]:
+    """A run folder's config.yaml as written: its provenance header and the rest (the body, which
+    the fingerprint is taken of); one-line RunFolderError when it is not a YAML mapping."""
     what = f"{cfg_path}"
     saved = yaml_load_text(read_text(cfg_path, what, RunFolderError), what, RunFolderError)
     if saved is None:
@@ -143,6 +144,14 @@ def _read_saved_config(out: Path) -> tuple[dict, dict, TrialConfig]:
     if not isinstance(saved, dict):
         raise RunFolderError(f"{cfg_path} is damaged: it holds a {type(saved).__name__}, not a trial config")
     header = {k: saved.pop(k, None) for k in PROVENANCE_KEYS}
+    return header, saved
+
+
+def _read_saved_config(out: Path) -> tuple[dict, dict, TrialConfig]:
+    """A run folder's config.yaml: header, the body as written (for its fingerprint) and the trial
+    config; one-line RunFolderError when it is not a readable trial config."""
+    cfg_path = out / "config.yaml"
+    header, saved = read_config_body(cfg_path)
     try:
         return header, saved, from_dict(TrialConfig, saved)
     except ConfigError as exc:
@@ -235,7 +244,7 @@ def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | No
                                  f"it was edited or replaced after they were written; restore it or use another --out")
         if not scan.records:                        # nothing to protect: the folder takes this configuration
             if saved_cfg != config or saved_fp != current:
-                new_config_text = _config_text(config)
+                new_config_text = config_text(config)
             if saved_cfg != config:
                 notes.append("config.yaml of a run without results was replaced by this configuration")
         elif saved_cfg != config:
@@ -262,7 +271,7 @@ def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | No
                                  f"{'unreadable' if damaged_config else 'missing'} and the records in episodes.jsonl "
                                  f"were made with a different configuration (fingerprint {next(iter(known))}, this "
                                  f"one is {current}); use another --out, or restore config.yaml")
-        new_config_text = _config_text(config)
+        new_config_text = config_text(config)
         if damaged_config:
             notes.append(f"{damaged_config}; moved it to {cfg_path.name}.damaged and wrote this configuration "
                          f"(the records' fingerprints match it)")
@@ -284,7 +293,7 @@ def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | No
     if new_config_text is not None:
         if damaged_config:
             _move_aside(cfg_path)
-        _write_atomic(cfg_path, new_config_text)
+        write_atomic(cfg_path, new_config_text)
     if report is not None:
         report.fingerprint = folder_fp
         report.saved_commit = saved_commit
@@ -726,7 +735,7 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
         summary = summarize(ordered)
         summary["selected"] = len(episodes)
         summary["complete"] = len(ordered) == len(episodes)
-        _write_atomic(out / "summary.json", json.dumps(summary, indent=2, sort_keys=True))
+        write_atomic(out / "summary.json", json.dumps(summary, indent=2, sort_keys=True))
     report.records = ordered
     report.wall_seconds = time.perf_counter() - t0
     return ordered

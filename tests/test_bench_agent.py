@@ -3,8 +3,6 @@
 
 import cProfile
 import json
-import math
-import sys
 
 import numpy as np
 import pytest

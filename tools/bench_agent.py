@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import queue
 import statistics
 import subprocess
@@ -66,7 +67,7 @@ class _WorkerProcess:
     def __init__(self, root: Path, agent: str, profile: bool, label: str, start_timeout: float = 300.0):
         self.label = label
         cmd = [sys.executable, str(WORKER), str(root), agent, "1"] + (["--profile"] if profile else [])
-        env = dict(__import__("os").environ, PYTHONPATH=str(root))
+        env = dict(os.environ, PYTHONPATH=str(root))
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                      text=True, cwd=str(root), env=env)
         self._lines: queue.Queue = queue.Queue()

@@ -391,6 +391,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> str:
+    device = getattr(args, "maps_device", "cpu") or "cpu"
+    check_device(device)                 # before a recording that may take a minute to make
     recording = getattr(args, "maps_recording", None) or os.environ.get("HELIOS_MAPS_RECORDING")
     # One torch thread by default: on a 2-core machine that also runs the simulator, 2 threads
     # make the p90 erratic (oversubscription) while gaining little on the median.
@@ -406,8 +408,6 @@ def run(args: argparse.Namespace) -> str:
     else:
         path = sim_trajectory_file(DEFAULT_FRAMES)
         source = f"simulator recording: HELIOS on val episode 0 ({path})"
-    device = getattr(args, "maps_device", "cpu") or "cpu"
-    check_device(device)
     first = "cuda" if device == "cuda" else "cpu"
     obj = _in_fresh_process(str(path), False, threads, limit, first)
     full = _in_fresh_process(str(path), True, threads, limit, first)

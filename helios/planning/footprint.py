@@ -57,6 +57,7 @@ class FootprintChecker:
         step = geometry.cell_size / 2
         self._body = _box_points(config.body, config.margin, step)
         self._arm = _box_points(config.arm, config.margin, step)
+        self._tiles: list[tuple[np.ndarray, _Tiles]] = []     # (point set, its tiles), cut on first use
 
     def clear_under(self, pose, grow: float = 0.05) -> "FootprintChecker":
         """A checker for moves *from* ``pose``: obstacle cells its footprint (grown by ``grow``)
@@ -78,6 +79,7 @@ class FootprintChecker:
             return self
         out = FootprintChecker.__new__(FootprintChecker)
         out.config, out.geometry, out._body, out._arm = self.config, self.geometry, self._body, self._arm
+        out._tiles = self._tiles
         out.obstacle = self.obstacle.copy()
         out.obstacle[rows, cols] = False
         out.tall = self.tall.copy() if self.tall is not self.obstacle else out.obstacle
@@ -102,7 +104,7 @@ class FootprintChecker:
         if not len(poses):
             return hit
         geo = self.geometry
-        tiles = _tiles_of(pts, geo.cell_size)
+        tiles = self._tiles_for(pts)
         c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
         cx = poses[:, 0:1] + c * tiles.centres[None, :, 0] - s * tiles.centres[None, :, 1]     # (M, T)
         cy = poses[:, 1:2] + s * tiles.centres[None, :, 0] + c * tiles.centres[None, :, 1]
@@ -122,6 +124,15 @@ class FootprintChecker:
             if todo.any():
                 hit[todo] = self._hits_exhaustive(poses[todo], tiles.points[t], grid)
         return hit
+
+    def _tiles_for(self, pts: np.ndarray) -> "_Tiles":
+        """The tiles of one of this checker's point sets, cut once: a plan makes hundreds of tests."""
+        for known, tiles in self._tiles:
+            if known is pts:
+                return tiles
+        tiles = _tiles_of(pts, self.geometry.cell_size)
+        self._tiles.append((pts, tiles))
+        return tiles
 
     def _hits_exhaustive(self, poses: np.ndarray, pts: np.ndarray, grid: np.ndarray) -> np.ndarray:
         c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
@@ -172,23 +183,14 @@ class _Tiles:
     points: list            # T arrays (n_t, 2)
 
 
-_TILE_CACHE: dict[tuple, _Tiles] = {}
-
-
 def _tiles_of(pts: np.ndarray, cell_size: float) -> _Tiles:
-    """``pts`` grouped into square tiles of about ``_TILE`` m (memoised per point set)."""
-    key = (pts.tobytes(), cell_size)
-    tiles = _TILE_CACHE.get(key)
-    if tiles is None:
-        cell = np.floor((pts - pts.min(axis=0)) / _TILE).astype(np.int64)
-        labels = cell[:, 0] * (int(cell[:, 1].max()) + 1) + cell[:, 1]
-        groups = [pts[labels == k] for k in np.unique(labels)]
-        centres = np.array([0.5 * (g.min(axis=0) + g.max(axis=0)) for g in groups])
-        reach = np.array([np.sqrt(((g - c) ** 2).sum(axis=1).max()) for g, c in zip(groups, centres)]) + cell_size
-        tiles = _TILE_CACHE[key] = _Tiles(centres, reach, groups)
-        if len(_TILE_CACHE) > 64:
-            _TILE_CACHE.pop(next(iter(_TILE_CACHE)))
-    return tiles
+    """``pts`` grouped into square tiles of about ``_TILE`` m."""
+    cell = np.floor((pts - pts.min(axis=0)) / _TILE).astype(np.int64)
+    labels = cell[:, 0] * (int(cell[:, 1].max()) + 1) + cell[:, 1]
+    groups = [pts[labels == k] for k in np.unique(labels)]
+    centres = np.array([0.5 * (g.min(axis=0) + g.max(axis=0)) for g in groups])
+    reach = np.array([np.sqrt(((g - c) ** 2).sum(axis=1).max()) for g, c in zip(groups, centres)]) + cell_size
+    return _Tiles(centres, reach, groups)
 
 
 def _box_points(box, margin: float, step: float) -> np.ndarray:
