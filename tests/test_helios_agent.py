@@ -169,3 +169,81 @@ def test_place_lands_on_the_bed_not_where_the_claw_is():
     assert result.error is None, result.error
     assert m.find_rec and m.place, m
     assert m.released_on is not None and m.released_on.startswith("bed"), m
+
+
+class _Recorder:
+    """Counts HAL commands on their way to the simulated Spot."""
+
+    def __init__(self, backend):
+        self.backend, self.calls = backend, []
+
+    def __getattr__(self, name):
+        attr = getattr(self.backend, name)
+        if not callable(attr):
+            return attr
+
+        def call(*args, **kwargs):
+            result = attr(*args, **kwargs)
+            self.calls.append((name, result))
+            return result
+        return call
+
+
+def test_a_near_gaze_point_is_one_straight_move_that_turns_while_it_walks():
+    """``gaze_hop``: a gaze point 0.6 m to the side, facing 80 degrees round, is reached by one
+    navigate command whose single SE2 segment is shorter in time than the planner's
+    turn-walk-turn; a hop whose sweep crosses an obstacle on the map is refused (None) with no
+    command sent, and the caller plans instead."""
+    import math
+
+    from robots.hal import SE2Pose
+    from robots.spot.motion import BaseLimits, plan_base
+
+    ep = _episode(E2E_EPISODE)
+    sim = SimEpisode.create(ep)
+    try:
+        agent = make_agent("helios", sim)
+        agent.reset(ep.spec, np.random.default_rng(0))
+        robot = _Recorder(sim.backend)
+        agent.act(robot)                                   # the start scan maps the surroundings
+        body = agent.body
+        here = body.pose
+        checker = body.checker().clear_under(here)
+        goal = None
+        for side in (1.0, -1.0, 0.0):                      # left, right or straight ahead
+            a = here.yaw + side * math.pi / 2
+            g = SE2Pose(here.x + 0.6 * math.cos(a), here.y + 0.6 * math.sin(a), here.yaw + math.radians(80))
+            if checker.poses_free([[g.x, g.y, g.yaw]]).all():
+                goal = g
+                break
+        assert goal is not None, "no free pose 0.6 m from the start"
+        plan = body.plan(np.array([[goal.x, goal.y]]), agent.config.gaze_goal_radius, goal.yaw)
+        assert plan.success and plan.waypoints
+        planned_s = plan_base(here, plan.waypoints, BaseLimits()).duration
+        robot.calls.clear()
+        assert body.hop(robot, goal, 1.5, agent.config.gaze_goal_radius) is True
+        moves = [r for name, r in robot.calls if name == "navigate_to"]
+        assert len(moves) == 1 and moves[0].success
+        assert moves[0].duration < 0.75 * planned_s, (moves[0].duration, planned_s)
+        assert math.hypot(body.pose.x - goal.x, body.pose.y - goal.y) < 0.03
+        assert abs(math.remainder(body.pose.yaw - goal.yaw, 2 * math.pi)) < math.radians(3)
+        # an obstacle where the next hop would end: no hop, no command
+        now = body.pose
+        back = None
+        for a in (0.0, math.pi / 2, -math.pi / 2, math.pi):
+            t = SE2Pose(now.x + 0.8 * math.cos(now.yaw + a), now.y + 0.8 * math.sin(now.yaw + a), now.yaw)
+            if body.checker().clear_under(now).poses_free([[t.x, t.y, t.yaw]]).all():
+                back = t
+                break
+        assert back is not None, "no free pose 0.8 m from the gaze point"
+        agent.map.occupancy.mark_obstacle((back.x, back.y), 0.1, height=1.0)
+        assert not body.checker().clear_under(now).poses_free([[back.x, back.y, back.yaw]]).any()
+        robot.calls.clear()
+        assert body.hop(robot, back, 1.5, agent.config.gaze_goal_radius) is None
+        assert not robot.calls
+        # too far, or hops switched off: the caller plans
+        far = SE2Pose(goal.x + 2.0 * math.cos(goal.yaw), goal.y + 2.0 * math.sin(goal.yaw), goal.yaw)
+        assert body.hop(robot, far, 1.5, 0.15) is None and body.hop(robot, back, 0.0, 0.15) is None
+        assert not robot.calls
+    finally:
+        sim.close()

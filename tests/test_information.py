@@ -131,3 +131,35 @@ def test_fifty_fifty_prediction_can_send_the_agent_elsewhere_where_the_optimisti
     assert decide(half.psi, half.predicted_psi, tau, tau_inc) is Verdict.IGNORE
     with pytest.raises(ValueError, match="assumption"):
         predicted_object_score(gmap, iid, "cup", CAM, POSE, assumption="pessimistic")
+
+
+def two_sided_map() -> tuple[GaussianMap, int]:
+    """One instance of two 5 x 5 sheets 2 m ahead, 1 m to the left and right of the x axis."""
+    cfg = HeliosConfig()
+    classes = ClassSet.from_task(["cup", "table"])
+    gmap = GaussianMap(classes, cfg.gaussians, cfg.instances, cfg.scoring, GridGeometry(0.025, 400, -5, -5))
+    ys, zs = np.meshgrid(np.linspace(-0.05, 0.05, 5), np.linspace(0.95, 1.05, 5))
+    sheets = [np.stack([np.full(25, 2.0), ys.ravel() + side, zs.ravel()], axis=1) for side in (1.0, -1.0)]
+    gmap.add_gaussians(np.concatenate(sheets), 0.02, 0.5, concentrations=np.tile([1.0, 1.0, 1.0], (50, 1)))
+    gmap.instance_ids[:] = 7
+    return gmap, 7
+
+
+def test_informative_views_skip_repeats_and_blind_views_but_cover_every_side():
+    from helios.search.information import informative_views, views_information_gain
+
+    gmap, iid = two_sided_map()
+    left = look_at([1.0, 1.0, 1.0], [2.0, 1.0, 1.0])          # sees only the left sheet
+    right = look_at([1.0, -1.0, 1.0], [2.0, -1.0, 1.0])       # only the right one
+    away = look_at([1.0, 0.0, 1.0], [0.0, 0.0, 1.0])          # looks away: no evidence
+    cams = [left, left, away, right, left]
+    total = views_information_gain(gmap, iid, "table", CAM, cams)
+    chosen = informative_views(gmap, iid, "table", CAM, cams, 0.2)
+    assert sorted(chosen) in ([0, 3], [1, 3], [3, 4]), chosen      # one left view and the right one
+    assert views_information_gain(gmap, iid, "table", CAM, [cams[i] for i in chosen]) > 0.5 * total
+    assert 2 not in informative_views(gmap, iid, "table", CAM, cams, 0.01)
+    assert sorted(informative_views(gmap, iid, "table", CAM, cams, 0.0)) == [0, 1, 2, 3, 4]
+    assert informative_views(gmap, iid, "table", CAM, cams, 0.2, "fifty_fifty") == chosen
+    assert informative_views(gmap, iid, "table", CAM, [away, away], 0.5) == [0, 1]   # no information anywhere
+    with pytest.raises(ValueError, match="min_fraction"):
+        informative_views(gmap, iid, "table", CAM, cams, 1.5)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
+from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
@@ -27,6 +28,10 @@ from robots.transforms import wrap_angle
 
 MAX_GAZE_YAW = math.radians(105)
 """The hand camera can be pointed this far to the side of the body heading."""
+
+HOP_EXTRA_MARGIN = 0.05
+"""Metres added to the footprint's margin for a straight hop (``Body.hop``): planned paths keep
+to the middle of free space (FMM^2), a hop only to its own sweep, so it asks for more room."""
 
 
 class Body:
@@ -83,21 +88,51 @@ class Body:
 
     def execute(self, robot: RobotBackend, plan: PlanResult) -> bool:
         """Walk a plan's waypoints (arm stowed first); on a stop, remember what was bumped."""
+        return self._walk(robot, plan.waypoints)
+
+    def _walk(self, robot: RobotBackend, waypoints: Sequence[SE2Pose]) -> bool:
         if not self.arm_stowed:
             self.stow(robot)
         start = self.xy()
-        res = robot.navigate_to(plan.waypoints[-1], via=plan.waypoints[:-1])
+        res = robot.navigate_to(waypoints[-1], via=waypoints[:-1])
         self.pose = res.final_pose if res.final_pose is not None else robot.observe().body_pose
-        self._mark_swept(start, plan, res.success)
+        self._mark_swept(start, waypoints, res.success)
         if not res.success:
             self.log.append(f"walk stopped: {res.reason.value} {res.message}")
             if res.collided:
-                self._mark_bump(plan)
+                self._mark_bump(waypoints)
         return bool(res.success)
 
-    def _mark_swept(self, start: np.ndarray, plan: PlanResult, completed: bool) -> None:
+    def hop(self, robot: RobotBackend, goal: SE2Pose, max_distance: float, radius: float) -> bool | None:
+        """One straight move to a near pose, turning while walking (a single SE2 trajectory: the
+        robot's phase-synchronised motion keeps x, y and yaw on the straight line between the
+        two poses, so checking interpolated poses checks the whole sweep). None when the goal is
+        farther than ``max_distance`` or the sweep is not known to be free (the caller then
+        plans); else whether the move completed. Within ``radius`` and ``rotate_min`` of the goal
+        it is already there, as the planner would say."""
+        here = self.pose
+        dist = math.hypot(goal.x - here.x, goal.y - here.y)
+        if max_distance <= 0 or dist > max_distance:
+            return None
+        turn = float(wrap_angle(goal.yaw - here.yaw))
+        if dist <= radius and abs(turn) < self.config.planner.rotate_min:
+            return True
+        occ = self.map.occupancy
+        footprint = self.config.planner.footprint
+        wider = replace(footprint, margin=footprint.margin + HOP_EXTRA_MARGIN)
+        unknown = ~occ.explored if self.config.planner.unknown_is_obstacle else None
+        checker = FootprintChecker(wider, self.map.geometry, occ.obstacle, occ.max_height, unknown).clear_under(here)
+        n = 1 + max(2, int(math.ceil(dist / (checker.geometry.cell_size / 2))),
+                    int(math.ceil(abs(turn) / (0.5 * checker.geometry.cell_size / checker.radius))))
+        t = np.linspace(0.0, 1.0, n)
+        poses = np.stack([here.x + t * (goal.x - here.x), here.y + t * (goal.y - here.y), here.yaw + t * turn], axis=1)
+        if not checker.poses_free(poses).all():
+            return None
+        return self._walk(robot, [SE2Pose(goal.x, goal.y, float(wrap_angle(here.yaw + turn)))])
+
+    def _mark_swept(self, start: np.ndarray, waypoints: Sequence[SE2Pose], completed: bool) -> None:
         """Where the body walked is free space, whether or not the camera ever saw the floor there."""
-        pts = [start] + [np.array([w.x, w.y]) for w in plan.waypoints]
+        pts = [start] + [np.array([w.x, w.y]) for w in waypoints]
         if not completed:   # stopped early: only up to where it stands now
             here = self.xy()
             k = int(np.argmin([np.linalg.norm(p - here) for p in pts]))
@@ -108,11 +143,11 @@ class Body:
             samples += [a + (b - a) * t for t in np.linspace(1.0 / n, 1.0, n)]
         self.map.occupancy.mark_seen(np.array(samples), self.config.planner.footprint.body[3])
 
-    def _mark_bump(self, plan: PlanResult) -> None:
+    def _mark_bump(self, waypoints: Sequence[SE2Pose]) -> None:
         """The walk ran into something the map does not show: put an obstacle just beyond the
         footprint in the direction the body was moving, so the next plan goes around it."""
         here = np.array([self.pose.x, self.pose.y])
-        for wp in plan.waypoints:
+        for wp in waypoints:
             step = np.array([wp.x, wp.y]) - here
             dist = float(np.linalg.norm(step))
             if dist > 0.02:
@@ -161,8 +196,11 @@ class Body:
 
     # ================================================================== looking
     def view_from(self, robot: RobotBackend, gp: GazePoint) -> bool:
-        """Walk to a gaze point and take its view (False if it cannot be reached or looked from)."""
-        ok, _ = self.go(robot, np.array([[gp.pose.x, gp.pose.y]]), self.config.gaze_goal_radius, gp.pose.yaw)
+        """Walk to a gaze point and take its view (False if it cannot be reached or looked from).
+        A near one is reached in one straight step that turns as it walks (``gaze_hop``)."""
+        ok = self.hop(robot, gp.pose, self.config.gaze_hop, self.config.gaze_goal_radius)
+        if ok is None:
+            ok, _ = self.go(robot, np.array([[gp.pose.x, gp.pose.y]]), self.config.gaze_goal_radius, gp.pose.yaw)
         if not ok:
             return False
         direction = math.atan2(gp.look_at[1] - self.pose.y, gp.look_at[0] - self.pose.x)

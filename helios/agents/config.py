@@ -175,8 +175,23 @@ class AgentConfig:
     """The planner tries this many best places at once (the nearest reachable one wins)."""
     gaze_goal_radius: float = 0.15
     """Walking to a gaze point or grasp pose ends within this (m) of it."""
+    gaze_hop: float = 1.5
+    """A gaze point within this distance (m) is reached by one straight holonomic move that turns
+    while it walks (Spot walks in any direction), when the footprint's sweep along it is free and
+    seen; farther ones, or blocked hops, take the planner's rotate-then-forward actions. The
+    paper's planner has only those actions, and going round a table from one gaze point to the
+    next with them means turn ~90 degrees, walk 0.6 m, turn back: ~6 s of the ~10 s a gaze point
+    cost, the time sink behind most timeouts. 0 = always the planner's actions (earlier reading)."""
     max_walk_chunks: int = 8
     """Plan-walk-look cycles allowed to reach one gaze point or grasp pose."""
+    local_search_views: Literal["all", "informative"] = "informative"
+    """Which of a candidate pick location's gaze points local search visits: ``all`` (the paper's
+    local search section) or ``informative``: a greedy subset by information gain, each added
+    view raising the IG of those before it by at least ``local_search_min_gain`` of the IG of all
+    of them (``helios.search.information.informative_views``; the paper's Discussion names
+    this as the way to make local search cheaper)."""
+    local_search_min_gain: float = 0.1
+    """See ``local_search_views``: the smallest useful share of the location's total IG."""
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     gaze: GazeConfig = field(default_factory=GazeConfig)
     view: ViewConfig = field(default_factory=ViewConfig)
@@ -194,6 +209,10 @@ class AgentConfig:
         require_range(self, "max_failures_per_candidate revisit_candidates max_walk_chunks", 1, 100000)
         require_range(self, "support_radius frontier_blacklist_radius revisit_spacing", 0.0, 100.0)
         require_range(self, "frontier_reach gaze_goal_radius", 0.0, 100.0, lo_open=True)
+        require_range(self, "gaze_hop", 0.0, 10.0)
+        require(self.local_search_views in ("all", "informative"),
+                f"local_search_views must be 'all' or 'informative', got {self.local_search_views!r}")
+        require_range(self, "local_search_min_gain", 0.0, 1.0)
 
     @property
     def flags(self) -> "VariantFlags":

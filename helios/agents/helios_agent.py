@@ -55,7 +55,7 @@ from helios.perception.detection import Detector, ImageTextScorer
 from helios.planning.fmm import FMMPlanner
 from helios.search.decisions import Verdict, decide
 from helios.search.gaze_points import GazePoint, gaze_points
-from helios.search.information import predicted_object_score, views_information_gain
+from helios.search.information import informative_views, predicted_object_score, views_information_gain
 from helios.search.objective import CandidateLocation, FrontierOption, GlobalObjective
 from robots.hal import RobotBackend, SE2Pose
 from robots.transforms import wrap_angle
@@ -415,6 +415,11 @@ class HeliosAgent:
     # ------------------------------------------------------------------ local search and views
     def _start_local_search(self, instance_id: int) -> None:
         views = list(self._gaze_points_of(instance_id))
+        if self.config.local_search_views == "informative" and len(views) > 1:
+            cams = [predicted_camera(g.pose, g.look_at, self.body.body_height, self.config.view) for g in views]
+            keep = informative_views(self.map.objects, instance_id, self.start_class, self.observer.last_obs.intrinsics,
+                                     cams, self.config.local_search_min_gain, self.method.search.information_gain)
+            views = [views[i] for i in sorted(keep)]
         order, here = [], self.body.xy()
         while views:   # nearest first, then nearest to the last one
             i = int(np.argmin([math.hypot(g.pose.x - here[0], g.pose.y - here[1]) for g in views]))
