@@ -247,3 +247,42 @@ def test_a_near_gaze_point_is_one_straight_move_that_turns_while_it_walks():
         assert not robot.calls
     finally:
         sim.close()
+
+
+def test_local_search_visits_the_informative_gaze_points_nearest_first():
+    """``local_search_views``: after the start scan of a smoke episode, a start-receptacle
+    candidate with several gaze points is searched from the greedy IG subset only
+    (``informative_views``), nearest first; ``all`` keeps every gaze point."""
+    import math
+
+    from helios.agents.candidates import is_candidate
+    from helios.agents.geometry import predicted_camera
+    from helios.search.information import informative_views
+
+    ep = _episode("smoke-00003")
+    sim = SimEpisode.create(ep)
+    try:
+        agent = make_agent("helios", sim, agent_config=AgentConfig(local_search_views="informative"))
+        assert agent.config.local_search_views == "informative" and AgentConfig().local_search_views == "all"
+        agent.reset(ep.spec, np.random.default_rng(0))
+        agent.act(sim.backend)
+        cs = agent.method.search.cs_start_receptacle
+        inst = next(i for i in agent.observer.instances() if is_candidate(i, agent.start_class, cs, agent.method)
+                    and len(agent._gaze_points_of(i.id)) >= 4)
+        views = agent._gaze_points_of(inst.id)
+        cams = [predicted_camera(g.pose, g.look_at, agent.body.body_height, agent.config.view) for g in views]
+        keep = informative_views(agent.map.objects, inst.id, agent.start_class, agent.observer.last_obs.intrinsics,
+                                 cams, agent.config.local_search_min_gain)
+        agent._start_local_search(inst.id)
+        queue = agent.local.queue
+        assert 1 <= len(queue) < len(views)
+        assert sorted(id(g) for g in queue) == sorted(id(views[i]) for i in keep)
+        here = agent.body.xy()
+        first = min(queue, key=lambda g: math.hypot(g.pose.x - here[0], g.pose.y - here[1]))
+        assert queue[0] is first
+        agent.config = replace(agent.config, local_search_views="all")
+        agent._start_local_search(inst.id)
+        assert len(agent.local.queue) == len(views)
+        assert agent.local_search_sizes[-2:] == [len(queue), len(views)]
+    finally:
+        sim.close()
