@@ -26,6 +26,10 @@ from typing import Any, Callable, Iterator, Sequence
 from tasks.provenance import git_commit
 
 EXECUTORS = ("local", "ray")
+WORKER_EPISODES = 10
+"""Episodes a local trial worker process runs before a fresh one replaces it (``tasks.trials.
+run_batch``): PyBullet keeps every mesh's Python objects alive (~11 MB per val episode), and a
+fresh process costs a few seconds against ~100 s of episodes."""
 HEARTBEAT_S = 1.0            # executors yield None this often while nothing finishes (progress redraws)
 RAY_OBJECT_STORE_BYTES = 100 * 1024 * 1024
 # Every wait on the network or another process is bounded (seconds):
@@ -204,8 +208,24 @@ class _Worker:
         self.process.start()
         child.close()
         self.job: int | None = None
+        self.jobs_done = 0
         self.started_at = time.monotonic()
         self.ready = False
+
+    def retire(self, timeout: float = 5.0) -> None:
+        """Ask an idle worker to exit; terminate, then kill it if it has not within ``timeout`` s."""
+        try:
+            self.conn.send(None)
+        except (BrokenPipeError, OSError):
+            pass
+        self.process.join(timeout=timeout)
+        if self.process.is_alive():
+            self.process.terminate()
+            self.process.join(timeout=1.0)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join(timeout=1.0)
+        self.conn.close()
 
     def receive(self):
         """The next message, with the ready handshake consumed: an outcome tuple, or None."""
@@ -217,14 +237,25 @@ class _Worker:
 
 
 class ProcessExecutor:
-    """A pool of ``workers`` spawned processes; one job per worker at a time, in submission order."""
+    """A pool of ``workers`` spawned processes; one job per worker at a time, in submission order.
 
-    def __init__(self, workers: int):
+    ``jobs_per_worker`` (0 = no limit): a worker that has run this many jobs is replaced by a
+    fresh process before it takes another. PyBullet keeps a reference to every Python object a
+    mesh is passed in (``createVisualShape``'s vertices, normals, uvs and indices; measured with
+    ``sys.getrefcount``), so a long-lived trial worker grows by ~11 MB per episode: from ~370 MB to
+    ~1.5 GB over 100 val episodes. A fresh process per few episodes bounds that; results do not
+    depend on which process runs an episode (every episode builds its own world and seeds).
+    """
+
+    def __init__(self, workers: int, jobs_per_worker: int = 0):
         import multiprocessing as mp
 
         if workers < 1:
             raise ExecutorError(f"--workers must be >= 1, got {workers}")
+        if jobs_per_worker < 0:
+            raise ExecutorError(f"jobs per worker must be >= 0 (0 = no limit), got {jobs_per_worker}")
         self.workers = workers
+        self.jobs_per_worker = jobs_per_worker
         self._ctx = mp.get_context("spawn")
         self._pool: list[_Worker] = []
 
@@ -284,7 +315,13 @@ class ProcessExecutor:
                     continue
                 if outcome is not None:
                     w.job = None
+                    w.jobs_done += 1
                     running -= 1
+                    if self.jobs_per_worker and w.jobs_done >= self.jobs_per_worker and pending:
+                        self._pool.remove(w)          # a fresh process for the next jobs
+                        w.retire()
+                        w = _Worker(self._ctx)
+                        self._pool.append(w)
                     assign(w)
                     yield outcome
 
@@ -404,12 +441,19 @@ class RayExecutor:
             self._owned = False
 
 
-def make_executor(kind: str = "local", workers: int = 1, address: str = "local"):
-    """``local`` with one worker runs in this process; more workers use spawned processes."""
+def make_executor(kind: str = "local", workers: int = 1, address: str = "local", jobs: int = 0,
+                  jobs_per_worker: int = 0):
+    """``local`` with one worker runs in this process, unless the batch has more than
+    ``jobs_per_worker`` jobs (then one spawned process, replaced every ``jobs_per_worker`` jobs,
+    see :class:`ProcessExecutor`); more workers use spawned processes."""
     if kind not in EXECUTORS:
         raise ExecutorError(f"unknown executor {kind!r}; valid executors: {', '.join(EXECUTORS)}")
     if workers < 1:
         raise ExecutorError(f"--workers must be >= 1, got {workers}")
+    if jobs_per_worker < 0:
+        raise ExecutorError(f"jobs per worker must be >= 0 (0 = no limit), got {jobs_per_worker}")
     if kind == "ray":
         return RayExecutor(address, workers)
-    return InlineExecutor() if workers == 1 else ProcessExecutor(workers)
+    if workers == 1 and not (jobs_per_worker and jobs > jobs_per_worker):
+        return InlineExecutor()
+    return ProcessExecutor(workers, jobs_per_worker)

@@ -43,6 +43,7 @@ from helios.schema import (ConfigError, dump_yaml, from_dict, load_config, read_
                            require_range, shorten, to_dict, yaml_load_text)
 from robots.spot.sim_backend import SimBackendConfig
 from sim.perception.config import SimPerceptionConfig
+from tasks.executors import WORKER_EPISODES
 from tasks.episodes import Episode
 from tasks.metrics import FAILURE_REASONS
 from tasks.provenance import PROVENANCE_KEYS, git_commit, package_version, provenance
@@ -660,10 +661,14 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
               on_episode: Callable[[dict, int, int], None] | None = None, *, workers: int = 1,
               executor: str = "local", address: str = "local", record: int = 0,
               on_tick: Callable[[], None] | None = None, report: BatchReport | None = None,
-              pictures: bool = True) -> list[dict]:
+              pictures: bool = True, worker_episodes: int = WORKER_EPISODES) -> list[dict]:
     """Run the episodes not yet in ``out/episodes.jsonl``, appending each as it ends.
 
-    ``workers``/``executor``/``address`` choose where episodes run (``tasks.executors``);
+    ``workers``/``executor``/``address`` choose where episodes run (``tasks.executors``); a
+    local worker process is replaced by a fresh one after ``worker_episodes`` episodes (0 = never;
+    a batch of more than that with one worker then runs in one such process, not in this one)
+    because PyBullet leaks the Python objects of every mesh it is given (see
+    ``tasks.executors.ProcessExecutor``);
     ``record`` records the first N selected episodes to ``out/recordings/<id>.rrd``; ``pictures``
     keeps every episode's picture data in ``out/episodes/<id>.npz`` (``tasks.episode_trace``,
     written before the episode's record, so a record always has its trace). An episode
@@ -694,7 +699,8 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
                 for e in episodes if e.episode_id not in done]
         if jobs:
             _log_invocation(out, workers, executor, address, len(jobs), commit)
-            pool = make_executor(executor, min(workers, len(jobs)) if executor == "local" else workers, address)
+            pool = make_executor(executor, min(workers, len(jobs)) if executor == "local" else workers, address,
+                                 jobs=len(jobs), jobs_per_worker=worker_episodes)
             try:
                 for outcome in pool.map_unordered(run_job, jobs):
                     if outcome is None:

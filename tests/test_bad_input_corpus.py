@@ -288,6 +288,7 @@ CASES: list[tuple[str, list[str], str]] = [
     ("workers-huge", [*T, "--workers", "100000"], "--workers must be"),
     ("workers-text", [*T, "--workers", "two"], "invalid int value"),
     ("record-negative", [*T, "--record", "-1"], "--record must be"),
+    ("worker-episodes-negative", [*T, "--worker-episodes", "-1"], "--worker-episodes must be"),
     ("progress-choice", [*T, "--progress", "fancy"], "invalid choice"),
     ("executor-choice", [*T, "--executor", "slurm"], "invalid choice"),
     ("address-without-ray", [*T, "--address", "10.0.0.1:6379"], "only applies to --executor ray"),

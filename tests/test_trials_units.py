@@ -24,6 +24,8 @@ def square_or_fail(job):
         os.kill(os.getpid(), signal.SIGKILL)
     if kind == "threads":
         return os.environ.get("OMP_NUM_THREADS")
+    if kind == "pid":
+        return os.getpid()
     return x * x
 
 
@@ -51,6 +53,25 @@ def test_inline_executor_runs_in_order_and_make_executor_validates():
         make_executor("dask", 2)
     with pytest.raises(ExecutorError, match="--workers must be >= 1"):
         make_executor("local", 0)
+
+
+def test_a_worker_is_replaced_by_a_fresh_process_after_its_share_of_jobs():
+    """``jobs_per_worker``: PyBullet leaks every mesh's Python objects, so trial workers are
+    recycled; each process runs at most that many jobs, every job still runs once, in order."""
+    out = _collect(ProcessExecutor(1, jobs_per_worker=2), [("pid", i) for i in range(5)])
+    pids = [out[i][1] for i in range(5)]
+    assert all(out[i][0] == "ok" for i in range(5))
+    assert pids[0] == pids[1] != pids[2] == pids[3] != pids[4] and len(set(pids)) == 3
+    assert os.getpid() not in pids
+    kept = _collect(ProcessExecutor(2, jobs_per_worker=0), [("pid", i) for i in range(6)])
+    assert len({v for _s, v in kept.values()}) <= 2                      # 0: never replaced
+    # one worker: in this process unless the batch is longer than the share
+    assert isinstance(make_executor("local", 1, jobs=10, jobs_per_worker=10), InlineExecutor)
+    assert isinstance(make_executor("local", 1, jobs=11, jobs_per_worker=0), InlineExecutor)
+    pool = make_executor("local", 1, jobs=11, jobs_per_worker=10)
+    assert isinstance(pool, ProcessExecutor) and pool.workers == 1 and pool.jobs_per_worker == 10
+    with pytest.raises(ExecutorError, match="jobs per worker must be >= 0"):
+        ProcessExecutor(1, jobs_per_worker=-1)
 
 
 # ------------------------------------------------------------------ progress

@@ -30,7 +30,7 @@ from pathlib import Path
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from tasks.episodes import SPLITS
-    from tasks.executors import EXECUTORS
+    from tasks.executors import EXECUTORS, WORKER_EPISODES
     from tasks.registry import agent_names
     from tools.progress import MODES
 
@@ -46,6 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="", help="run folder (default: runs/<agent>_<split>_s<seed>)")
     parser.add_argument("--workers", type=int, default=1,
                         help="episodes in parallel: local worker processes, or Ray CPUs with --address local")
+    parser.add_argument("--worker-episodes", type=int, default=WORKER_EPISODES, metavar="N",
+                        help=f"replace a local worker process by a fresh one after N episodes, which bounds its "
+                             f"memory (PyBullet leaks ~11 MB per episode); 0 = never (default {WORKER_EPISODES})")
     parser.add_argument("--executor", default="local", choices=EXECUTORS,
                         help="local processes (default) or a Ray cluster (optional extra: pip install -e '.[ray]')")
     parser.add_argument("--address", default="local",
@@ -133,6 +136,8 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--workers must be <= 1024, got {args.workers}")
     if args.record < 0:
         raise CliError(f"--record must be >= 0, got {args.record}")
+    if not 0 <= args.worker_episodes <= 1_000_000:
+        raise CliError(f"--worker-episodes must be in [0, 1000000] (0 = never replace a worker), got {args.worker_episodes}")
     if args.executor == "local" and args.address != "local":
         raise CliError("--address only applies to --executor ray")
     if args.executor == "ray":
@@ -157,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
         records = run_batch(config, episodes, out, on_episode=lambda r, d, t: progress.update(r),
                             workers=args.workers, executor=args.executor, address=args.address,
                             record=args.record, on_tick=progress.tick, report=report,
-                            pictures=not args.no_pictures)
+                            pictures=not args.no_pictures, worker_episodes=args.worker_episodes)
     except EpisodeSetupError as exc:
         progress.close()
         print(f"error: {exc}" + ("" if os.environ.get("HELIOS_DEBUG") else " (HELIOS_DEBUG=1 shows the traceback)"),
