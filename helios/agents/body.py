@@ -71,10 +71,14 @@ class Body:
         self.arm_stowed, self.arm_direction = True, None
 
     # ================================================================== walking
-    def checker(self) -> FootprintChecker:
+    def checker(self, extra_margin: float = 0.0) -> FootprintChecker:
+        """Footprint checks on the current map (its footprint margin grown by ``extra_margin`` m)."""
         occ = self.map.occupancy
         unknown = ~occ.explored if self.config.planner.unknown_is_obstacle else None
-        return FootprintChecker(self.config.planner.footprint, self.map.geometry, occ.obstacle, occ.max_height, unknown)
+        footprint = self.config.planner.footprint
+        if extra_margin:
+            footprint = replace(footprint, margin=footprint.margin + extra_margin)
+        return FootprintChecker(footprint, self.map.geometry, occ.obstacle, occ.max_height, unknown)
 
     def plan(self, goals, radius: float, yaws=None, horizon: float | None = None) -> PlanResult:
         occ = self.map.occupancy
@@ -117,11 +121,7 @@ class Body:
         turn = float(wrap_angle(goal.yaw - here.yaw))
         if dist <= radius and abs(turn) < self.config.planner.rotate_min:
             return True
-        occ = self.map.occupancy
-        footprint = self.config.planner.footprint
-        wider = replace(footprint, margin=footprint.margin + HOP_EXTRA_MARGIN)
-        unknown = ~occ.explored if self.config.planner.unknown_is_obstacle else None
-        checker = FootprintChecker(wider, self.map.geometry, occ.obstacle, occ.max_height, unknown).clear_under(here)
+        checker = self.checker(HOP_EXTRA_MARGIN).clear_under(here)
         n = 1 + max(2, int(math.ceil(dist / (checker.geometry.cell_size / 2))),
                     int(math.ceil(abs(turn) / (0.5 * checker.geometry.cell_size / checker.radius))))
         t = np.linspace(0.0, 1.0, n)
