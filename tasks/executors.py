@@ -212,16 +212,15 @@ class _Worker:
         self.started_at = time.monotonic()
         self.ready = False
 
-    def retire(self, timeout: float = 5.0) -> None:
-        """Ask an idle worker to exit; terminate, then kill it if it has not within ``timeout`` s."""
+    def ask_to_exit(self) -> None:
         try:
             self.conn.send(None)
         except (BrokenPipeError, OSError):
             pass
-        self.process.join(timeout=timeout)
-        if self.process.is_alive():
-            self.process.terminate()
-            self.process.join(timeout=1.0)
+
+    def reap(self, timeout: float) -> None:
+        """Wait up to ``timeout`` s for the process to exit (after ``ask_to_exit``), then kill it."""
+        self.process.join(timeout=max(0.0, timeout))
         if self.process.is_alive():
             self.process.kill()
             self.process.join(timeout=1.0)
@@ -319,7 +318,8 @@ class ProcessExecutor:
                     running -= 1
                     if self.jobs_per_worker and w.jobs_done >= self.jobs_per_worker and pending:
                         self._pool.remove(w)          # a fresh process for the next jobs
-                        w.retire()
+                        w.ask_to_exit()
+                        w.reap(5.0)
                         w = _Worker(self._ctx)
                         self._pool.append(w)
                     assign(w)
@@ -328,19 +328,12 @@ class ProcessExecutor:
     def close(self) -> None:
         """Stop the workers: ask politely, then terminate (only our own processes, by handle)."""
         for w in self._pool:
-            try:
-                w.conn.send(None)
-            except (BrokenPipeError, OSError):
-                pass
+            w.ask_to_exit()
         deadline = time.monotonic() + 5.0
         for w in self._pool:
             if w.job is not None:             # still busy (interrupted batch): do not wait for it
                 w.process.terminate()
-            w.process.join(timeout=max(0.0, deadline - time.monotonic()))
-            if w.process.is_alive():
-                w.process.kill()
-                w.process.join(timeout=1.0)
-            w.conn.close()
+            w.reap(deadline - time.monotonic())
         self._pool.clear()
 
 
@@ -450,8 +443,6 @@ def make_executor(kind: str = "local", workers: int = 1, address: str = "local",
         raise ExecutorError(f"unknown executor {kind!r}; valid executors: {', '.join(EXECUTORS)}")
     if workers < 1:
         raise ExecutorError(f"--workers must be >= 1, got {workers}")
-    if jobs_per_worker < 0:
-        raise ExecutorError(f"jobs per worker must be >= 0 (0 = no limit), got {jobs_per_worker}")
     if kind == "ray":
         return RayExecutor(address, workers)
     if workers == 1 and not (jobs_per_worker and jobs > jobs_per_worker):

@@ -108,9 +108,8 @@ class Body:
         return bool(res.success)
 
     def hop(self, robot: RobotBackend, goal: SE2Pose, max_distance: float, radius: float) -> bool | None:
-        """One straight move to a near pose, turning while walking (a single SE2 trajectory: the
-        robot's phase-synchronised motion keeps x, y and yaw on the straight line between the
-        two poses, so checking interpolated poses checks the whole sweep). None when the goal is
+        """One straight move to a near pose, turning while walking (a single SE2 trajectory,
+        checked with ``FootprintChecker.straight_move_free``). None when the goal is
         farther than ``max_distance`` or the sweep is not known to be free (the caller then
         plans); else whether the move completed. Within ``radius`` and ``rotate_min`` of the goal
         it is already there, as the planner would say."""
@@ -122,11 +121,7 @@ class Body:
         if dist <= radius and abs(turn) < self.config.planner.rotate_min:
             return True
         checker = self.checker(HOP_EXTRA_MARGIN).clear_under(here)
-        n = 1 + max(2, int(math.ceil(dist / (checker.geometry.cell_size / 2))),
-                    int(math.ceil(abs(turn) / (0.5 * checker.geometry.cell_size / checker.radius))))
-        t = np.linspace(0.0, 1.0, n)
-        poses = np.stack([here.x + t * (goal.x - here.x), here.y + t * (goal.y - here.y), here.yaw + t * turn], axis=1)
-        if not checker.poses_free(poses).all():
+        if not checker.straight_move_free(here.x, here.y, here.yaw, goal.x, goal.y, turn):
             return None
         return self._walk(robot, [SE2Pose(goal.x, goal.y, float(wrap_angle(here.yaw + turn)))])
 

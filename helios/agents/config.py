@@ -181,7 +181,7 @@ class AgentConfig:
     seen; farther ones, or blocked hops, take the planner's rotate-then-forward actions (the
     paper's action set, the default 0). Going round a table from one gaze point to the next with
     those means turn ~90 degrees, walk 0.6 m, turn back: ~6 s of the ~10 s a gaze point costs.
-    Measured with ``local_search_views=informative`` (README, "Val comparison"): local search
+    Measured with ``local_search_views=informative`` (README, "Cheaper local search"): local search
     took 28 % less robot time on 200 val episodes, which went to exploration instead; timeouts
     and FindObj did not improve, so the default stays the paper's."""
     max_walk_chunks: int = 8

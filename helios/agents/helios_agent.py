@@ -280,13 +280,17 @@ class HeliosAgent:
         best, best_psi = None, None
         assumption = "optimistic" if self.method.decision.view_prediction == "optimistic" \
             else self.method.search.information_gain
-        for gp in self._gaze_points_of(t.instance_id):
-            T = predicted_camera(gp.pose, gp.look_at, self.body.body_height, self.config.view)
+        views = self._gaze_points_of(t.instance_id)
+        for gp, T in zip(views, self._cameras(views)):
             p = predicted_object_score(self.map.objects, t.instance_id, cls, self.observer.last_obs.intrinsics,
                                        T, assumption=assumption).predicted_psi
             if best_psi is None or p > best_psi:
                 best, best_psi = gp, p
         return best, best_psi
+
+    def _cameras(self, views: Sequence[GazePoint]) -> list[np.ndarray]:
+        """The hand-camera poses the robot would have looking from each gaze point."""
+        return [predicted_camera(g.pose, g.look_at, self.body.body_height, self.config.view) for g in views]
 
     def _gaze_points_of(self, instance_id: int) -> list[GazePoint]:
         """The instance's gaze points on seen floor, away from goals found unreachable (cached
@@ -319,7 +323,7 @@ class HeliosAgent:
                 views = self._gaze_points_of(inst.id)
                 if not views:
                     continue
-                cams = [predicted_camera(g.pose, g.look_at, self.body.body_height, self.config.view) for g in views]
+                cams = self._cameras(views)
                 ig = views_information_gain(self.map.objects, inst.id, self.start_class, intr, cams,
                                             self.method.search.information_gain)
                 cands.append(CandidateLocation(inst.id, inst.centre, inst.class_scores[self.start_class], ig))
@@ -417,7 +421,7 @@ class HeliosAgent:
     def _start_local_search(self, instance_id: int) -> None:
         views = list(self._gaze_points_of(instance_id))
         if self.config.local_search_views == "informative" and len(views) > 1:
-            cams = [predicted_camera(g.pose, g.look_at, self.body.body_height, self.config.view) for g in views]
+            cams = self._cameras(views)
             keep = informative_views(self.map.objects, instance_id, self.start_class, self.observer.last_obs.intrinsics,
                                      cams, self.config.local_search_min_gain, self.method.search.information_gain)
             views = [views[i] for i in sorted(keep)]

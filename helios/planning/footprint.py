@@ -156,6 +156,17 @@ class FootprintChecker:
         poses = np.stack([x0 + t * (x1 - x0), y0 + t * (y1 - y0), np.full(n, yaw)], axis=1)
         return bool(np.all(self.poses_free(poses)))
 
+    def straight_move_free(self, x0: float, y0: float, yaw0: float, x1: float, y1: float, turn: float) -> bool:
+        """Every pose of one move that walks straight from (x0, y0) to (x1, y1) while turning by
+        the signed angle ``turn`` (x, y and yaw changing in proportion, as Spot's phase-
+        synchronised SE2 trajectories do) is free, sampled so that neither the walk nor the turn
+        moves a footprint point more than half a cell between two checked poses."""
+        half = self.geometry.cell_size / 2
+        n = 1 + max(2, int(math.ceil(math.hypot(x1 - x0, y1 - y0) / half)), int(math.ceil(abs(turn) / (half / self.radius))))
+        t = np.linspace(0.0, 1.0, n)
+        poses = np.stack([x0 + t * (x1 - x0), y0 + t * (y1 - y0), yaw0 + t * turn], axis=1)
+        return bool(self.poses_free(poses).all())
+
     def turn_free(self, x: float, y: float, yaw0: float, yaw1: float, step: float | None = None) -> bool:
         """Turning in place from yaw0 to yaw1 (the short way) sweeps only free space."""
         return self.sweep_free(x, y, yaw0, math.remainder(yaw1 - yaw0, 2 * math.pi), step)

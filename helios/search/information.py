@@ -134,9 +134,15 @@ def views_information_gain(gmap: GaussianMap, instance_id: int, target_class: st
     delta = torch.zeros(idx.size, dtype=torch.float64, device=gmap.device)
     for T in T_world_cams:
         delta += optimistic_evidence(gmap, instance_id, intrinsics, T)[1]
+    return _views_gain(gamma, cls, gmap.classes.background_index, delta, assumption)
+
+
+def _views_gain(gamma: torch.Tensor, cls: int, background: int, delta: torch.Tensor, assumption: str) -> float:
+    """IG of views whose summed evidence is ``delta``: all of it on ``cls`` (optimistic), or the
+    mean of that and all of it on background (fifty_fifty)."""
     gain = _gain_for_class(gamma, cls, delta)
     if assumption == "fifty_fifty":
-        gain = 0.5 * gain + 0.5 * _gain_for_class(gamma, gmap.classes.background_index, delta)
+        gain = 0.5 * gain + 0.5 * _gain_for_class(gamma, background, delta)
     return gain
 
 
@@ -164,8 +170,7 @@ def informative_views(gmap: GaussianMap, instance_id: int, target_class: str, in
     deltas = [optimistic_evidence(gmap, instance_id, intrinsics, T)[1] for T in cams]
 
     def gain(delta: torch.Tensor) -> float:
-        g = _gain_for_class(gamma, cls, delta)
-        return 0.5 * g + 0.5 * _gain_for_class(gamma, background, delta) if assumption == "fifty_fifty" else g
+        return _views_gain(gamma, cls, background, delta, assumption)
 
     total = gain(torch.stack(deltas).sum(dim=0))
     if not total > 0.0:
