@@ -16,7 +16,7 @@ $(STAMP): setup.cfg pyproject.toml tools/setup_env.sh
 # The main job: HELIOS on the 20 smoke episodes (2 worker processes), printing the metrics table,
 # then the report (table, PNG plots, HTML) in runs/smoke/report/. Re-running resumes.
 run: setup
-	$(PY) -m tools trials --config configs/smoke.yaml --workers 2 --out runs/smoke $(ARGS)
+	$(PY) -m tools trials --config configs/smoke.yaml --workers 2 --out runs/smoke --replace-stale $(ARGS)
 	$(PY) -m tools report runs/smoke --out runs/smoke/report
 
 # Scripted single pick-and-place in a two-table scene with a rerun recording.

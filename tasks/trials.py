@@ -192,6 +192,54 @@ def check_folder_layout(out: Path, record: int = 0, pictures: bool = False) -> N
                              f"pictures belongs; move it away (or use --no-pictures)")
 
 
+def stale_results(out: Path, config: TrialConfig, commit: str | None = None) -> str | None:
+    """Why the results in run folder ``out`` are not what ``config`` gives at this checkout, or None
+    (no folder, no results, or the same configuration at the same commit: a resume).
+
+    Two reasons count: a different configuration (a larger ``episodes`` is an extension, not a
+    difference) and results written at another commit (``git_commit`` in config.yaml). Anything
+    else wrong with the folder (damage, a missing config.yaml) is left to :func:`prepare_run_folder`
+    to report. ``tools trials --replace-stale`` moves a stale folder aside (``make run`` uses it, so
+    the README's first command shows this checkout's numbers after a pull instead of refusing the
+    folder or resuming another version's results)."""
+    out = Path(out)
+    if not (out / "episodes.jsonl").is_file() or not (out / "config.yaml").is_file():
+        return None
+    try:
+        if not scan_results(out / "episodes.jsonl").records:
+            return None
+        header, _, saved_cfg = _read_saved_config(out)
+    except RunFolderError:
+        return None
+    if saved_cfg != config:
+        diff = [k for k, v in to_dict(config).items() if to_dict(saved_cfg).get(k) != v]
+        if not (diff == ["episodes"] and config.episodes > saved_cfg.episodes):
+            return f"results of a different configuration (differs in: {', '.join(diff)})"
+    made = str(header.get("git_commit") or "unknown")
+    now = commit if commit is not None else git_commit()
+    if "unknown" not in (made, now) and made != now:
+        return f"results of commit {made[:10]} (this checkout is {now[:10]})"
+    return None
+
+
+def move_aside(out: Path, stamp: str | None = None) -> Path:
+    """Rename run folder ``out`` to ``<out>.<YYYYmmdd-HHMMSS>`` (``.2``, ``.3`` ... if taken), under
+    its lock so that a batch still writing there is never moved; returns the new path."""
+    out = Path(out)
+    stamp = stamp or time.strftime("%Y%m%d-%H%M%S")
+    dest, n = out.with_name(f"{out.name}.{stamp}"), 1
+    while dest.exists():
+        n += 1
+        dest = out.with_name(f"{out.name}.{stamp}.{n}")
+    with _FolderLock(out):
+        try:
+            out.rename(dest)
+        except OSError as exc:
+            raise RunFolderError(f"cannot move run folder {str(out)!r} aside to {str(dest)!r}: "
+                                 f"{exc.strerror or exc}") from None
+    return dest
+
+
 def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | None" = None,
                        dry_run: bool = False) -> dict[str, dict]:
     """Create or reopen a run folder; returns the episodes already finished (by id).

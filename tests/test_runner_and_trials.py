@@ -176,3 +176,73 @@ def test_every_command_help_describes_it_in_whole_sentences():
     for name, p in subparsers.items():
         assert p.description and p.description.rstrip().endswith((".", ")")), (name, p.description)
         assert "\n" not in p.description
+
+
+def _folder_with_one_record(out, config):
+    from tasks.trials import FINGERPRINT_FIELD, append_result, config_fingerprint
+
+    prepare_run_folder(out, config)
+    append_result(out / "episodes.jsonl", {"episode_id": "smoke-00000", "metrics": None, "sim_time": 1.0,
+                                           "wall_time": 1.0, FINGERPRINT_FIELD: config_fingerprint(config)})
+
+
+def test_stale_results_name_a_different_configuration_or_commit_and_nothing_else(tmp_path):
+    from tasks.provenance import git_commit
+    from tasks.trials import stale_results
+
+    cfg = TrialConfig(agent="oracle", split="smoke", episodes=2)
+    assert stale_results(tmp_path / "none", cfg) is None                   # no folder
+    prepare_run_folder(tmp_path / "empty", cfg)
+    assert stale_results(tmp_path / "empty", TrialConfig(seed=5)) is None  # no results: it takes any config
+    out = tmp_path / "run"
+    _folder_with_one_record(out, cfg)
+    here = git_commit()
+    assert stale_results(out, cfg, commit=here) is None                    # a resume
+    assert stale_results(out, TrialConfig(agent="oracle", split="smoke", episodes=5), commit=here) is None  # an extension
+    assert stale_results(out, TrialConfig(agent="oracle", split="smoke", episodes=1), commit=here) == \
+        "results of a different configuration (differs in: episodes)"    # shortening is a difference
+    assert stale_results(out, TrialConfig(agent="helios", split="smoke", episodes=2, seed=3), commit=here) == \
+        "results of a different configuration (differs in: agent, seed)"
+    if here != "unknown":
+        assert stale_results(out, cfg, commit="0" * 40) == \
+            f"results of commit {here[:10]} (this checkout is 0000000000)"
+    (out / "config.yaml").write_text("[1, 2]\n")                           # damage is prepare_run_folder's to report
+    assert stale_results(out, TrialConfig(seed=9), commit=here) is None
+
+
+def test_move_aside_keeps_the_folder_under_a_dated_name_and_never_moves_one_in_use(tmp_path):
+    from tasks.trials import RunFolderError, _FolderLock, move_aside
+
+    out = tmp_path / "run"
+    _folder_with_one_record(out, TrialConfig())
+    kept = (out / "episodes.jsonl").read_bytes()
+    first = move_aside(out, stamp="20261202-030000")
+    assert first == tmp_path / "run.20261202-030000" and not out.exists()
+    assert (first / "episodes.jsonl").read_bytes() == kept
+    _folder_with_one_record(out, TrialConfig())
+    assert move_aside(out, stamp="20261202-030000") == tmp_path / "run.20261202-030000.2"
+    _folder_with_one_record(out, TrialConfig())
+    with _FolderLock(out):                     # a batch is writing there
+        with pytest.raises(RunFolderError, match="in use by pid"):
+            move_aside(out)
+    assert (out / "episodes.jsonl").is_file()
+
+
+def test_cli_replace_stale_moves_another_configurations_results_aside_and_runs_afresh(tmp_path):
+    out = tmp_path / "r"
+    _folder_with_one_record(out, TrialConfig(agent="oracle", split="smoke", episodes=1, seed=7))
+    old = (out / "episodes.jsonl").read_text()
+    args = ("trials", "--agent", "oracle", "--split", "smoke", "--episodes", "1", "--out", str(out))
+    refused = _cli(*args)                      # without the flag: one clear line, nothing touched
+    assert refused.returncode == 2 and "different configuration (differs in: seed)" in refused.stderr
+    proc = _cli(*args, "--replace-stale")
+    assert proc.returncode == 0, proc.stderr
+    moved = [p for p in tmp_path.iterdir() if p.name.startswith("r.")]
+    assert len(moved) == 1 and (moved[0] / "episodes.jsonl").read_text() == old
+    assert (f"[trials] {out} held results of a different configuration (differs in: seed); "
+            f"moved it to {moved[0]} and starting a new run") in proc.stdout
+    assert "1/1 smoke-00000 success" in proc.stdout
+    assert [r["seed"] for r in read_results(out / "episodes.jsonl").values()] == [episode_seed(0, "smoke-00000")]
+    again = _cli(*args, "--replace-stale")     # the same configuration at the same commit: a resume
+    assert again.returncode == 0 and "moved it" not in again.stdout
+    assert len([p for p in tmp_path.iterdir() if p.name.startswith("r.")]) == 1

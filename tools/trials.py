@@ -58,6 +58,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-pictures", action="store_true",
                         help="do not keep each episode's picture data (OUT/episodes/<id>.npz, tens of kB each; "
                              "drawn by `tools report` as one page per episode)")
+    parser.add_argument("--replace-stale", action="store_true",
+                        help="if the run folder holds results of a different configuration or of another commit, "
+                             "move it aside to <out>.<date-time> and start a new run there, instead of refusing "
+                             "it (a different configuration) or resuming it (another commit); `make run` uses this")
     parser.add_argument("--progress", default="auto", choices=MODES,
                         help="bar on a terminal, one line per episode otherwise (auto)")
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
@@ -123,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     from tasks.executors import check_address
     from tasks.registry import check_agent
     from tasks.trials import (METRIC_NAMES, BatchReport, EpisodeSetupError, check_folder_layout, metrics_table_rows,
-                              prepare_run_folder, read_results, run_batch, summarize)
+                              move_aside, prepare_run_folder, read_results, run_batch, stale_results, summarize)
     from tools.cli import CliError, check_output_dir
     from tools.progress import Progress, format_duration
     from tools.tables import format_markdown, format_table
@@ -144,6 +148,11 @@ def run(args: argparse.Namespace) -> int:
         check_address(args.address)           # syntax, then a bounded wait for the head to answer
     episodes = select_episodes(config)
     out = check_output_dir(args.out if args.out else default_out(config))
+    if args.replace_stale:
+        why = stale_results(out, config)
+        if why:
+            moved = move_aside(out)
+            print(f"[trials] {out} held {why}; moved it to {moved} and starting a new run", flush=True)
     check_folder_layout(out, args.record, not args.no_pictures)
     prepare_run_folder(out, config, dry_run=True)      # refuse a folder before creating or locking anything
     where = "" if args.executor == "local" else f" on Ray ({args.address})"
