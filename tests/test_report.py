@@ -117,6 +117,43 @@ def test_report_pairs_each_run_with_the_first_episode_by_episode(tmp_path):
     assert "Paired with" not in make_report([a], tmp_path / "one")["text"]
 
 
+def test_detectable_gap_is_the_smallest_net_count_the_sign_test_accepts():
+    from tools.report import detectable_gap, sign_test_p
+
+    for discordant in range(0, 61):
+        sig = [net for net in range(discordant % 2, discordant + 1, 2)
+               if sign_test_p((discordant + net) // 2, (discordant - net) // 2) < 0.05]
+        assert detectable_gap(discordant) == (sig[0] if sig else None)
+    assert detectable_gap(5) is None and detectable_gap(6) == 6      # 6-0 is the first clean sweep below 0.05
+    assert detectable_gap(46) == 16                                   # 31-15: p = 0.026 (30-16: 0.054)
+
+
+def test_episodes_needed_is_where_the_gap_seen_would_first_reach_significance():
+    from tools.report import _sign_test_p_float, episodes_needed, sign_test_p
+
+    assert _sign_test_p_float(17, 5) == pytest.approx(sign_test_p(17, 5))
+    assert episodes_needed(20, 20, 200) is None                       # no gap: no number of episodes helps
+    n = episodes_needed(26, 20, 200)                                  # +3 points, 23 % of episodes differ
+    assert 900 < n < 1200
+    at = lambda m: sign_test_p(round(26 * m / 200), round(20 * m / 200))
+    assert at(n) < 0.05 and at(n - 10) >= 0.05
+    assert episodes_needed(17, 5, 200) < 200                          # already significant at 200 (p = 0.02)
+    assert episodes_needed(101, 100, 200, limit=10_000) is None       # beyond the limit
+
+
+def test_report_says_how_many_episodes_a_paired_gap_needs(tmp_path):
+    # 40 episodes: b finds the object in 10 that a misses and misses 2 that a finds
+    a = _make_run(tmp_path / "a", [(5, None)] * 2 + [(0, "not_found")] * 10 + [(5, None)] * 8 + [(0, "not_found")] * 20)
+    b = _make_run(tmp_path / "b", [(0, "not_found")] * 2 + [(1, "pick_failed")] * 10 + [(5, None)] * 8
+                  + [(0, "not_found")] * 20)
+    md = make_report([a, b], tmp_path / "rep")["markdown"]
+    assert "How many episodes the paired comparisons need" in md
+    # FindObj: +10 -2 = +20.0 points; 12 differ, and 10-2 (p = 0.04) is the smallest significant split,
+    # a net of 8 = 20.0 points; 38 episodes (round(9.5) = 10 vs 2) would already have shown it.
+    # SR: +0 -2 = -5.0 points; 2 differing episodes cannot be significant; 0-6 (p = 0.03) needs 110.
+    assert "| b | a | 40 | +20.0 | 20.0 | 38 | -5.0 | none | 110 |" in md
+
+
 @pytest.mark.parametrize("n_runs", [1, 3])
 def test_plot_titles_and_labels_lie_inside_the_figure(tmp_path, n_runs):
     """Issue 20 item 3: the subtask plot's title was cut off at the left edge (an axes title

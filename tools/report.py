@@ -181,6 +181,84 @@ def paired_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     return headers, rows
 
 
+def _sign_test_p_float(wins: int, losses: int) -> float:
+    """:func:`sign_test_p` in floating point (binomial CDF), for counts too large for exact sums."""
+    from scipy.stats import binom
+
+    n = wins + losses
+    return 1.0 if n == 0 else min(1.0, 2.0 * float(binom.cdf(min(wins, losses), n, 0.5)))
+
+
+def detectable_gap(discordant: int, alpha: float = 0.05) -> int | None:
+    """The smallest net count ``|wins - losses|`` that the exact sign test calls significant
+    (p < ``alpha``) when ``discordant`` episodes differ between two runs; None when not even
+    a clean sweep would be (fewer than 6 discordant episodes at alpha = 0.05)."""
+    for net in range(discordant % 2, discordant + 1, 2):
+        wins = (discordant + net) // 2
+        if sign_test_p(wins, discordant - wins) < alpha:
+            return net
+    return None
+
+
+def episodes_needed(wins: int, losses: int, shared: int, alpha: float = 0.05, limit: int = 100_000) -> int | None:
+    """About how many episodes the two runs would need for the gap seen on ``shared`` episodes to
+    reach p < ``alpha``, if their wins and losses kept coming at the rates seen. None: no gap
+    (wins == losses) or more than ``limit``. The answer a researcher needs before reading an
+    ordering into a 3-point difference: the paper's 7-point gaps were measured on 1000 episodes."""
+    if wins == losses or shared <= 0:
+        return None
+
+    def significant(n: int) -> bool:
+        return _sign_test_p_float(round(wins * n / shared), round(losses * n / shared)) < alpha
+
+    if not significant(limit):
+        return None
+    lo, hi = 1, limit                 # rounding makes p only nearly monotone in n: the first n found
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if significant(mid):
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+POWER_TITLE = ("How many episodes the paired comparisons need (exact sign test, p < 0.05): the gap seen "
+               "(percentage points), the smallest gap these episodes could show, and about how many "
+               "episodes the gap seen would need at the rates seen")
+
+
+def power_rows(runs: list[Run], keys: tuple[str, ...] = ("find_obj", "success")) -> tuple[list[str], list[list]]:
+    """For each run against the first, per headline phase: the gap in points, the detectable gap
+    with this many episodes that differ (:func:`detectable_gap`), and :func:`episodes_needed`."""
+    from tasks.trials import METRIC_NAMES
+
+    ref = {r["episode_id"]: r["metrics"] for r in runs[0].records if r.get("metrics")}
+    headers = ["run", "vs", "episodes"]
+    for key in keys:
+        name = METRIC_NAMES[key]
+        headers += [f"{name} gap", f"{name} detectable", f"{name} episodes needed"]
+    rows = []
+    for run in runs[1:]:
+        mine = {r["episode_id"]: r["metrics"] for r in run.records if r.get("metrics")}
+        shared = sorted(set(ref) & set(mine))
+        row = [run.name, runs[0].name, len(shared)]
+        for key in keys:
+            wins = sum(bool(mine[e][key]) and not ref[e][key] for e in shared)
+            losses = sum(bool(ref[e][key]) and not mine[e][key] for e in shared)
+            if not shared:
+                row += ["n/a"] * 3
+                continue
+            pts = 100.0 / len(shared)
+            gap = detectable_gap(wins + losses)
+            need = episodes_needed(wins, losses, len(shared))
+            row += [f"{(wins - losses) * pts:+.1f}",
+                    "none" if gap is None else f"{gap * pts:.1f}",
+                    "no gap" if wins == losses else (f"> {100_000:,}" if need is None else f"{need:,}")]
+        rows.append(row)
+    return headers, rows
+
+
 DECISIONS_TITLE = ("Decisions: totals over the episodes shown (per-episode mean in brackets); "
                    "n/a: the agent or the run has no decision counts")
 TIME_TITLE = ("Simulated time per phase: % of the run's simulated time (mean s per episode in brackets); "
@@ -487,6 +565,7 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
         p_headers, p_rows = paired_rows(runs)
         tables.append((f"Paired with {runs[0].name}: episodes only this run passed (+) / only "
                        f"{runs[0].name} passed (-), exact sign test", p_headers, p_rows))
+        tables.append((POWER_TITLE, *power_rows(runs)))
     tables.append((DECISIONS_TITLE, *decision_rows(runs)))
     tables.append((TIME_TITLE, *activity_rows(runs)))
     text = "\n\n".join(format_table(h, r, title=t) for t, h, r in tables)
