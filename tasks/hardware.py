@@ -127,13 +127,16 @@ class HardwareJudge:
             self.collision_events.append({"time": t, "command": name, "message": entry["message"]})
         if name == "grasp":
             m.pick_attempts += 1
-            m.find_obj = True                  # the agent committed to a target it had found
+            if not m.find_obj:
+                m.find_obj, m.find_obj_time = True, t    # the agent committed to a target it had found
             if result.success and getattr(result, "holding", False):
+                if not m.pick:
+                    m.pick_time = t
                 m.pick = True
                 self.holding = True
         elif name == "place":
-            if m.pick and self.holding:
-                m.find_rec = True              # holding it, the agent found a goal receptacle to place on
+            if m.pick and self.holding and not m.find_rec:
+                m.find_rec, m.find_rec_time = True, t  # holding it, the agent found a goal receptacle to place on
             if result.success:
                 self.released = True
                 self.holding = False

@@ -51,6 +51,7 @@ from tasks.registry import RunContext, make_agent
 from tasks.runner import RunnerConfig, run_sim_episode
 
 METRIC_KEYS = ("find_obj", "pick", "find_rec", "place", "success")
+PHASE_TIME_KEYS = ("find_obj_time", "pick_time", "find_rec_time")   # simulated s to the phase (None: never)
 METRIC_NAMES = {"find_obj": "FindObj", "pick": "Pick", "find_rec": "FindRec", "place": "Place", "success": "SR"}
 NONDETERMINISTIC_FIELDS = ("wall_time", "memory", "recording")
 FINGERPRINT_FIELD = "config_fingerprint"     # in every record: config_fingerprint() of the config that made it
@@ -403,6 +404,9 @@ def record_problem(record) -> str | None:
             return "metrics.failure_reason is missing"
         if not (number(m.get("collisions")) and float(m["collisions"]).is_integer()):
             return "metrics.collisions is not a count"
+        for key in PHASE_TIME_KEYS:
+            if m.get(key) is not None and not number(m[key]):
+                return f"metrics.{key} is not a non-negative number"
     for key in ("sim_time", "wall_time"):
         if not number(record.get(key)):
             return f"{key} is not a non-negative number"

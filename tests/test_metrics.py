@@ -107,10 +107,27 @@ class _Idle:
 
 
 def test_oracle_success_latches_every_phase():
-    result, judge, agent = _run(OracleAgent)
+    grasped_at = []
+
+    def factory(sim):
+        t0, grasp = sim.world.time, sim.backend.grasp
+
+        def timed_grasp(*args, **kwargs):
+            result = grasp(*args, **kwargs)
+            grasped_at.append(sim.world.time - t0)
+            return result
+
+        sim.backend.grasp = timed_grasp
+        return OracleAgent(sim)
+
+    result, judge, agent = _run(factory)
     m = result.metrics
     assert (m.find_obj, m.pick, m.find_rec, m.place, m.success) == (True, True, True, True, True), agent.log
     assert m.failure_reason is None and m.collisions == 0 and m.pick_attempts == 1
+    # each phase's first moment, in simulated seconds from the start, in the order the task needs them;
+    # Pick is the moment the (only) grasp command returned holding the mug
+    assert 0.0 < m.find_obj_time < m.pick_time < m.find_rec_time <= result.sim_time
+    assert len(grasped_at) == 1 and m.pick_time == pytest.approx(grasped_at[0], abs=1e-3)
 
 
 def test_object_put_on_the_wrong_receptacle_is_misidentified():
@@ -159,6 +176,17 @@ def test_never_finding_the_object():
     m = result.metrics
     assert not m.find_obj and m.failure_reason == "not_found"
     assert result.commands == 1
+    assert (m.find_obj_time, m.pick_time, m.find_rec_time) == (None, None, None)
+
+
+def test_a_lookalike_grasp_keeps_the_pick_time_empty_and_the_find_time_of_the_first_sighting():
+    result, judge, agent = _run(_WrongPick)
+    m = result.metrics
+    assert m.picked_wrong_object and m.pick_time is None and m.find_rec_time is None
+    if m.find_obj:                 # the true mug may have been in view on the way: then when first seen
+        assert 0.0 < m.find_obj_time <= result.sim_time
+    else:
+        assert m.find_obj_time is None
 
 
 def test_summary_rates_and_standard_errors():

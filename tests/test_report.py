@@ -154,6 +154,33 @@ def test_report_says_how_many_episodes_a_paired_gap_needs(tmp_path):
     assert "| b | a | 40 | +20.0 | 20.0 | 38 | -5.0 | none | 110 |" in md
 
 
+def _with_times(path, times):
+    """A run whose episode i reaches FindObj at times[i] seconds (None: never) and Pick 10 s later."""
+    outcomes = [(2, "receptacle_not_found") if t is not None else (0, "not_found") for t in times]
+    _make_run(path, outcomes)
+    lines = (path / "episodes.jsonl").read_text().splitlines()
+    out = []
+    for line, t in zip(lines, times):
+        r = __import__("json").loads(line)
+        r["metrics"].update(find_obj_time=t, pick_time=None if t is None else t + 10.0, find_rec_time=None)
+        out.append(__import__("json").dumps(r))
+    (path / "episodes.jsonl").write_text("\n".join(out) + "\n")
+    return path
+
+
+def test_report_says_which_run_reached_each_phase_first(tmp_path):
+    # both find the object in episodes 0-5, b earlier in 0-4 and later in 5; only a finds it in 6;
+    # neither in 7; old records (no phase times) give n/a
+    a = _with_times(tmp_path / "a", [100, 200, 300, 400, 500, 50, 80, None])
+    b = _with_times(tmp_path / "b", [90, 150, 250, 350, 450, 60, None, None])
+    old = _make_run(tmp_path / "old", [(2, "receptacle_not_found")] * 8)
+    md = make_report([a, b, old], tmp_path / "rep")["markdown"]
+    assert "How fast each run searches" in md
+    assert "| a | 200 (7) | 210 (7) | - (0) | - | - |" in md            # median of 7 times; none reached FindRec
+    assert "| b | 200 (6) | 210 (6) | - (0) | +5 -2 (p=0.45) | +5 -2 (p=0.45) |" in md   # 0-4 b; 5, 6 a
+    assert "| old | n/a | n/a | n/a | n/a | n/a |" in md
+
+
 @pytest.mark.parametrize("n_runs", [1, 3])
 def test_plot_titles_and_labels_lie_inside_the_figure(tmp_path, n_runs):
     """Issue 20 item 3: the subtask plot's title was cut off at the left edge (an axes title

@@ -50,16 +50,20 @@ def episode():
 
 # ------------------------------------------------------------------------------------------ units
 def test_hardware_judge_and_operator_verdict_give_the_sim_phases():
-    judge = HardwareJudge()
+    now = iter([0.0, 1.5, 4.0, 9.25, 12.0, 20.0, 30.0])     # the judge's clock: start, then one per command
+    judge = HardwareJudge(clock=lambda: next(now))
     judge.after_command("navigate_to", NavigateResult(False, Reason.COLLISION, "blocked", collided=True,
                                                       final_pose=SE2Pose(0, 0, 0)))
     judge.after_command("grasp", GraspResult(False, Reason.GRASP_MISSED, "missed"))
     assert judge.metrics.find_obj and not judge.metrics.pick and judge.metrics.pick_attempts == 1
     judge.after_command("grasp", GraspResult(True, Reason.OK, "ok", holding=True))
     judge.after_command("place", PlaceResult(True, Reason.OK, "released"))
+    judge.after_command("place", PlaceResult(True, Reason.OK, "released again"))
     m = judge.finalize(False)
     assert (m.find_obj, m.pick, m.find_rec, m.collisions) == (True, True, True, 1)
-    assert [e["command"] for e in judge.log] == ["navigate_to", "grasp", "grasp", "place"]
+    # first committed grasp, first held grasp, first place while holding: seconds from the start
+    assert (m.find_obj_time, m.pick_time, m.find_rec_time) == (4.0, 9.25, 12.0)
+    assert [e["command"] for e in judge.log] == ["navigate_to", "grasp", "grasp", "place", "place"]
     ok = apply_verdict(m, OperatorVerdict(True, True), judge.released, False)
     assert ok.place and not ok.success and ok.failure_reason == "collision"      # the collision costs SR
     fell = apply_verdict(m, OperatorVerdict(False, True), judge.released, False)

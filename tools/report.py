@@ -259,6 +259,52 @@ def power_rows(runs: list[Run], keys: tuple[str, ...] = ("find_obj", "success"))
     return headers, rows
 
 
+SPEED_TITLE = ("How fast each run searches: simulated seconds from the start to each phase (median over the "
+               "episodes that reached it, how many in brackets), and against the first run, the episodes this run "
+               "reached the phase first (+) or the first run did (-; reaching it at all counts as first), exact "
+               "sign test; n/a: records made before phase times were kept")
+SPEED_PHASES = (("find_obj_time", "FindObj"), ("pick_time", "Pick"), ("find_rec_time", "FindRec"))
+
+
+def _phase_times(run: Run, key: str) -> dict[str, float]:
+    """Episode id -> seconds to the phase (inf: never reached), for records that keep phase times."""
+    out = {}
+    for r in run.records:
+        m = r.get("metrics")
+        if isinstance(m, dict) and key in m:
+            out[r["episode_id"]] = math.inf if m[key] is None else float(m[key])
+    return out
+
+
+def speed_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
+    """Per run, the median time to FindObj, Pick and FindRec; against the first run, who got to
+    FindObj and Pick first, episode by episode. Two policies that find the object in the same
+    episodes can still differ in how long they take: this pairs on every episode either one
+    completes, where FindObj's yes/no pairs only on those exactly one completes."""
+    headers = ["run"] + [f"{name} s" for _, name in SPEED_PHASES] + ["FindObj first", "Pick first"]
+    rows = []
+    for i, run in enumerate(runs):
+        row = [run.name]
+        for key, _ in SPEED_PHASES:
+            times = _phase_times(run, key)
+            reached = [t for t in times.values() if math.isfinite(t)]
+            row.append("n/a" if not times else (f"{np.median(reached):.0f} ({len(reached)})" if reached else "- (0)"))
+        for key in ("find_obj_time", "pick_time"):
+            if i == 0:
+                row.append("-")
+                continue
+            ref, mine = _phase_times(runs[0], key), _phase_times(run, key)
+            shared = [e for e in set(ref) & set(mine) if math.isfinite(ref[e]) or math.isfinite(mine[e])]
+            if not (set(ref) & set(mine)):
+                row.append("n/a")
+                continue
+            wins = sum(mine[e] < ref[e] for e in shared)
+            losses = sum(ref[e] < mine[e] for e in shared)
+            row.append(f"+{wins} -{losses} ({_p_text(sign_test_p(wins, losses))})")
+        rows.append(row)
+    return headers, rows
+
+
 DECISIONS_TITLE = ("Decisions: totals over the episodes shown (per-episode mean in brackets); "
                    "n/a: the agent or the run has no decision counts")
 TIME_TITLE = ("Simulated time per phase: % of the run's simulated time (mean s per episode in brackets); "
@@ -566,6 +612,7 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
         tables.append((f"Paired with {runs[0].name}: episodes only this run passed (+) / only "
                        f"{runs[0].name} passed (-), exact sign test", p_headers, p_rows))
         tables.append((POWER_TITLE, *power_rows(runs)))
+    tables.append((SPEED_TITLE, *speed_rows(runs)))
     tables.append((DECISIONS_TITLE, *decision_rows(runs)))
     tables.append((TIME_TITLE, *activity_rows(runs)))
     text = "\n\n".join(format_table(h, r, title=t) for t, h, r in tables)
