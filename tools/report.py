@@ -160,24 +160,34 @@ def _p_text(p: float) -> str:
     return "p<0.01" if p < 0.005 else f"p={p:.2f}"
 
 
+def _metrics_by_episode(run: Run) -> dict[str, dict]:
+    return {r["episode_id"]: r["metrics"] for r in run.records if r.get("metrics")}
+
+
+def _discordant(ref: dict[str, dict], mine: dict[str, dict], key: str) -> tuple[int, int, int]:
+    """(episodes only ``mine`` passed phase ``key``, only ``ref`` passed, episodes both have)."""
+    shared = set(ref) & set(mine)
+    wins = sum(bool(mine[e][key]) and not ref[e][key] for e in shared)
+    losses = sum(bool(ref[e][key]) and not mine[e][key] for e in shared)
+    return wins, losses, len(shared)
+
+
 def paired_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     """Each run against the first on the same episodes: per phase, the episodes only this run
     passed / only the first passed, and the sign-test p-value. Ablations that differ by a few
     points are often the same agent on most episodes; this says how many episodes actually differ."""
     from tasks.trials import METRIC_KEYS
 
-    ref = {r["episode_id"]: r["metrics"] for r in runs[0].records if r.get("metrics")}
+    ref = _metrics_by_episode(runs[0])
     headers = ["run", "vs", "episodes"] + list(PHASES)
     rows = []
     for run in runs[1:]:
-        mine = {r["episode_id"]: r["metrics"] for r in run.records if r.get("metrics")}
-        shared = sorted(set(ref) & set(mine))
+        mine = _metrics_by_episode(run)
         cells = []
         for key in METRIC_KEYS:        # the order of PHASES
-            wins = sum(bool(mine[e][key]) and not ref[e][key] for e in shared)
-            losses = sum(bool(ref[e][key]) and not mine[e][key] for e in shared)
+            wins, losses, shared = _discordant(ref, mine, key)
             cells.append(f"+{wins} -{losses} ({_p_text(sign_test_p(wins, losses))})")
-        rows.append([run.name, runs[0].name, len(shared)] + cells)
+        rows.append([run.name, runs[0].name, len(set(ref) & set(mine))] + cells)
     return headers, rows
 
 
@@ -233,25 +243,23 @@ def power_rows(runs: list[Run], keys: tuple[str, ...] = ("find_obj", "success"))
     with this many episodes that differ (:func:`detectable_gap`), and :func:`episodes_needed`."""
     from tasks.trials import METRIC_NAMES
 
-    ref = {r["episode_id"]: r["metrics"] for r in runs[0].records if r.get("metrics")}
+    ref = _metrics_by_episode(runs[0])
     headers = ["run", "vs", "episodes"]
     for key in keys:
         name = METRIC_NAMES[key]
         headers += [f"{name} gap", f"{name} detectable", f"{name} episodes needed"]
     rows = []
     for run in runs[1:]:
-        mine = {r["episode_id"]: r["metrics"] for r in run.records if r.get("metrics")}
-        shared = sorted(set(ref) & set(mine))
-        row = [run.name, runs[0].name, len(shared)]
+        mine = _metrics_by_episode(run)
+        row = [run.name, runs[0].name, len(set(ref) & set(mine))]
         for key in keys:
-            wins = sum(bool(mine[e][key]) and not ref[e][key] for e in shared)
-            losses = sum(bool(ref[e][key]) and not mine[e][key] for e in shared)
+            wins, losses, shared = _discordant(ref, mine, key)
             if not shared:
                 row += ["n/a"] * 3
                 continue
-            pts = 100.0 / len(shared)
+            pts = 100.0 / shared
             gap = detectable_gap(wins + losses)
-            need = episodes_needed(wins, losses, len(shared))
+            need = episodes_needed(wins, losses, shared)
             row += [f"{(wins - losses) * pts:+.1f}",
                     "none" if gap is None else f"{gap * pts:.1f}",
                     "no gap" if wins == losses else (f"> {100_000:,}" if need is None else f"{need:,}")]
