@@ -179,4 +179,5 @@ def test_report_prints_the_sections_with_na_for_old_runs(tmp_path):
             in md)
     assert "**Decisions: totals" in md and "**Simulated time per phase" in md
     assert "<h2>Decisions: totals" in page and "<h2>Simulated time per phase" in page
-    assert "<td>40.0 (40 s)</td>" in page and page.count("<td>n/a</td>") == 12 + 7
+    # n/a: decisions 12 + phase times 7, and the search-speed table's 3 + 5 (these records keep no phase times)
+    assert "<td>40.0 (40 s)</td>" in page and page.count("<td>n/a</td>") == 12 + 7 + 8
