@@ -19,6 +19,12 @@ def git_commit() -> str:
         return "unknown"
 
 
+def differs(made, now) -> bool:
+    """Whether two provenance values (a version or a commit) are both known and differ; None and
+    ``unknown`` (no git, not a checkout, a hand-written file) never count as a difference."""
+    return made not in (None, "unknown") and now not in (None, "unknown") and made != now
+
+
 def package_version() -> str:
     from helios import __version__
 

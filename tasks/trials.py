@@ -46,7 +46,7 @@ from sim.perception.config import SimPerceptionConfig
 from tasks.executors import WORKER_EPISODES
 from tasks.episodes import Episode
 from tasks.metrics import FAILURE_REASONS
-from tasks.provenance import PROVENANCE_KEYS, git_commit, package_version, provenance
+from tasks.provenance import PROVENANCE_KEYS, differs, git_commit, package_version, provenance
 from tasks.registry import RunContext, make_agent
 from tasks.runner import RunnerConfig, run_sim_episode
 
@@ -212,15 +212,26 @@ def stale_results(out: Path, config: TrialConfig, commit: str | None = None) -> 
         header, _, saved_cfg = _read_saved_config(out)
     except RunFolderError:
         return None
-    if saved_cfg != config:
-        diff = [k for k, v in to_dict(config).items() if to_dict(saved_cfg).get(k) != v]
-        if not (diff == ["episodes"] and config.episodes > saved_cfg.episodes):
-            return f"results of a different configuration (differs in: {', '.join(diff)})"
-    made = str(header.get("git_commit") or "unknown")
-    now = commit if commit is not None else git_commit()
-    if "unknown" not in (made, now) and made != now:
+    diff = config_difference(saved_cfg, config)
+    if diff and not is_extension(diff, saved_cfg, config):
+        return f"results of a different configuration (differs in: {', '.join(diff)})"
+    made, now = header.get("git_commit"), commit if commit is not None else git_commit()
+    if differs(made, now):
         return f"results of commit {made[:10]} (this checkout is {now[:10]})"
     return None
+
+
+def config_difference(saved: TrialConfig, config: TrialConfig) -> list[str]:
+    """The top-level keys where ``config`` differs from a run folder's ``saved`` configuration."""
+    if saved == config:
+        return []
+    old = to_dict(saved)
+    return [k for k, v in to_dict(config).items() if old.get(k) != v]
+
+
+def is_extension(diff: list[str], saved: TrialConfig, config: TrialConfig) -> bool:
+    """Whether the only difference is more episodes: a run may be extended, never shortened."""
+    return diff == ["episodes"] and config.episodes > saved.episodes
 
 
 def move_aside(out: Path, stamp: str | None = None) -> Path:
@@ -298,8 +309,8 @@ def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | No
             if saved_cfg != config:
                 notes.append("config.yaml of a run without results was replaced by this configuration")
         elif saved_cfg != config:
-            diff = [k for k, v in to_dict(config).items() if to_dict(saved_cfg).get(k) != v]
-            if diff == ["episodes"] and config.episodes > saved_cfg.episodes:
+            diff = config_difference(saved_cfg, config)
+            if is_extension(diff, saved_cfg, config):
                 new_config_text = dump_yaml(provenance()) + dump_yaml({**body, "episodes": config.episodes})
                 folder_fp = saved_fp
             elif diff == ["episodes"]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -161,9 +163,9 @@ def _with_times(path, times):
     lines = (path / "episodes.jsonl").read_text().splitlines()
     out = []
     for line, t in zip(lines, times):
-        r = __import__("json").loads(line)
+        r = json.loads(line)
         r["metrics"].update(find_obj_time=t, pick_time=None if t is None else t + 10.0, find_rec_time=None)
-        out.append(__import__("json").dumps(r))
+        out.append(json.dumps(r))
     (path / "episodes.jsonl").write_text("\n".join(out) + "\n")
     return path
 

@@ -187,7 +187,7 @@ def paired_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
         for key in METRIC_KEYS:        # the order of PHASES
             wins, losses, shared = _discordant(ref, mine, key)
             cells.append(f"+{wins} -{losses} ({_p_text(sign_test_p(wins, losses))})")
-        rows.append([run.name, runs[0].name, len(set(ref) & set(mine))] + cells)
+        rows.append([run.name, runs[0].name, shared] + cells)
     return headers, rows
 
 
@@ -251,7 +251,7 @@ def power_rows(runs: list[Run], keys: tuple[str, ...] = ("find_obj", "success"))
     rows = []
     for run in runs[1:]:
         mine = _metrics_by_episode(run)
-        row = [run.name, runs[0].name, len(set(ref) & set(mine))]
+        row = [run.name, runs[0].name, len(set(ref) & set(mine))]     # shared episodes, whatever the phase
         for key in keys:
             wins, losses, shared = _discordant(ref, mine, key)
             if not shared:
@@ -302,12 +302,12 @@ def speed_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
                 row.append("-")
                 continue
             ref, mine = _phase_times(runs[0], key), _phase_times(run, key)
-            shared = [e for e in set(ref) & set(mine) if math.isfinite(ref[e]) or math.isfinite(mine[e])]
-            if not (set(ref) & set(mine)):
+            both = set(ref) & set(mine)
+            if not both:
                 row.append("n/a")
                 continue
-            wins = sum(mine[e] < ref[e] for e in shared)
-            losses = sum(ref[e] < mine[e] for e in shared)
+            wins = sum(mine[e] < ref[e] for e in both)        # never reached (inf) on both sides: a tie
+            losses = sum(ref[e] < mine[e] for e in both)
             row.append(f"+{wins} -{losses} ({_p_text(sign_test_p(wins, losses))})")
         rows.append(row)
     return headers, rows

@@ -87,12 +87,11 @@ def resolve_config(args: argparse.Namespace):
 
 def _check_provenance(path: str, header: dict) -> None:
     """A run folder's config.yaml names the version and commit that made it: say when they differ."""
-    from tasks.provenance import git_commit, package_version
+    from tasks.provenance import differs, git_commit, package_version
 
     made = {"helios_version": header.get("helios_version"), "git_commit": header.get("git_commit")}
     now = {"helios_version": package_version(), "git_commit": git_commit()}
-    differ = [k for k in made if made[k] not in (None, "unknown") and now[k] != "unknown" and made[k] != now[k]]
-    if differ:
+    if any(differs(made[k], now[k]) for k in made):
         print(f"warning: {path} was written by helios {made['helios_version']} at commit "
               f"{str(made['git_commit'])[:10]}; this is {now['helios_version']} at {now['git_commit'][:10]}: "
               f"the same config may not give the same numbers", file=sys.stderr)
