@@ -75,6 +75,76 @@ def test_grasp_lifts_the_mug_and_holds_it_while_the_base_walks_one_metre():
         backend.close()
 
 
+def _wrist_to_object(backend, body: int) -> np.ndarray:
+    from robots.transforms import invert_transform
+
+    return invert_transform(backend.spot.link_pose("arm0.link_wr1")) @ backend.world.pose(body)
+
+
+def test_carrying_moves_the_held_object_rigidly_with_the_wrist_and_steps_no_physics():
+    world, backend, scene = _demo_setup(seed=0)
+    try:
+        _, res = _look_and_grasp(world, backend, scene)
+        assert res.success, res.message
+        assert backend.stow_arm().success
+        mug = scene["mug"]
+        grip, steps, t0 = _wrist_to_object(backend, mug), world.steps, world.time
+        base = backend.spot.base_pose()
+        assert backend.navigate_to(SE2Pose(base.x - 1.0, base.y + 0.3, base.yaw + 0.8)).success
+        assert backend.gaze_at(world.position(mug) + [1.0, 0.5, -0.4]).success
+        assert backend.stow_arm().success
+        assert world.time - t0 > 2.0, "the walk and the arm moves take simulated time"
+        assert world.steps == steps, "no physics step while the carried object touches nothing"
+        assert backend.holding
+        np.testing.assert_allclose(_wrist_to_object(backend, mug), grip, atol=1e-5)
+        lin, ang = world.velocity(mug)
+        assert lin < 1e-9 and ang < 1e-9
+    finally:
+        backend.close()
+
+
+def test_kinematic_carry_off_tracks_the_carried_object_with_physics_and_it_arrives_alike():
+    ends = {}
+    for kinematic in (True, False):
+        world, backend, scene = _demo_setup(seed=0, kinematic_carry=kinematic)
+        try:
+            _, res = _look_and_grasp(world, backend, scene)
+            assert res.success and backend.stow_arm().success
+            steps, base = world.steps, backend.spot.base_pose()
+            nav = backend.navigate_to(SE2Pose(base.x - 1.0, base.y, base.yaw))
+            assert nav.success and backend.holding
+            walked = world.steps - steps
+            if kinematic:
+                assert walked == 0
+            else:   # 240 Hz through the walk
+                assert walked == pytest.approx(nav.duration * 240, rel=0.05)
+            ends[kinematic] = world.position(scene["mug"])
+        finally:
+            backend.close()
+    np.testing.assert_allclose(ends[True], ends[False], atol=0.01)
+
+
+def test_a_carried_object_lowered_into_the_table_hands_over_to_physics_and_jams():
+    world, backend, scene = _demo_setup(seed=0)
+    try:
+        _, res = _look_and_grasp(world, backend, scene)
+        assert res.success, res.message
+        mug = scene["mug"]
+        from robots.spot import kinematics
+
+        T = kinematics.hand_pose(backend.spot.arm_q())
+        T[2, 3] -= 0.35     # well below the table top the mug was lifted from
+        steps = world.steps
+        moved = backend.move_hand(T)
+        assert not moved.success and moved.reason is Reason.COLLISION
+        assert "held object" in moved.message
+        assert world.steps > steps, "contact hands the move over to physics"
+        table_top = world.body(scene["pick_table"]).extra["top_height"]
+        assert world.aabb(mug)[0][2] > table_top - 0.02, "the mug is stopped at the table, not pushed through it"
+    finally:
+        backend.close()
+
+
 def test_release_ten_centimetres_above_a_table_leaves_the_mug_settled_on_it():
     world, backend, scene = _demo_setup(seed=1)
     try:
