@@ -10,7 +10,8 @@ from scipy import ndimage
 
 from helios.config import RenderConfig
 from helios.maps.grid import GridGeometry
-from helios.maps.renderer import Rendering, _sorting_permutation, empty_rendering, render_gaussians
+from helios.maps.renderer import (Rendering, _minus_run_start, _minus_run_start_torch, _sorting_permutation,
+                                  empty_rendering, render_gaussians)
 from helios.planning.fmm import FMMPlanner, _clearance, _descend, _far_enough_inside, _pool
 from helios.planning.footprint import FootprintChecker, FootprintConfig
 from robots.hal import CameraIntrinsics
@@ -182,6 +183,17 @@ def test_renderer_matches_the_previous_implementation_bit_for_bit(seed):
     mask[30:70, 50:140] = True
     assert _same(render_gaussians(means, scales, opacities, cam, pose, cfg, mask),
                  reference_render(means, scales, opacities, cam, pose, cfg, mask))
+
+
+def test_run_start_subtraction_on_the_cpu_equals_the_torch_ops_bit_for_bit():
+    rng = np.random.default_rng(3)
+    runs = torch.as_tensor(np.sort(rng.integers(0, 2000, 50_000)))
+    values = torch.cumsum(torch.as_tensor(np.log1p(-rng.uniform(0.0, 0.99, 50_000))), 0)
+    fast, slow = _minus_run_start(values, runs), _minus_run_start_torch(values, runs)
+    assert fast.dtype == torch.float64 and torch.equal(fast, slow)
+    starts = torch.ones_like(runs, dtype=torch.bool)
+    starts[1:] = runs[1:] != runs[:-1]
+    assert bool((fast[starts] == 0).all()) and bool((fast[~starts] != 0).any())
 
 
 def test_sorting_permutation_is_torch_sort_for_distinct_keys():

@@ -123,6 +123,48 @@ def _sorting_permutation(key: torch.Tensor) -> torch.Tensor:
     return torch.sort(key).indices
 
 
+_WINDOWS: dict = {}
+
+
+def _window(R: int, W: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Integer offsets (dx, dy as (1, n) float32) of the disc of radius R + 1/2 and their flat
+    pixel offsets for image width W (cached: the same few radii come back every render)."""
+    key = (R, W, str(device))
+    hit = _WINDOWS.get(key)
+    if hit is None:
+        off = torch.arange(-R, R + 1, device=device, dtype=torch.float32)
+        dy, dx = torch.meshgrid(off, off, indexing="ij")
+        disc = dx * dx + dy * dy <= (R + 0.5) ** 2     # the footprint ellipse lies within radius R
+        dx, dy = dx[disc].reshape(1, -1), dy[disc].reshape(1, -1)
+        offset_pix = (dy.to(torch.int64) * W + dx.to(torch.int64)).flatten()
+        hit = _WINDOWS[key] = (dx, dy, offset_pix)
+    return hit
+
+
+def _minus_run_start(values: torch.Tensor, runs: torch.Tensor) -> torch.Tensor:
+    """``values`` minus the value at the start of its run of equal ``runs`` entries (float64).
+
+    The same subtraction of the same operands either way; on the CPU numpy gathers each run's
+    first value by repeating it over the run, ~3x faster than torch's boolean-mask gather."""
+    if values.device.type == "cpu":
+        v, r = values.numpy(), runs.numpy()
+        starts = np.empty(r.size, dtype=bool)
+        starts[0] = True
+        np.not_equal(r[1:], r[:-1], out=starts[1:])
+        first = np.flatnonzero(starts)
+        counts = np.diff(first, append=r.size)
+        return torch.from_numpy(v - np.repeat(v[first], counts))
+    return _minus_run_start_torch(values, runs)
+
+
+def _minus_run_start_torch(values: torch.Tensor, runs: torch.Tensor) -> torch.Tensor:
+    """:func:`_minus_run_start` in torch ops (any device)."""
+    starts = torch.ones_like(runs, dtype=torch.bool)
+    starts[1:] = runs[1:] != runs[:-1]
+    segment = torch.cumsum(starts.to(torch.int64), 0) - 1
+    return values - values[starts][segment]
+
+
 def empty_rendering(height: int, width: int, device: torch.device) -> Rendering:
     zi = torch.zeros(0, dtype=torch.int64, device=device)
     zf = torch.zeros(0, dtype=torch.float32, device=device)
@@ -183,62 +225,65 @@ def render_gaussians(means: torch.Tensor, scales: torch.Tensor, opacities: torch
     if idx.numel() == 0:
         return empty_rendering(H, W, device)
 
-    # Global depth order of the visible Gaussians.
+    # Global depth order of the visible Gaussians; their per-Gaussian terms gathered once in that
+    # order (``index_select``: advanced indexing costs ~20 us more per call, and the loop below
+    # makes dozens of calls per bucket).
     order = torch.argsort(z[idx], stable=True)
     idx = idx[order]
     n_vis = idx.numel()
-    r_vis = radius[idx]
-    buckets = torch.as_tensor([r for r in _RADIUS_BUCKETS if r < cfg.max_radius_px] + [cfg.max_radius_px],
-                              dtype=r_vis.dtype, device=device)
-    bucket_of = torch.bucketize(r_vis, buckets)
+    buckets = [r for r in _RADIUS_BUCKETS if r < cfg.max_radius_px] + [cfg.max_radius_px]
+    bucket_of = torch.bucketize(radius.index_select(0, idx),
+                                torch.as_tensor(buckets, dtype=radius.dtype, device=device))
     # Per-Gaussian terms of the pair test. With the window centre (uc, vc) and integer offsets,
     # du = (uc - u) + dx rounds the same exact value as (uc + dx) - u (both operands of uc - u
     # are within a factor of two, so it is exact), and pixels are integers: no float pixel grid.
-    ru, rv = uc - u, vc - v
-    base_pix = vc.to(torch.int64) * W + uc.to(torch.int64)
-    pair_g, pair_pix, pair_alpha, pair_rank = [], [], [], []
+    ru, rv = (uc - u).index_select(0, idx), (vc - v).index_select(0, idx)
+    ca, cb2, cc = conic_a.index_select(0, idx), (2.0 * conic_b).index_select(0, idx), conic_c.index_select(0, idx)
+    op = opacities.index_select(0, idx)
+    ucv, vcv = uc.index_select(0, idx), vc.index_select(0, idx)
+    base_pix = vcv.to(torch.int64) * W + ucv.to(torch.int64)
+    # Members of each bucket, in depth order: one stable sort instead of a scan per bucket.
+    by_bucket = torch.argsort(bucket_of, stable=True)
+    ks, counts = torch.unique_consecutive(bucket_of.index_select(0, by_bucket), return_counts=True)
+    pair_off, pair_alpha, pair_rank = [], [], []
     candidates = 0
-    for k in torch.unique(bucket_of).tolist():
-        R = int(buckets[k])
-        members = torch.nonzero(bucket_of == k).flatten()
-        off = torch.arange(-R, R + 1, device=device, dtype=torch.float32)
-        dy, dx = torch.meshgrid(off, off, indexing="ij")
-        disc = dx * dx + dy * dy <= (R + 0.5) ** 2     # the footprint ellipse lies within radius R
-        dx, dy = dx[disc].reshape(1, -1), dy[disc].reshape(1, -1)
-        offset_pix = (dy.to(torch.int64) * W + dx.to(torch.int64)).flatten()
+    first = 0
+    for k, count in zip(ks.tolist(), counts.tolist()):
+        R = buckets[k]
+        members = by_bucket[first:first + count]
+        first += count
+        dx, dy, offset_pix = _window(R, W, device)
         per = dx.shape[1]
         step = max(1, _CHUNK_PAIRS // per)
         # windows wholly inside the image need no bounds test (the bucket radius R >= radius)
-        ucm, vcm = uc[idx[members]], vc[idx[members]]
+        ucm, vcm = ucv.index_select(0, members), vcv.index_select(0, members)
         whole = (ucm - R >= 0) & (ucm + R <= W - 1) & (vcm - R >= 0) & (vcm + R <= H - 1)
         for group, bounded in ((members[whole], False), (members[~whole], True)):
             for s in range(0, group.numel(), step):
                 m = group[s:s + step]
-                g = idx[m]
-                du = ru[g][:, None] + dx
-                dv = rv[g][:, None] + dy
-                power = (conic_a[g][:, None] * du).mul_(du)
-                power.add_((2.0 * conic_b[g][:, None] * du).mul_(dv))
-                power.add_((conic_c[g][:, None] * dv).mul_(dv))
-                alpha = power.mul_(-0.5).exp_().mul_(opacities[g][:, None]).clamp_max_(cfg.alpha_max)
+                du = ru.index_select(0, m)[:, None] + dx
+                dv = rv.index_select(0, m)[:, None] + dy
+                power = (ca.index_select(0, m)[:, None] * du).mul_(du)
+                power.add_((cb2.index_select(0, m)[:, None] * du).mul_(dv))
+                power.add_((cc.index_select(0, m)[:, None] * dv).mul_(dv))
+                alpha = power.mul_(-0.5).exp_().mul_(op.index_select(0, m)[:, None]).clamp_max_(cfg.alpha_max)
                 keep = alpha >= cfg.alpha_min
                 if bounded:
-                    ucg, vcg = uc[g][:, None], vc[g][:, None]
+                    ucg, vcg = ucv.index_select(0, m)[:, None], vcv.index_select(0, m)[:, None]
                     keep &= (dx >= -ucg) & (dx <= (W - 1) - ucg) & (dy >= -vcg) & (dy <= (H - 1) - vcg)
                 if pixel_mask is not None:
-                    pix = base_pix[g][:, None] + offset_pix
+                    pix = base_pix.index_select(0, m)[:, None] + offset_pix
                     keep &= pm_flat[pix.clamp(0, H * W - 1)]
                 candidates += keep.numel()
                 rows_k, cols_k = torch.nonzero(keep, as_tuple=True)
-                pair_g.append(g[rows_k])
-                pair_rank.append(m[rows_k])
-                pair_pix.append(base_pix[g][rows_k] + offset_pix[cols_k])
-                pair_alpha.append(alpha[rows_k, cols_k])
-    g_all = torch.cat(pair_g)
-    if g_all.numel() == 0:
-        return empty_rendering(H, W, device)
-    pix_all = torch.cat(pair_pix)
+                pair_rank.append(m.index_select(0, rows_k))
+                pair_off.append(offset_pix.index_select(0, cols_k))
+                pair_alpha.append(alpha.view(-1).index_select(0, rows_k * per + cols_k))
     rank_all = torch.cat(pair_rank)
+    if rank_all.numel() == 0:
+        return empty_rendering(H, W, device)
+    g_all = idx.index_select(0, rank_all)
+    pix_all = base_pix.index_select(0, rank_all) + torch.cat(pair_off)
     alpha_all = torch.cat(pair_alpha)
 
     # Sort by (pixel, depth rank) in one key, then composite each pixel's run front to back.
@@ -248,10 +293,7 @@ def render_gaussians(means: torch.Tensor, scales: torch.Tensor, opacities: torch
     log_one_minus = torch.log1p(-alpha_all.to(torch.float64))
     inclusive = torch.cumsum(log_one_minus, 0)
     exclusive = inclusive - log_one_minus
-    starts = torch.ones_like(pix_all, dtype=torch.bool)
-    starts[1:] = pix_all[1:] != pix_all[:-1]
-    segment = torch.cumsum(starts.to(torch.int64), 0) - 1
-    log_T = exclusive - exclusive[starts][segment]
+    log_T = _minus_run_start(exclusive, pix_all)
     kept = torch.nonzero(log_T >= math.log(cfg.transmittance_min)).flatten()    # one scan, four gathers
     g_all, pix_all, log_T = g_all.index_select(0, kept), pix_all.index_select(0, kept), log_T.index_select(0, kept)
     weight = (alpha_all.index_select(0, kept).to(torch.float64) * torch.exp(log_T)).to(torch.float32)
