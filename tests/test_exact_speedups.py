@@ -203,6 +203,15 @@ def test_sorting_permutation_is_torch_sort_for_distinct_keys():
     assert torch.equal(_sorting_permutation(huge), torch.sort(huge).indices)
 
 
+def test_clip_index_is_np_clip_for_cell_indices():
+    from helios.maps.grid import clip_index
+
+    cells = np.random.default_rng(5).integers(-3000, 5000, size=(64, 37))
+    for last in (0, 1, 1999):
+        got = clip_index(cells, last)
+        assert got.dtype == cells.dtype and np.array_equal(got, np.clip(cells, 0, last))
+
+
 # ----------------------------------------------------------------------------- footprint
 @pytest.mark.parametrize("seed", range(3))
 def test_footprint_tiles_give_the_exhaustive_answer(seed):

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from helios.maps.grid import GridGeometry
+from helios.maps.grid import GridGeometry, clip_index
 from helios.planning.footprint import FootprintChecker, FootprintConfig
 from robots.hal import SE2Pose
 from robots.transforms import wrap_angle
@@ -142,7 +142,7 @@ class FMMPlanner:
         def to_cell(xy):
             """(row, col) of the coarse cell holding a point, clipped to the window; arrays for (N, 2)."""
             c = np.floor((np.asarray(xy) - origin) / cell).astype(int)
-            rows, cols = np.clip(c[..., 1], 0, coarse_obs.shape[0] - 1), np.clip(c[..., 0], 0, coarse_obs.shape[1] - 1)
+            rows, cols = clip_index(c[..., 1], coarse_obs.shape[0] - 1), clip_index(c[..., 0], coarse_obs.shape[1] - 1)
             return (int(rows), int(cols)) if c.ndim == 1 else (rows, cols)
 
         def to_world(rc):
