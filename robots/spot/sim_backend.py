@@ -109,7 +109,7 @@ class _KinematicCarry:
     """Moves a held object rigidly with the wrist during one kinematic move.
 
     The object keeps the pose relative to the wrist it had when the move began (where the grasp
-    constraint and gravity left it), so handing back to physics finds the constraint satisfied.
+    constraint and gravity left it), so handing back to physics resumes from that balance.
     Why not physics: the base and the arm are placed pose by pose every control step (50 ms), so
     a physically tracked object is yanked after each jump by the constraint at its force limit;
     rigid carriage is closer to a real Spot's smooth carry and skips ~12 solver steps per pose.
@@ -403,8 +403,8 @@ class SimSpotBackend:
     def _move_arm(self, q_goal: np.ndarray, phase: str, allow_gripper_contact: bool = False) -> CommandResult:
         t0 = self.world.time
         traj = plan_arm(self.spot.arm_q(), q_goal, self.config.motion.arm)
-        if not allow_gripper_contact and (self._kinematic_carry() if self._held is not None
-                                          else self.config.kinematic_free_arm):
+        kinematic = self.config.kinematic_carry if self._held is not None else self.config.kinematic_free_arm
+        if kinematic and not allow_gripper_contact:
             result = self._follow_arm_kinematically(traj, q_goal, phase, t0)
             if result is not None:
                 return result
