@@ -23,7 +23,7 @@ def _physics_rates(seed: int, n_steps: int) -> list[tuple]:
     from sim.scenes.demo import build_demo_scene
     from sim.spot import SpotBody
     from sim.world import World
-    from tools.demo import _approach_pose
+    from tasks.scripted_demo import WorldTable, approach_pose
 
     rows = []
     world = World()
@@ -34,7 +34,7 @@ def _physics_rates(seed: int, n_steps: int) -> list[tuple]:
     world.step(n_steps)
     rows.append(("physics step, scene at rest", n_steps / (time.perf_counter() - t), "steps/s"))
     mug = world.position(scene["mug"])
-    backend.navigate_to(_approach_pose(world, scene["pick_table"], mug[:2], np.zeros(2), 0.3))
+    backend.navigate_to(approach_pose(WorldTable(world, scene["pick_table"]), mug[:2], np.zeros(2), 0.3))
     backend.gaze_at(mug + [0, 0, 0.05])
     obs = backend.observe()
     vs, us = np.nonzero(decode_body_ids(backend.segmentation_for(obs)) == scene["mug"])
@@ -109,6 +109,7 @@ def run(args: argparse.Namespace) -> str:
         ("320x240 @ 2 Hz, rendered inline", ["stream_renderer=inline"], True),
         ("no camera stream", [], False),
         ("320x240 @ 2 Hz, worker, arm always physics-tracked", ["kinematic_free_arm=false"], True),
+        ("320x240 @ 2 Hz, worker, carrying physics-tracked", ["kinematic_carry=false"], True),
         ("640x480 @ 2 Hz, render worker process", ["camera.width=640", "camera.height=480"], True),
     ]
     rows = []
