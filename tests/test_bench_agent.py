@@ -109,3 +109,25 @@ def test_physics_stepping_is_booked_even_though_the_client_hook_makes_the_call()
     phases, _ = _profile_phases(profiler)
     assert phases["simulator: physics stepping"] > 0.0
     assert phases["planning: all"] == 0.0
+
+
+def test_repeats_keep_the_quickest_run_and_say_when_runs_disagree():
+    runs = [{"episode": "val-00000", "wall": w, "sim": 600.0, "success": False, "phases": {"x": w}} for w in (9.0, 7.5, 8.0)]
+    best = bench_agent.least_wall(runs)
+    assert best["wall"] == 7.5 and best["phases"] == {"x": 7.5} and best["repeats"] == 3 and best["repeats_agree"]
+    assert not bench_agent.least_wall(runs + [{**runs[0], "wall": 1.0, "sim": 480.0}])["repeats_agree"]
+    after = _run("this checkout", [5.0, 10.0], [600.0, 600.0], [20.0])
+    for e in after["episodes"]:
+        e.update(repeats=3, repeats_agree=True)
+    text = bench_agent.format_report(after, None, "helios")
+    assert "wall seconds (the least of 3 runs of each episode)" in text and "NOT DETERMINISTIC" not in text
+    after["episodes"][1]["repeats_agree"] = False
+    assert "NOT DETERMINISTIC: the repeated runs of val-00001" in bench_agent.format_report(after, None, "helios")
+
+
+def test_repeats_out_of_range_are_refused_before_any_episode_runs(capsys):
+    from tools.cli import main
+
+    assert main(["bench", "agent", "--agent-repeats", "0"]) == 2
+    assert "--agent-repeats must be within 1..20, got 0" in capsys.readouterr().err
+
