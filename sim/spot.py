@@ -54,6 +54,10 @@ class SpotBody:
         self.gripper_link_ids = {self.link_index[n] for n in GRIPPER_LINKS}
         self.moving_joint_indices = [i for i in range(c.getNumJoints(self.id))
                                      if c.getJointInfo(self.id, i)[2] != world.pb.JOINT_FIXED]
+        # Links with a collision shape (15 of 22: hips, wrist frame, hand and camera frames have
+        # none). Only they can touch anything, so their boxes bound every contact ``touching`` finds.
+        self._collider_links = [link for link in range(-1, c.getNumJoints(self.id))
+                                if c.getCollisionShapeData(self.id, link)]
         for link in self.gripper_link_ids:  # rubber jaw pads
             c.changeDynamics(self.id, link, lateralFriction=1.5, spinningFriction=0.01)
         # The feet stand on the floor: those contacts are not collisions and cost solver time.
@@ -160,10 +164,10 @@ class SpotBody:
         base motion can be checked pose by pose. The floor and excluded bodies/links are ignored.
         """
         c = self.world.client
-        lo, hi = self.world.body_aabb(self.id)     # base and every link (never cached: it has joints)
+        boxes = np.array([c.getAABB(self.id, link) for link in self._collider_links])   # never cached: it moves
         pad = margin + 0.01
-        lo = [v - pad for v in lo]
-        hi = [v + pad for v in hi]
+        lo = boxes[:, 0].min(axis=0) - pad
+        hi = boxes[:, 1].max(axis=0) + pad
         hits: list[tuple[str, int]] = []
         skip = set(exclude_bodies) | {self.id}
         for body_id in self.world.bodies_overlapping(lo, hi, skip):

@@ -409,3 +409,41 @@ def test_bodies_overlapping_is_the_per_body_aabb_test_after_objects_move():
         assert objects[1] not in world.bodies_overlapping([-0.05, -0.05, 1.45], [0.05, 0.05, 1.55], set())
     finally:
         world.close()
+
+
+def test_touching_from_collider_boxes_finds_what_the_whole_robot_box_finds():
+    """``SpotBody.touching`` bounds its broad phase by the links that have collision shapes only;
+    every contact lies on one of them, so the hits are those of the box over all links."""
+    from robots.hal import SE2Pose
+    from robots.spot import model
+    from robots.spot.sim_backend import SimBackendConfig
+    from tasks.episodes import load_split
+    from tasks.runner import build_episode_world
+
+    world, _scene, spot = build_episode_world(load_split("smoke")[0], SimBackendConfig())
+    try:
+        c = world.client
+
+        def slow(margin):
+            lo, hi = world.body_aabb(spot.id)
+            lo, hi = [v - margin - 0.01 for v in lo], [v + margin + 0.01 for v in hi]
+            out = []
+            for body_id in world.bodies_overlapping(lo, hi, {spot.id}):
+                for pt in c.getClosestPoints(spot.id, body_id, distance=margin):
+                    out.append((spot.link_name.get(pt[3], str(pt[3])), body_id))
+            return out
+
+        rng = np.random.default_rng(1)
+        lo_b = np.array([model.ARM_LIMITS[n][0] for n in model.ARM_JOINTS])
+        hi_b = np.array([model.ARM_LIMITS[n][1] for n in model.ARM_JOINTS])
+        touched = 0
+        for _ in range(150):
+            spot.set_base_pose(SE2Pose(*rng.uniform(-4, 4, 2), float(rng.uniform(-math.pi, math.pi))))
+            spot.set_arm_state(rng.uniform(lo_b, hi_b))
+            for margin in (0.0, 0.05):
+                fast = spot.touching(margin=margin)
+                assert fast == slow(margin)
+                touched += bool(fast)
+        assert touched > 20, "the sampled poses should touch the home often"
+    finally:
+        world.close()
