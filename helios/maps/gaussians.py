@@ -344,11 +344,14 @@ class GaussianMap:
         if rendering.weight.numel() == 0 or not reobserved.any():
             return updated
         mask_t = torch.as_tensor(reobserved.reshape(-1), device=self.device)
-        inside = mask_t[rendering.pixel_index] & (rendering.weight > 0)
-        g = rendering.gaussian_index[inside]
-        pix = rendering.pixel_index[inside]
+        # index_select with the kept positions: boolean-mask indexing is ~3x slower on the CPU
+        inside = mask_t.index_select(0, rendering.pixel_index) & (rendering.weight > 0)
+        kept = torch.nonzero(inside).squeeze(1)
+        g = rendering.gaussian_index.index_select(0, kept)
+        pix = rendering.pixel_index.index_select(0, kept)
         lab_t = torch.as_tensor(np.ascontiguousarray(labels).reshape(-1), dtype=torch.int64, device=self.device)
-        dirichlet.add_pixel_evidence(self.concentrations, g, lab_t[pix], rendering.weight[inside], self.evidence_scale)
+        dirichlet.add_pixel_evidence(self.concentrations, g, lab_t.index_select(0, pix),
+                                     rendering.weight.index_select(0, kept), self.evidence_scale)
         updated[g.cpu().numpy()] = True
         return updated
 

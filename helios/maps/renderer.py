@@ -73,14 +73,14 @@ class Rendering:
         f = features if features.dim() == 2 else features[:, None]
         out = torch.zeros(self.height * self.width, f.shape[1], dtype=f.dtype, device=f.device)
         if self.weight.numel():
-            out.index_add_(0, self.pixel_index, f[self.gaussian_index] * self.weight[:, None].to(f.dtype))
+            out.index_add_(0, self.pixel_index, f.index_select(0, self.gaussian_index) * self.weight[:, None].to(f.dtype))
         return out.reshape(self.height, self.width, f.shape[1])
 
     def per_gaussian_sum(self, pixel_values: torch.Tensor | None, n_gaussians: int) -> torch.Tensor:
         """(N,) float64 sum over pixels of kappa * pixel_values[pixel] (all ones when None)."""
         w = self.weight.to(torch.float64)
         if pixel_values is not None:
-            w = w * pixel_values.reshape(-1)[self.pixel_index].to(torch.float64)
+            w = w * pixel_values.reshape(-1).index_select(0, self.pixel_index).to(torch.float64)
         out = torch.zeros(n_gaussians, dtype=torch.float64, device=w.device)
         if w.numel():
             out.index_add_(0, self.gaussian_index, w)
@@ -90,13 +90,13 @@ class Rendering:
         """This rendering with the pixels in ``region`` taken from ``patch`` (a rendering of the
         same camera restricted to ``region``); exact because compositing is per pixel."""
         region_flat = region.reshape(-1)
-        keep = ~region_flat[self.pixel_index]
+        keep = torch.nonzero(~region_flat.index_select(0, self.pixel_index)).squeeze(1)   # not a bool mask: ~3x faster
         return Rendering(
             self.height, self.width,
-            torch.cat([self.gaussian_index[keep], patch.gaussian_index]),
-            torch.cat([self.pixel_index[keep], patch.pixel_index]),
-            torch.cat([self.weight[keep], patch.weight]),
-            torch.cat([self.pair_depth[keep], patch.pair_depth]),
+            torch.cat([self.gaussian_index.index_select(0, keep), patch.gaussian_index]),
+            torch.cat([self.pixel_index.index_select(0, keep), patch.pixel_index]),
+            torch.cat([self.weight.index_select(0, keep), patch.weight]),
+            torch.cat([self.pair_depth.index_select(0, keep), patch.pair_depth]),
             torch.where(region, patch.silhouette, self.silhouette),
             torch.where(region, patch.accumulated_depth, self.accumulated_depth),
             candidate_pairs=self.candidate_pairs + patch.candidate_pairs)
