@@ -131,3 +131,15 @@ def test_repeats_out_of_range_are_refused_before_any_episode_runs(capsys):
     assert main(["bench", "agent", "--agent-repeats", "0"]) == 2
     assert "--agent-repeats must be within 1..20, got 0" in capsys.readouterr().err
 
+
+def test_a_repeated_episode_adds_no_second_replan_map():
+    """Replans run on the maps of the first two *different* episodes: with ``--agent-repeats`` the
+    second run of val-00001 must not stand in for another home."""
+    from tools.bench_agent_worker import _Worker
+
+    worker = _Worker("helios", 1, False)
+    first = worker.episode(1)
+    again = worker.episode(1)
+    assert (first["sim"], first["success"]) == (again["sim"], again["success"])
+    assert len(worker.maps) == 1
+

@@ -87,6 +87,7 @@ class _Worker:
         self.profile = profile
         self.episodes = load_split("val")
         self.maps: list = []
+        self._mapped: set[int] = set()      # episodes whose maps are kept (repeats add none)
 
     def episode(self, index: int) -> dict:
         from tasks.registry import make_agent
@@ -141,7 +142,8 @@ class _Worker:
         import resource
 
         out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-        if agent.map is not None and len(self.maps) < 2:
+        if agent.map is not None and len(self.maps) < 2 and index not in self._mapped:
+            self._mapped.add(index)
             occ = agent.map.occupancy
             self.maps.append((agent.map.geometry, occ.obstacle.copy(), occ.explored.copy(), occ.max_height.copy(),
                               occ.explored_bounds))
