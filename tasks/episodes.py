@@ -12,6 +12,7 @@ check they still match. ``SCHEMA_VERSION`` changes whenever the homes a seed bui
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import re
@@ -322,8 +323,11 @@ def _sample_start(scene, rng: np.random.Generator, room=None):
 
 
 def generate_episodes(name: str, seed: int, count: int, difficulty: str = "normal",
-                      progress: Callable[[int, int], None] | None = None) -> list[Episode]:
-    """``count`` validated episodes for a split called ``name``, deterministic in (name, seed, count)."""
+                      progress: Callable[[int, int], None] | None = None,
+                      home_size: tuple[float, float] | None = None) -> list[Episode]:
+    """``count`` validated episodes for a split called ``name``, deterministic in (name, seed, count,
+    home_size). ``home_size`` (min, max) m bounds the sides of each home's footprint instead of the
+    difficulty's (normal: 8-15 m, easy: 8-9.5 m): a split of only large homes, say."""
     from sim.scenes.home import build_home
     from sim.scenes.layout import LayoutError, generate_layout
     from sim.world import World
@@ -333,6 +337,12 @@ def generate_episodes(name: str, seed: int, count: int, difficulty: str = "norma
     if count <= 0:
         raise DatasetError(f"count must be positive, got {count}")
     settings = DIFFICULTIES[difficulty]
+    if home_size is not None:
+        lo, hi = (float(v) for v in home_size)
+        if not (math.isfinite(lo) and math.isfinite(hi) and MIN_HOME_SIZE <= lo <= hi <= MAX_HOME_SIZE):
+            raise DatasetError(f"home sizes must satisfy {MIN_HOME_SIZE:g} <= min <= max <= {MAX_HOME_SIZE:g} m, "
+                               f"got {lo:g} and {hi:g}")
+        settings = dataclasses.replace(settings, min_size=lo, max_size=hi)
     episodes: list[Episode] = []
     counter = iter(range(10 ** 9))
     scene_index = 0

@@ -110,3 +110,23 @@ def test_generation_is_deterministic_and_validates_arguments():
         generate_episodes("demo", 5, 2, "hard")
     with pytest.raises(DatasetError, match="count must be positive"):
         generate_episodes("demo", 5, 0)
+
+
+def test_home_size_bounds_the_generated_homes_and_bad_bounds_are_refused(capsys, tmp_path):
+    from sim.scenes.layout import generate_layout
+    from tools.cli import main
+
+    eps = generate_episodes("large", 8, 2, home_size=(12.0, 15.0))
+    for ep in eps:
+        assert (ep.scene.min_size, ep.scene.max_size) == (12.0, 15.0)
+        layout = generate_layout(ep.scene.seed, ep.scene.layout_config())
+        assert 12.0 <= layout.width <= 15.0 and 12.0 <= layout.depth <= 15.0
+    assert generate_episodes("large", 8, 2, home_size=(12.0, 15.0)) == eps        # deterministic
+    with pytest.raises(DatasetError, match="home sizes must satisfy 6 <= min <= max <= 40"):
+        generate_episodes("large", 8, 1, home_size=(15.0, 12.0))
+    out = tmp_path / "x.jsonl"
+    assert main(["episodes", "generate", "--name", "x", "--seed", "1", "--count", "1",
+                 "--home-size", "3", "12", "--out", str(out)]) == 2
+    assert "--home-size needs 6 <= MIN <= MAX <= 40 (m), got 3 12" in capsys.readouterr().err
+    assert not out.exists()
+

@@ -1,6 +1,7 @@
 """Episode datasets: generate a split from any seed, or check and summarise an episode file.
 
     python -m tools episodes generate --name heldout --seed 7 --count 200 --out heldout.jsonl
+    python -m tools episodes generate --name large --seed 8 --count 60 --home-size 12 15 --out large.jsonl
     python -m tools episodes check tasks/data/val.jsonl
 """
 
@@ -19,6 +20,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     gen.add_argument("--seed", type=int, required=True)
     gen.add_argument("--count", type=int, required=True)
     gen.add_argument("--difficulty", default="normal", choices=["easy", "normal"])
+    gen.add_argument("--home-size", type=float, nargs=2, metavar=("MIN", "MAX"), default=None,
+                     help="bounds (m) of each home's side lengths, instead of the difficulty's (normal 8-15, "
+                          "easy 8-9.5); e.g. 12 15 for a split of large homes only")
     gen.add_argument("--out", required=True, help="JSONL file to write")
     chk = sub.add_parser("check", help="validate an episode file and print what it holds")
     chk.add_argument("file")
@@ -41,6 +45,13 @@ def run(args: argparse.Namespace) -> int:
         if not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,80}", args.name):
             raise CliError(f"--name {short_repr(args.name, 80)} must be 1-81 letters, digits, '-', '_' or '.' "
                            f"(it starts every episode id)")
+        if args.home_size is not None:
+            from tasks.episodes import MAX_HOME_SIZE, MIN_HOME_SIZE
+
+            lo, hi = args.home_size
+            if not (MIN_HOME_SIZE <= lo <= hi <= MAX_HOME_SIZE):     # also false for nan
+                raise CliError(f"--home-size needs {MIN_HOME_SIZE:g} <= MIN <= MAX <= {MAX_HOME_SIZE:g} (m), "
+                               f"got {lo:g} {hi:g}")
         check_output_file(args.out, "--out")
         tty = sys.stdout.isatty()
 
@@ -50,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
             elif done == total or done % max(1, total // 10) == 0:
                 print(f"[episodes] {done}/{total}", flush=True)
 
-        episodes = generate_episodes(args.name, args.seed, args.count, args.difficulty, progress)
+        episodes = generate_episodes(args.name, args.seed, args.count, args.difficulty, progress,
+                                     home_size=tuple(args.home_size) if args.home_size else None)
         if tty:
             print()
         save_episodes(episodes, args.out)
