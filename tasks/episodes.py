@@ -46,6 +46,12 @@ class DatasetError(ValueError):
 
 
 MIN_HOME_SIZE, MAX_HOME_SIZE = 6.0, 40.0     # m, the footprint sides a home can be generated with
+
+
+def home_sizes_valid(lo: float, hi: float) -> bool:
+    """``MIN_HOME_SIZE <= lo <= hi <= MAX_HOME_SIZE`` (false for NaN): the one bound on a home's
+    side lengths, for episode files, generation and the command line."""
+    return MIN_HOME_SIZE <= lo <= hi <= MAX_HOME_SIZE
 _ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
 
 
@@ -139,7 +145,7 @@ def episode_from_dict(d: dict, where: str) -> Episode:
     sizes = [scene.get("min_size", SceneRef.min_size), scene.get("max_size", SceneRef.max_size)]
     if isinstance(scene["seed"], bool) or not 0 <= scene["seed"] < 2 ** 63 or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in sizes) or not (
-            MIN_HOME_SIZE <= sizes[0] <= sizes[1] <= MAX_HOME_SIZE):
+            home_sizes_valid(*sizes)):
         raise DatasetError(f"{where}: field 'scene' needs a seed >= 0 and {MIN_HOME_SIZE:g} <= min_size <= max_size "
                            f"<= {MAX_HOME_SIZE:g} (m), got {_short(scene)}")
     try:
@@ -339,7 +345,7 @@ def generate_episodes(name: str, seed: int, count: int, difficulty: str = "norma
     settings = DIFFICULTIES[difficulty]
     if home_size is not None:
         lo, hi = (float(v) for v in home_size)
-        if not (math.isfinite(lo) and math.isfinite(hi) and MIN_HOME_SIZE <= lo <= hi <= MAX_HOME_SIZE):
+        if not home_sizes_valid(lo, hi):
             raise DatasetError(f"home sizes must satisfy {MIN_HOME_SIZE:g} <= min <= max <= {MAX_HOME_SIZE:g} m, "
                                f"got {lo:g} and {hi:g}")
         settings = dataclasses.replace(settings, min_size=lo, max_size=hi)

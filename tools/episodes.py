@@ -46,10 +46,10 @@ def run(args: argparse.Namespace) -> int:
             raise CliError(f"--name {short_repr(args.name, 80)} must be 1-81 letters, digits, '-', '_' or '.' "
                            f"(it starts every episode id)")
         if args.home_size is not None:
-            from tasks.episodes import MAX_HOME_SIZE, MIN_HOME_SIZE
+            from tasks.episodes import MAX_HOME_SIZE, MIN_HOME_SIZE, home_sizes_valid
 
             lo, hi = args.home_size
-            if not (MIN_HOME_SIZE <= lo <= hi <= MAX_HOME_SIZE):     # also false for nan
+            if not home_sizes_valid(lo, hi):
                 raise CliError(f"--home-size needs {MIN_HOME_SIZE:g} <= MIN <= MAX <= {MAX_HOME_SIZE:g} (m), "
                                f"got {lo:g} {hi:g}")
         check_output_file(args.out, "--out")
