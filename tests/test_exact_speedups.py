@@ -10,7 +10,8 @@ from scipy import ndimage
 
 from helios.config import RenderConfig
 from helios.maps.grid import GridGeometry
-from helios.maps.renderer import (Rendering, _minus_run_start, _minus_run_start_torch, _sorting_permutation,
+from helios.maps.renderer import (Rendering, _kept, _kept_torch, _minus_run_start, _minus_run_start_torch,
+                                  _select, _select_torch, _sorted_pairs, _sorting_permutation,
                                   empty_rendering, render_gaussians)
 from helios.planning.fmm import FMMPlanner, _clearance, _descend, _far_enough_inside, _pool
 from helios.planning.footprint import FootprintChecker, FootprintConfig
@@ -201,6 +202,36 @@ def test_sorting_permutation_is_torch_sort_for_distinct_keys():
     assert torch.equal(_sorting_permutation(key), torch.sort(key).indices)
     huge = key + (1 << 40)                                  # too large to pack: torch.sort path
     assert torch.equal(_sorting_permutation(huge), torch.sort(huge).indices)
+
+
+def test_packed_pair_sort_reads_back_what_the_key_sort_gathers():
+    rng = np.random.default_rng(7)
+    n_pixels, n_ranks = 160 * 120, 20_000
+    key = rng.permutation(n_pixels * n_ranks)[:250_000].astype(np.int64)   # distinct (pixel, rank) pairs
+    pix, rank = torch.as_tensor(key // n_ranks), torch.as_tensor(key % n_ranks)
+    sorted_pix, sorted_rank, perm = _sorted_pairs(pix, rank, n_pixels, n_ranks)
+    order = torch.sort(pix * n_ranks + rank).indices
+    assert torch.equal(perm, order)
+    assert torch.equal(sorted_pix, pix[order]) and torch.equal(sorted_rank, rank[order])
+    # too many bits to pack (a huge rank range): the key-sort fallback gives the same
+    fallback = _sorted_pairs(pix, rank, n_pixels, 1 << 40)
+    assert all(torch.equal(a, b) for a, b in zip(fallback, (sorted_pix, sorted_rank, perm)))
+
+
+def test_kept_pairs_and_selection_on_the_cpu_equal_the_torch_ops():
+    rng = np.random.default_rng(8)
+    alpha = torch.as_tensor(rng.random((700, 45), dtype=np.float32))
+    keep = alpha >= 0.6
+    rank = torch.as_tensor(rng.permutation(5000)[:700].astype(np.int64))
+    base_pix = torch.as_tensor(rng.integers(0, 19_200, 700))
+    offset_pix = torch.as_tensor(rng.integers(-500, 500, 45))
+    fast, slow = _kept(keep, rank, base_pix, offset_pix, alpha), _kept_torch(keep, rank, base_pix, offset_pix, alpha)
+    assert len(fast[0]) == int(keep.sum()) > 0
+    assert all(a.dtype == b.dtype and torch.equal(a, b) for a, b in zip(fast, slow))
+    mask = alpha.reshape(-1) >= 0.3
+    arrays = (alpha.reshape(-1), torch.arange(mask.numel()), alpha.reshape(-1).to(torch.float64))
+    fast, slow = _select(mask, *arrays), _select_torch(mask, *arrays)
+    assert len(fast[1]) == int(mask.sum()) and all(a.dtype == b.dtype and torch.equal(a, b) for a, b in zip(fast, slow))
 
 
 def test_clip_index_is_np_clip_for_cell_indices():

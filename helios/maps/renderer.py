@@ -123,6 +123,30 @@ def _sorting_permutation(key: torch.Tensor) -> torch.Tensor:
     return torch.sort(key).indices
 
 
+def _sorted_pairs(pix: torch.Tensor, rank: torch.Tensor, n_pixels: int, n_ranks: int
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Pairs sorted by (pixel, depth rank): the sorted pixels, the sorted ranks and the sorting
+    permutation (for the pairs' other arrays). Keys are distinct, so the order is unique.
+
+    On the CPU, pixel, rank and pair index are packed into one int64 and sorted with numpy: the
+    sorted pixels and ranks are then read back from the packed bits instead of gathered through
+    the permutation (two random gathers over every pair saved)."""
+    n = pix.numel()
+    rank_bits = max(1, (n_ranks - 1).bit_length())
+    pix_bits = max(1, (n_pixels - 1).bit_length())
+    if pix.device.type == "cpu" and n < (1 << _PACK_BITS) and pix_bits + rank_bits + _PACK_BITS <= 62:
+        packed = pix.numpy() << (rank_bits + _PACK_BITS)
+        packed |= rank.numpy() << _PACK_BITS
+        packed |= np.arange(n, dtype=np.int64)
+        packed.sort()
+        perm = packed & ((1 << _PACK_BITS) - 1)
+        sorted_rank = (packed >> _PACK_BITS) & ((1 << rank_bits) - 1)
+        packed >>= rank_bits + _PACK_BITS
+        return torch.from_numpy(packed), torch.from_numpy(sorted_rank), torch.from_numpy(perm)
+    perm = _sorting_permutation(pix * n_ranks + rank)
+    return pix.index_select(0, perm), rank.index_select(0, perm), perm
+
+
 _WINDOWS: dict = {}
 
 
@@ -163,6 +187,43 @@ def _minus_run_start_torch(values: torch.Tensor, runs: torch.Tensor) -> torch.Te
     starts[1:] = runs[1:] != runs[:-1]
     segment = torch.cumsum(starts.to(torch.int64), 0) - 1
     return values - values[starts][segment]
+
+
+def _kept(keep: torch.Tensor, rank: torch.Tensor, base_pix: torch.Tensor, offset_pix: torch.Tensor,
+          alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The pairs of a chunk's true ``keep[i, j]`` (row-major): ``rank[i]``, the pixel
+    ``base_pix[i] + offset_pix[j]`` and ``alpha[i, j]``. On the CPU through numpy, a third of the
+    time of ``torch.nonzero`` and four gathers (which were a third of a render's pair loop)."""
+    if keep.device.type == "cpu":
+        flat = np.flatnonzero(keep.numpy())
+        i = flat // keep.shape[1]
+        j = flat - i * keep.shape[1]
+        return (torch.from_numpy(rank.numpy()[i]), torch.from_numpy(base_pix.numpy()[i] + offset_pix.numpy()[j]),
+                torch.from_numpy(alpha.numpy().reshape(-1)[flat]))
+    return _kept_torch(keep, rank, base_pix, offset_pix, alpha)
+
+
+def _kept_torch(keep: torch.Tensor, rank: torch.Tensor, base_pix: torch.Tensor, offset_pix: torch.Tensor,
+                alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`_kept` in torch ops (any device)."""
+    i, j = torch.nonzero(keep, as_tuple=True)
+    return (rank.index_select(0, i), base_pix.index_select(0, i) + offset_pix.index_select(0, j),
+            alpha.view(-1).index_select(0, i * keep.shape[1] + j))
+
+
+def _select(mask: torch.Tensor, *arrays: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """Each of ``arrays`` (1-D, the length of ``mask``) where ``mask`` is true: one scan, then
+    gathers (numpy's on the CPU, ~3x faster than ``torch.nonzero`` and ``index_select``)."""
+    if mask.device.type == "cpu":
+        kept = np.flatnonzero(mask.numpy())
+        return tuple(torch.from_numpy(a.numpy()[kept]) for a in arrays)
+    return _select_torch(mask, *arrays)
+
+
+def _select_torch(mask: torch.Tensor, *arrays: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """:func:`_select` in torch ops (any device)."""
+    kept = torch.nonzero(mask).flatten()
+    return tuple(a.index_select(0, kept) for a in arrays)
 
 
 def empty_rendering(height: int, width: int, device: torch.device) -> Rendering:
@@ -242,61 +303,60 @@ def render_gaussians(means: torch.Tensor, scales: torch.Tensor, opacities: torch
     op = opacities.index_select(0, idx)
     ucv, vcv = uc.index_select(0, idx), vc.index_select(0, idx)
     base_pix = vcv.to(torch.int64) * W + ucv.to(torch.int64)
-    # Members of each bucket, in depth order: one stable sort instead of a scan per bucket.
-    by_bucket = torch.argsort(bucket_of, stable=True)
-    ks, counts = torch.unique_consecutive(bucket_of.index_select(0, by_bucket), return_counts=True)
-    pair_off, pair_alpha, pair_rank = [], [], []
+    # Windows wholly inside the image need no bounds test (the bucket radius R >= radius). Group
+    # the Gaussians by (bucket, cut by the image edge), depth order kept within a group by one
+    # stable sort, and gather their terms once in that order: each chunk below is then a slice.
+    bucket_r = torch.as_tensor(buckets, dtype=ucv.dtype, device=device).index_select(0, bucket_of)
+    cut = ~((ucv - bucket_r >= 0) & (ucv + bucket_r <= W - 1) & (vcv - bucket_r >= 0) & (vcv + bucket_r <= H - 1))
+    group_of = bucket_of * 2 + cut
+    by_group = torch.argsort(group_of, stable=True)
+    ks, counts = torch.unique_consecutive(group_of.index_select(0, by_group), return_counts=True)
+    ru, rv, ca, cb2, cc, op, ucv, vcv, base_pix = (t.index_select(0, by_group) for t in
+                                                    (ru, rv, ca, cb2, cc, op, ucv, vcv, base_pix))
+    pair_pix, pair_alpha, pair_rank = [], [], []
     candidates = 0
     first = 0
     for k, count in zip(ks.tolist(), counts.tolist()):
-        R = buckets[k]
-        members = by_bucket[first:first + count]
-        first += count
+        R, bounded = buckets[k // 2], bool(k % 2)
         dx, dy, offset_pix = _window(R, W, device)
         per = dx.shape[1]
         step = max(1, _CHUNK_PAIRS // per)
-        # windows wholly inside the image need no bounds test (the bucket radius R >= radius)
-        ucm, vcm = ucv.index_select(0, members), vcv.index_select(0, members)
-        whole = (ucm - R >= 0) & (ucm + R <= W - 1) & (vcm - R >= 0) & (vcm + R <= H - 1)
-        for group, bounded in ((members[whole], False), (members[~whole], True)):
-            for s in range(0, group.numel(), step):
-                m = group[s:s + step]
-                du = ru.index_select(0, m)[:, None] + dx
-                dv = rv.index_select(0, m)[:, None] + dy
-                power = (ca.index_select(0, m)[:, None] * du).mul_(du)
-                power.add_((cb2.index_select(0, m)[:, None] * du).mul_(dv))
-                power.add_((cc.index_select(0, m)[:, None] * dv).mul_(dv))
-                alpha = power.mul_(-0.5).exp_().mul_(op.index_select(0, m)[:, None]).clamp_max_(cfg.alpha_max)
-                keep = alpha >= cfg.alpha_min
-                if bounded:
-                    ucg, vcg = ucv.index_select(0, m)[:, None], vcv.index_select(0, m)[:, None]
-                    keep &= (dx >= -ucg) & (dx <= (W - 1) - ucg) & (dy >= -vcg) & (dy <= (H - 1) - vcg)
-                if pixel_mask is not None:
-                    pix = base_pix.index_select(0, m)[:, None] + offset_pix
-                    keep &= pm_flat[pix.clamp(0, H * W - 1)]
-                candidates += keep.numel()
-                rows_k, cols_k = torch.nonzero(keep, as_tuple=True)
-                pair_rank.append(m.index_select(0, rows_k))
-                pair_off.append(offset_pix.index_select(0, cols_k))
-                pair_alpha.append(alpha.view(-1).index_select(0, rows_k * per + cols_k))
+        for s in range(first, first + count, step):
+            g = slice(s, min(s + step, first + count))
+            du = ru[g, None] + dx
+            dv = rv[g, None] + dy
+            power = (ca[g, None] * du).mul_(du)
+            power.add_((cb2[g, None] * du).mul_(dv))
+            power.add_((cc[g, None] * dv).mul_(dv))
+            alpha = power.mul_(-0.5).exp_().mul_(op[g, None]).clamp_max_(cfg.alpha_max)
+            keep = alpha >= cfg.alpha_min
+            if bounded:
+                ucg, vcg = ucv[g, None], vcv[g, None]
+                keep &= (dx >= -ucg) & (dx <= (W - 1) - ucg) & (dy >= -vcg) & (dy <= (H - 1) - vcg)
+            if pixel_mask is not None:
+                pix = base_pix[g, None] + offset_pix
+                keep &= pm_flat[pix.clamp(0, H * W - 1)]
+            candidates += keep.numel()
+            rank_k, pix_k, alpha_k = _kept(keep, by_group[g], base_pix[g], offset_pix, alpha)
+            pair_rank.append(rank_k)
+            pair_pix.append(pix_k)
+            pair_alpha.append(alpha_k)
+        first += count
     rank_all = torch.cat(pair_rank)
     if rank_all.numel() == 0:
         return empty_rendering(H, W, device)
-    g_all = idx.index_select(0, rank_all)
-    pix_all = base_pix.index_select(0, rank_all) + torch.cat(pair_off)
-    alpha_all = torch.cat(pair_alpha)
+    pix_all = torch.cat(pair_pix)
 
-    # Sort by (pixel, depth rank) in one key, then composite each pixel's run front to back.
-    key = pix_all * n_vis + rank_all
-    perm = _sorting_permutation(key)
-    g_all, pix_all, alpha_all = g_all.index_select(0, perm), pix_all.index_select(0, perm), alpha_all.index_select(0, perm)
+    # Sort by (pixel, depth rank), then composite each pixel's run front to back.
+    pix_all, rank_all, perm = _sorted_pairs(pix_all, rank_all, H * W, n_vis)
+    g_all = idx.index_select(0, rank_all)
+    alpha_all = torch.cat(pair_alpha).index_select(0, perm)
     log_one_minus = torch.log1p(-alpha_all.to(torch.float64))
     inclusive = torch.cumsum(log_one_minus, 0)
     exclusive = inclusive - log_one_minus
     log_T = _minus_run_start(exclusive, pix_all)
-    kept = torch.nonzero(log_T >= math.log(cfg.transmittance_min)).flatten()    # one scan, four gathers
-    g_all, pix_all, log_T = g_all.index_select(0, kept), pix_all.index_select(0, kept), log_T.index_select(0, kept)
-    weight = (alpha_all.index_select(0, kept).to(torch.float64) * torch.exp(log_T)).to(torch.float32)
+    g_all, pix_all, log_T, alpha_all = _select(log_T >= math.log(cfg.transmittance_min), g_all, pix_all, log_T, alpha_all)
+    weight = (alpha_all.to(torch.float64) * torch.exp(log_T)).to(torch.float32)
     depth = z.index_select(0, g_all)
 
     sil = torch.zeros(H * W, dtype=torch.float32, device=device)
