@@ -286,3 +286,40 @@ def test_local_search_visits_the_informative_gaze_points_nearest_first():
         assert agent.local_search_sizes[-2:] == [len(queue), len(views)]
     finally:
         sim.close()
+
+
+@pytest.mark.parametrize("fresh", [True, False])
+def test_a_failed_extra_view_is_not_offered_again_in_the_same_frame(fresh, monkeypatch):
+    """A view that fails without a new frame (gaze point unreachable, no room for the arm)
+    blacklists its pose and, with ``fresh_gaze_after_failure``, drops the gaze points cached for
+    the frame: the next judgement offers another gaze point. Without it the same failing point
+    came back until the candidate's views ran out, all at the same instant (train-00009)."""
+    from helios.agents.candidates import is_candidate
+    from helios.agents.target import Target
+
+    ep = _episode("smoke-00003")
+    sim = SimEpisode.create(ep)
+    try:
+        agent = make_agent("helios", sim, agent_config=AgentConfig(fresh_gaze_after_failure=fresh))
+        agent.reset(ep.spec, np.random.default_rng(0))
+        agent.act(sim.backend)
+        cs = agent.method.search.cs_start_receptacle
+        inst = next(i for i in agent.observer.instances() if is_candidate(i, agent.start_class, cs, agent.method)
+                    and len(agent._gaze_points_of(i.id)) >= 2)
+        views = agent._gaze_points_of(inst.id)
+        failing = views[0]
+        target = Target(("instance", inst.id), inst.centre, inst.footprint_xy, inst.max_height, 0.3, None, inst.id)
+        frame = agent.observer.last_obs.frame_id
+        monkeypatch.setattr(agent.body, "view_from", lambda robot, gp: False)
+        agent._take_view(sim.backend, target, failing)
+        assert agent.observer.last_obs.frame_id == frame          # no new frame was taken
+        assert agent.looks[target.key] == 1
+        after = agent._gaze_points_of(inst.id)
+        offered_again = any(abs(g.pose.x - failing.pose.x) < 1e-9 and abs(g.pose.y - failing.pose.y) < 1e-9
+                            for g in after)
+        if fresh:
+            assert not offered_again and 1 <= len(after) < len(views)
+        else:
+            assert offered_again and after is views
+    finally:
+        sim.close()

@@ -155,6 +155,11 @@ class AgentConfig:
     max_looks_per_candidate: int = 6
     """Extra views of one target / goal candidate before it is left (a safety net: the decision
     rule stops asking for views once they cannot raise Psi by tau_inc)."""
+    fresh_gaze_after_failure: bool = True
+    """A goal found unreachable drops the gaze points cached for the current frame, so a failed
+    view is not chosen again at once; False restores the earlier behaviour (the same failing gaze
+    point was offered until the next frame, which burned a candidate's ``max_looks_per_candidate``
+    in zero time)."""
     max_failures_per_candidate: int = 2
     """Grasp or place failures on one candidate before it is no longer tried."""
     require_start_support: bool = True

@@ -346,6 +346,17 @@ class HeliosAgent:
             out.append(FrontierOption(f.xy, float(f.values.get(layer, 0.0)), key=len(out)))
         return out
 
+    def _mark_unreachable(self, xy) -> None:
+        """Blacklist a goal the planner or the walk failed on, and drop the gaze points cached for
+        this frame, which were filtered against the old list: a view that fails without a new
+        frame (unreachable, no room for the arm) must not be offered again at once. Before, the
+        same failing gaze point was chosen again until the candidate's views ran out, all at the
+        same instant (train-00009: six "looks" at 413.9 s, then the object was never tried again)."""
+        self.unreachable.append(np.asarray(xy, dtype=float))
+        if self.config.fresh_gaze_after_failure:
+            for key in [k for k in self.observer.cache if isinstance(k, tuple) and k and k[0] == "gaze"]:
+                del self.observer.cache[key]
+
     def _blacklisted(self, pose: SE2Pose, radius: float = 0.3, extra: Sequence[np.ndarray] = ()) -> bool:
         return any(math.hypot(pose.x - b[0], pose.y - b[1]) < radius for b in (*self.unreachable, *extra))
 
@@ -360,11 +371,11 @@ class HeliosAgent:
                                 self._frontier_cells.get(frontier.key, np.zeros((0, 2)))])
         plan = body.plan(goals, self.config.frontier_reach)
         if not plan.success:
-            self.unreachable.append(np.asarray(frontier.xy, dtype=float))
+            self._mark_unreachable(frontier.xy)
             self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}) unreachable: {plan.reason}")
             return
         if plan.waypoints and not body.execute(robot, plan):
-            self.unreachable.append(np.asarray(frontier.xy, dtype=float))
+            self._mark_unreachable(frontier.xy)
         arrived = plan.reaches_goal or not plan.waypoints
         if arrived:
             self.reached.append(np.asarray(frontier.xy, dtype=float))
@@ -445,4 +456,4 @@ class HeliosAgent:
     def _take_view(self, robot: RobotBackend, target: Target, view: GazePoint) -> None:
         self.looks[target.key] += 1
         if not self.body.view_from(robot, view):
-            self.unreachable.append(np.array([view.pose.x, view.pose.y]))
+            self._mark_unreachable((view.pose.x, view.pose.y))
