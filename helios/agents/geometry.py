@@ -59,6 +59,11 @@ def reach_distances(target_z: float, reach: ReachConfig) -> tuple[np.ndarray, fl
     return np.linspace(max(reach.min_standoff, far - reach.band), far, 5), far - 0.12
 
 
+def gaze_cameras(views, body_height: float, view: ViewConfig) -> list[np.ndarray]:
+    """The hand-camera poses the robot would have looking from each gaze point."""
+    return [predicted_camera(g.pose, g.look_at, body_height, view) for g in views]
+
+
 def approach_poses(target, reach: ReachConfig, checker: FootprintChecker) -> np.ndarray:
     """(K, 3) standing poses (x, y, yaw) facing ``target`` (x, y, z) from which the arm reaches
     it, whose footprint is free on the map; most comfortable first."""

@@ -45,7 +45,7 @@ from helios.agents.activities import ACTIVITIES, DECISION_COUNTS  # noqa: F401  
 from helios.agents.body import Body
 from helios.agents.candidates import candidate_targets, is_candidate
 from helios.agents.config import AgentConfig
-from helios.agents.geometry import predicted_camera
+from helios.agents.geometry import gaze_cameras
 from helios.agents.observer import Observer
 from helios.agents.pick import pick
 from helios.agents.place import place
@@ -281,16 +281,12 @@ class HeliosAgent:
         assumption = "optimistic" if self.method.decision.view_prediction == "optimistic" \
             else self.method.search.information_gain
         views = self._gaze_points_of(t.instance_id)
-        for gp, T in zip(views, self._cameras(views)):
+        for gp, T in zip(views, gaze_cameras(views, self.body.body_height, self.config.view)):
             p = predicted_object_score(self.map.objects, t.instance_id, cls, self.observer.last_obs.intrinsics,
                                        T, assumption=assumption).predicted_psi
             if best_psi is None or p > best_psi:
                 best, best_psi = gp, p
         return best, best_psi
-
-    def _cameras(self, views: Sequence[GazePoint]) -> list[np.ndarray]:
-        """The hand-camera poses the robot would have looking from each gaze point."""
-        return [predicted_camera(g.pose, g.look_at, self.body.body_height, self.config.view) for g in views]
 
     def _gaze_points_of(self, instance_id: int) -> list[GazePoint]:
         """The instance's gaze points on seen floor, away from goals found unreachable (cached
@@ -323,7 +319,7 @@ class HeliosAgent:
                 views = self._gaze_points_of(inst.id)
                 if not views:
                     continue
-                cams = self._cameras(views)
+                cams = gaze_cameras(views, self.body.body_height, self.config.view)
                 ig = views_information_gain(self.map.objects, inst.id, self.start_class, intr, cams,
                                             self.method.search.information_gain)
                 cands.append(CandidateLocation(inst.id, inst.centre, inst.class_scores[self.start_class], ig))
@@ -347,15 +343,9 @@ class HeliosAgent:
         return out
 
     def _mark_unreachable(self, xy) -> None:
-        """Blacklist a goal the planner or the walk failed on, and drop the gaze points cached for
-        this frame, which were filtered against the old list: a view that fails without a new
-        frame (unreachable, no room for the arm) must not be offered again at once. Before, the
-        same failing gaze point was chosen again until the candidate's views ran out, all at the
-        same instant (train-00009: six "looks" at 413.9 s, then the object was never tried again)."""
+        """Blacklist a goal the planner or the walk failed on (see ``Observer.goals_changed``)."""
         self.unreachable.append(np.asarray(xy, dtype=float))
-        if self.config.fresh_gaze_after_failure:
-            for key in [k for k in self.observer.cache if isinstance(k, tuple) and k and k[0] == "gaze"]:
-                del self.observer.cache[key]
+        self.observer.goals_changed()
 
     def _blacklisted(self, pose: SE2Pose, radius: float = 0.3, extra: Sequence[np.ndarray] = ()) -> bool:
         return any(math.hypot(pose.x - b[0], pose.y - b[1]) < radius for b in (*self.unreachable, *extra))
@@ -432,7 +422,7 @@ class HeliosAgent:
     def _start_local_search(self, instance_id: int) -> None:
         views = list(self._gaze_points_of(instance_id))
         if self.config.local_search_views == "informative" and len(views) > 1:
-            cams = self._cameras(views)
+            cams = gaze_cameras(views, self.body.body_height, self.config.view)
             keep = informative_views(self.map.objects, instance_id, self.start_class, self.observer.last_obs.intrinsics,
                                      cams, self.config.local_search_min_gain, self.method.search.information_gain)
             views = [views[i] for i in sorted(keep)]

@@ -76,6 +76,16 @@ class Observer:
         self.cache.clear()
         return obs
 
+    def goals_changed(self) -> None:
+        """A goal was found unreachable: drop the gaze points cached for this frame, which were
+        filtered against the old blacklist, so a view that failed without a new frame (unreachable,
+        no room for the arm) is not offered again at once. Before (``fresh_gaze_after_failure =
+        False``) the same failing gaze point came back until the candidate's views ran out, all at
+        the same instant (train-00009: six "looks" at 413.9 s, then the object was never tried)."""
+        if self.config.fresh_gaze_after_failure:
+            for key in [k for k in self.cache if isinstance(k, tuple) and k and k[0] == "gaze"]:
+                del self.cache[key]
+
     def instances(self) -> list[Instance]:
         """The map's object instances as of the latest frame (computed once per frame)."""
         if "instances" not in self.cache:
