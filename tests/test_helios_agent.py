@@ -249,13 +249,23 @@ def test_a_near_gaze_point_is_one_straight_move_that_turns_while_it_walks():
         sim.close()
 
 
+def _start_candidate_after_the_scan(agent, ep, sim, min_views: int):
+    """Run the start scan, then return a start-receptacle candidate with >= ``min_views`` gaze points."""
+    from helios.agents.candidates import is_candidate
+
+    agent.reset(ep.spec, np.random.default_rng(0))
+    agent.act(sim.backend)
+    cs = agent.method.search.cs_start_receptacle
+    return next(i for i in agent.observer.instances() if is_candidate(i, agent.start_class, cs, agent.method)
+                and len(agent._gaze_points_of(i.id)) >= min_views)
+
+
 def test_local_search_visits_the_informative_gaze_points_nearest_first():
     """``local_search_views``: after the start scan of a smoke episode, a start-receptacle
     candidate with several gaze points is searched from the greedy IG subset only
     (``informative_views``), nearest first; ``all`` keeps every gaze point."""
     import math
 
-    from helios.agents.candidates import is_candidate
     from helios.agents.geometry import predicted_camera
     from helios.search.information import informative_views
 
@@ -264,11 +274,7 @@ def test_local_search_visits_the_informative_gaze_points_nearest_first():
     try:
         agent = make_agent("helios", sim, agent_config=AgentConfig(local_search_views="informative"))
         assert agent.config.local_search_views == "informative" and AgentConfig().local_search_views == "all"
-        agent.reset(ep.spec, np.random.default_rng(0))
-        agent.act(sim.backend)
-        cs = agent.method.search.cs_start_receptacle
-        inst = next(i for i in agent.observer.instances() if is_candidate(i, agent.start_class, cs, agent.method)
-                    and len(agent._gaze_points_of(i.id)) >= 4)
+        inst = _start_candidate_after_the_scan(agent, ep, sim, min_views=4)
         views = agent._gaze_points_of(inst.id)
         cams = [predicted_camera(g.pose, g.look_at, agent.body.body_height, agent.config.view) for g in views]
         keep = informative_views(agent.map.objects, inst.id, agent.start_class, agent.observer.last_obs.intrinsics,
@@ -294,18 +300,13 @@ def test_a_failed_extra_view_is_not_offered_again_in_the_same_frame(fresh, monke
     blacklists its pose and, with ``fresh_gaze_after_failure``, drops the gaze points cached for
     the frame: the next judgement offers another gaze point. Without it the same failing point
     came back until the candidate's views ran out, all at the same instant (train-00009)."""
-    from helios.agents.candidates import is_candidate
     from helios.agents.target import Target
 
     ep = _episode("smoke-00003")
     sim = SimEpisode.create(ep)
     try:
         agent = make_agent("helios", sim, agent_config=AgentConfig(fresh_gaze_after_failure=fresh))
-        agent.reset(ep.spec, np.random.default_rng(0))
-        agent.act(sim.backend)
-        cs = agent.method.search.cs_start_receptacle
-        inst = next(i for i in agent.observer.instances() if is_candidate(i, agent.start_class, cs, agent.method)
-                    and len(agent._gaze_points_of(i.id)) >= 2)
+        inst = _start_candidate_after_the_scan(agent, ep, sim, min_views=2)
         views = agent._gaze_points_of(inst.id)
         failing = views[0]
         target = Target(("instance", inst.id), inst.centre, inst.footprint_xy, inst.max_height, 0.3, None, inst.id)
