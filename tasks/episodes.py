@@ -52,6 +52,8 @@ def home_sizes_valid(lo: float, hi: float) -> bool:
     """``MIN_HOME_SIZE <= lo <= hi <= MAX_HOME_SIZE`` (false for NaN): the one bound on a home's
     side lengths, for episode files, generation and the command line."""
     return MIN_HOME_SIZE <= lo <= hi <= MAX_HOME_SIZE
+
+
 _ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
 
 

@@ -142,4 +142,3 @@ def test_a_repeated_episode_adds_no_second_replan_map():
     again = worker.episode(1)
     assert (first["sim"], first["success"]) == (again["sim"], again["success"])
     assert len(worker.maps) == 1
-

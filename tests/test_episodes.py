@@ -129,4 +129,3 @@ def test_home_size_bounds_the_generated_homes_and_bad_bounds_are_refused(capsys,
                  "--home-size", "3", "12", "--out", str(out)]) == 2
     assert "--home-size needs 6 <= MIN <= MAX <= 40 (m), got 3 12" in capsys.readouterr().err
     assert not out.exists()
-
