@@ -64,6 +64,16 @@ def gaze_cameras(views, body_height: float, view: ViewConfig) -> list[np.ndarray
     return [predicted_camera(g.pose, g.look_at, body_height, view) for g in views]
 
 
+def away_from(points: np.ndarray, others, radius: float) -> np.ndarray:
+    """(N,) True for the points (N, 2) at least ``radius`` (m) from every point in ``others``."""
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    others = np.asarray(list(others), dtype=float).reshape(-1, 2)
+    if not len(others) or not len(points):
+        return np.ones(len(points), dtype=bool)
+    d = np.hypot(points[:, None, 0] - others[None, :, 0], points[:, None, 1] - others[None, :, 1])
+    return d.min(axis=1) >= radius
+
+
 def approach_poses(target, reach: ReachConfig, checker: FootprintChecker) -> np.ndarray:
     """(K, 3) standing poses (x, y, yaw) facing ``target`` (x, y, z) from which the arm reaches
     it, whose footprint is free on the map; most comfortable first."""

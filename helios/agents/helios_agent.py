@@ -45,7 +45,8 @@ from helios.agents.activities import ACTIVITIES, DECISION_COUNTS  # noqa: F401  
 from helios.agents.body import Body
 from helios.agents.candidates import candidate_targets, is_candidate
 from helios.agents.config import AgentConfig
-from helios.agents.geometry import gaze_cameras
+from helios.agents.frontier_goals import frontier_options, revisit_goals
+from helios.agents.geometry import away_from, gaze_cameras
 from helios.agents.observer import Observer
 from helios.agents.pick import pick
 from helios.agents.place import place
@@ -332,14 +333,8 @@ class HeliosAgent:
         return choice, frontiers
 
     def _frontier_options(self, layer: str) -> list[FrontierOption]:
-        out = []
-        self._frontier_cells = {}
-        for f in self.map.frontiers():
-            if self._blacklisted(SE2Pose(f.x, f.y, 0.0), self.config.frontier_blacklist_radius, self.reached):
-                continue
-            cells = f.cells[:: max(1, len(f.cells) // 16)]
-            self._frontier_cells[len(out)] = self.map.geometry.cell_to_world(cells[:, 0], cells[:, 1])
-            out.append(FrontierOption(f.xy, float(f.values.get(layer, 0.0)), key=len(out)))
+        out, self._frontier_cells = frontier_options(self.map.frontiers(), layer, self.map.geometry, self.reached,
+                                                     self.unreachable, self.config)
         return out
 
     def _mark_unreachable(self, xy) -> None:
@@ -357,9 +352,22 @@ class HeliosAgent:
             objective.note_frontier_chosen(frontier)
             self.last_frontier = np.asarray(frontier.xy, dtype=float)
         # any part of the frontier will do: its centre may sit in a corner the body cannot reach
-        goals = np.concatenate([np.asarray(frontier.xy, dtype=float)[None],
-                                self._frontier_cells.get(frontier.key, np.zeros((0, 2)))])
+        goals = self._frontier_cells.get(frontier.key, np.asarray(frontier.xy, dtype=float)[None])
+        start = body.xy()
+        if self.config.frontier_parts:
+            near = ~away_from(goals, [body.xy()], self.config.frontier_reach)
+            if near.all():       # every unreached part is within reach already: look, done
+                self.reached.extend(goals)
+                body.look(robot, self.config.view.look_yaws_deg, self._facing(frontier.xy))
+                return
+            goals = goals[~near]
         plan = body.plan(goals, self.config.frontier_reach)
+        approach = self.config.frontier_approach
+        if not plan.success and approach > self.config.frontier_reach:
+            plan = body.plan(goals, approach)      # see AgentConfig.frontier_approach
+            if plan.success:
+                self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}) out of reach: "
+                                f"looking at it from within {approach:.1f} m")
         if not plan.success:
             self._mark_unreachable(frontier.xy)
             self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}) unreachable: {plan.reason}")
@@ -369,32 +377,22 @@ class HeliosAgent:
         arrived = plan.reaches_goal or not plan.waypoints
         if arrived:
             self.reached.append(np.asarray(frontier.xy, dtype=float))
-        facing = math.atan2(frontier.xy[1] - body.pose.y, frontier.xy[0] - body.pose.x)
-        body.look(robot, self.config.view.look_yaws_deg, facing if arrived else None)
+        body.look(robot, self.config.view.look_yaws_deg, self._facing(frontier.xy) if arrived else None)
+        if self.config.frontier_parts and not arrived and np.linalg.norm(body.xy() - start) < 0.25:
+            self._mark_unreachable(frontier.xy)     # blocked at the first step: never loop on it
+            self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}): no way forward")
+
+    def _facing(self, xy) -> float:
+        return math.atan2(xy[1] - self.body.pose.y, xy[0] - self.body.pose.x)
 
     def _revisit(self, robot: RobotBackend, layer: str) -> bool:
         """No frontier left: walk to the most promising seen place (highest value-map score for
         ``layer``, away from places already revisited) and look all around it again; detections
         are view-dependent, so a second look from elsewhere may find what the first missed."""
-        cfg = self.config
-        if len(self.revisited) >= cfg.max_revisits:
+        if len(self.revisited) >= self.config.max_revisits:
             return False
-        occ, geo = self.map.occupancy, self.map.geometry
-        b = occ.explored_bounds
-        step = max(1, int(round(0.5 / geo.cell_size)))
-        rows, cols = np.mgrid[b[0]:b[1]:step, b[2]:b[3]:step]
-        rows, cols = rows.ravel(), cols.ravel()
-        free = occ.explored[rows, cols] & ~occ.obstacle[rows, cols]
-        rows, cols = rows[free], cols[free]
-        if not len(rows):
-            return False
-        xy = geo.cell_to_world(rows, cols)
-        value = self.map.values.layer(layer)[rows, cols]
-        far = np.ones(len(xy), dtype=bool)
-        for p in [*self.revisited, self.body.xy()]:
-            far &= np.linalg.norm(xy - p, axis=1) > cfg.revisit_spacing
-        order = np.argsort(-value[far], kind="stable")[: cfg.revisit_candidates]
-        goals = xy[far][order]
+        goals = revisit_goals(self.map.occupancy, self.map.geometry, self.map.values.layer(layer),
+                              [*self.revisited, self.body.xy()], self.config)
         if not len(goals):
             return False
         self.revisited.append(goals[0])       # counted even if the walk fails: never loop

@@ -1,0 +1,67 @@
+"""Where exploration may go: the frontiers on offer with the parts of each still worth walking
+to, and the places worth a second look once no frontier is left.
+
+Kept apart from the decision (:mod:`helios.agents.helios_agent`) because both are bookkeeping
+over the map and the agent's memory of places reached or found unreachable, not choices.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from helios.agents.config import AgentConfig
+from helios.agents.geometry import away_from
+from helios.search.objective import FrontierOption
+
+MAX_PARTS = 16
+"""Cells sampled along a frontier as walking goals besides its centre."""
+
+
+def frontier_options(frontiers, layer: str, geometry, reached: Sequence[np.ndarray],
+                     unreachable: Sequence[np.ndarray], config: AgentConfig
+                     ) -> tuple[list[FrontierOption], dict[int, np.ndarray]]:
+    """The frontiers still on offer for ``layer`` and, per option key, its goal points (centre
+    first, then up to ``MAX_PARTS`` of its cells). A frontier whose centre lies within
+    ``frontier_blacklist_radius`` of a place reached or found unreachable is out; with
+    ``frontier_parts`` its goal points are only the parts not reached yet, and a frontier with
+    none left is out too (see ``AgentConfig.frontier_parts``)."""
+    out: list[FrontierOption] = []
+    goals: dict[int, np.ndarray] = {}
+    radius = config.frontier_blacklist_radius
+    for f in frontiers:
+        centre = np.asarray(f.xy, dtype=float)[None]
+        if not away_from(centre, [*unreachable, *reached], radius)[0]:
+            continue
+        cells = f.cells[:: max(1, len(f.cells) // MAX_PARTS)]
+        points = np.concatenate([centre, geometry.cell_to_world(cells[:, 0], cells[:, 1])])
+        if config.frontier_parts:
+            points = points[away_from(points, reached, radius)]
+            if not len(points):
+                continue
+        goals[len(out)] = points
+        out.append(FrontierOption(f.xy, float(f.values.get(layer, 0.0)), key=len(out)))
+    return out, goals
+
+
+def revisit_goals(occupancy, geometry, value_layer: np.ndarray, avoid: Sequence[np.ndarray],
+                  config: AgentConfig) -> np.ndarray:
+    """(K, 2) seen free places on a 0.5 m lattice, best value first (at most
+    ``revisit_candidates``), each at least ``revisit_spacing`` from every point in ``avoid``
+    (places revisited already and the robot)."""
+    b = occupancy.explored_bounds
+    step = max(1, int(round(0.5 / geometry.cell_size)))
+    rows, cols = np.mgrid[b[0]:b[1]:step, b[2]:b[3]:step]
+    rows, cols = rows.ravel(), cols.ravel()
+    free = occupancy.explored[rows, cols] & ~occupancy.obstacle[rows, cols]
+    rows, cols = rows[free], cols[free]
+    if not len(rows):
+        return np.zeros((0, 2))
+    xy = geometry.cell_to_world(rows, cols)
+    value = value_layer[rows, cols]
+    far = np.ones(len(xy), dtype=bool)
+    for p in avoid:
+        far &= np.linalg.norm(xy - p, axis=1) > config.revisit_spacing
+    order = np.argsort(-value[far], kind="stable")[: config.revisit_candidates]
+    return xy[far][order]

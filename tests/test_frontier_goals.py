@@ -1,0 +1,160 @@
+"""Exploration bookkeeping: which frontiers are on offer, which parts of them the robot walks to,
+and what going to one does when no path reaches it or the first step is blocked
+(``AgentConfig.frontier_parts``, ``frontier_approach``)."""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import replace
+
+import numpy as np
+
+from helios.agents.config import AgentConfig
+from helios.agents.frontier_goals import frontier_options
+from helios.agents.helios_agent import HeliosAgent
+from helios.maps.frontiers import Frontier
+from helios.maps.grid import GridGeometry
+from helios.planning.fmm import PlanResult
+from helios.search.objective import FrontierOption
+from robots.hal import SE2Pose
+
+GEO = GridGeometry(cell_size=0.1, size=200, origin_x=-10.0, origin_y=-10.0)
+
+
+def _frontier(points_xy, centre_xy) -> Frontier:
+    """A frontier through world points (cell centres on GEO), its centre at ``centre_xy``."""
+    rows, cols = GEO.world_to_cell(np.asarray(points_xy, dtype=float))
+    return Frontier(float(centre_xy[0]), float(centre_xy[1]), 0.1 * len(rows), np.stack([rows, cols], axis=1),
+                    {"table": 0.5})
+
+
+# a straight frontier from (0, 0) to (3, 0): one end where the robot stands, the other 3 m away
+LINE = _frontier([(0.05 + 0.1 * k, 0.05) for k in range(30)], (1.55, 0.05))
+
+
+def test_a_frontier_stays_on_offer_while_part_of_it_is_unreached():
+    cfg = AgentConfig()
+    options, goals = frontier_options([LINE], "table", GEO, reached=[np.array([0.05, 0.05])], unreachable=[],
+                                      config=cfg)
+    assert len(options) == 1 and options[0].value == 0.5
+    pts = goals[0]
+    assert np.allclose(pts[0], LINE.xy)                                   # the centre comes first
+    assert np.linalg.norm(pts - [0.05, 0.05], axis=1).min() >= cfg.frontier_blacklist_radius
+    assert pts[:, 0].max() > 2.5                                          # the far end is still a goal
+    # every part reached: off offer
+    everywhere = [np.array([x, 0.05]) for x in np.arange(0.05, 3.1, 0.5)]
+    assert frontier_options([LINE], "table", GEO, everywhere, [], cfg)[0] == []
+    # the earlier reading: all parts stay goals, and only the centre decides
+    old = replace(cfg, frontier_parts=False)
+    opts, goals = frontier_options([LINE], "table", GEO, everywhere[:1], [], old)
+    assert len(opts) == 1 and len(goals[0]) == 1 + len(LINE.cells[:: max(1, len(LINE.cells) // 16)])
+    # a centre found unreachable takes the frontier off offer under both readings
+    for c in (cfg, old):
+        assert frontier_options([LINE], "table", GEO, [], [LINE.xy + 0.1], c)[0] == []
+
+
+class _Body:
+    """Plans from a script of PlanResults; walking moves the pose to the last waypoint."""
+
+    def __init__(self, plans, pose=SE2Pose(0.05, 0.05, 0.0)):
+        self.plans, self.pose, self.calls, self.looks = list(plans), pose, [], 0
+
+    def xy(self):
+        return np.array([self.pose.x, self.pose.y])
+
+    def plan(self, goals, radius, *args, **kwargs):
+        self.calls.append((np.array(goals), radius))
+        return self.plans.pop(0)
+
+    def execute(self, robot, plan):
+        self.pose = plan.waypoints[-1]
+        return True
+
+    def look(self, robot, yaws, facing=None):
+        self.looks += 1
+
+
+class _Observer:
+    def __init__(self):
+        self.changes = 0
+
+    def goals_changed(self):
+        self.changes += 1
+
+
+class _Objective:
+    def note_frontier_chosen(self, frontier):
+        pass
+
+
+def _agent(config: AgentConfig, body: _Body) -> HeliosAgent:
+    agent = HeliosAgent.__new__(HeliosAgent)
+    agent.config, agent.body, agent.observer, agent.log = config, body, _Observer(), []
+    agent.reached, agent.unreachable, agent.last_frontier, agent.stats = [], [], None, Counter()
+    options, agent._frontier_cells = frontier_options([LINE], "table", GEO, [], [], config)
+    return agent, options[0]
+
+
+def _plan(success=True, waypoints=(), reaches=True, goal_index=0, blocked=False, reason="ok"):
+    return PlanResult(success, reason, np.zeros((0, 2)), waypoints=list(waypoints), reaches_goal=reaches,
+                      goal_index=goal_index, blocked_ahead=blocked)
+
+
+def test_standing_at_one_end_of_a_frontier_does_not_reach_it():
+    """The earlier reading counted the robot as arrived when any sampled cell lay within
+    ``frontier_reach``; now it walks to a part that is not within reach, and arriving there
+    reaches the whole frontier (its centre is remembered)."""
+    far = SE2Pose(2.8, 0.05, 0.0)
+    body = _Body([_plan(waypoints=[far], goal_index=0)])
+    agent, option = _agent(AgentConfig(), body)
+    agent._explore(None, option, _Objective())
+    goals, radius = body.calls[0]
+    assert radius == agent.config.frontier_reach
+    assert np.linalg.norm(goals - [0.05, 0.05], axis=1).min() >= agent.config.frontier_reach
+    assert body.pose == far and body.looks == 1
+    assert len(agent.reached) == 1 and np.allclose(agent.reached[0], LINE.xy)
+    # the earlier reading: arrived without a step, the whole frontier reached at its centre
+    body = _Body([_plan(waypoints=[], goal_index=3)])
+    agent, option = _agent(replace(AgentConfig(), frontier_parts=False), body)
+    agent._explore(None, option, _Objective())
+    assert len(body.calls[0][0]) == 1 + len(LINE.cells[:: max(1, len(LINE.cells) // 16)])
+    assert np.allclose(agent.reached, [LINE.xy])
+
+
+def test_a_frontier_wholly_within_reach_is_looked_at_and_reached_without_planning():
+    body = _Body([], pose=SE2Pose(1.55, 0.05, 0.0))
+    config = replace(AgentConfig(), frontier_reach=2.0)
+    agent, option = _agent(config, body)
+    agent._explore(None, option, _Objective())
+    assert body.calls == [] and body.looks == 1
+    assert len(agent.reached) == len(agent._frontier_cells[0])
+
+
+def test_a_frontier_out_of_reach_is_looked_at_from_nearer_or_marked_unreachable():
+    """No path ends within ``frontier_reach``: with ``frontier_approach`` the robot walks to within
+    that distance instead and looks; with 0 the frontier is marked unreachable at once."""
+    near = SE2Pose(1.9, 0.9, 0.0)
+    body = _Body([_plan(success=False, reason="unreachable"), _plan(waypoints=[near])])
+    agent, option = _agent(AgentConfig(), body)
+    agent._explore(None, option, _Objective())
+    assert [r for _, r in body.calls] == [agent.config.frontier_reach, agent.config.frontier_approach]
+    assert body.pose == near and body.looks == 1 and agent.unreachable == []
+    assert any("out of reach" in line for line in agent.log)
+    body = _Body([_plan(success=False, reason="unreachable")])
+    agent, option = _agent(replace(AgentConfig(), frontier_approach=0.0), body)
+    agent._explore(None, option, _Objective())
+    assert len(body.calls) == 1 and body.looks == 0
+    assert len(agent.unreachable) == 1 and agent.observer.changes == 1
+
+
+def test_blocked_at_the_first_step_marks_the_frontier_unreachable_instead_of_looping():
+    here = SE2Pose(0.05, 0.05, 0.0)
+    body = _Body([_plan(waypoints=[SE2Pose(0.05, 0.05, 1.0)], reaches=False, blocked=True)], pose=here)
+    agent, option = _agent(AgentConfig(), body)
+    agent._explore(None, option, _Objective())
+    assert len(agent.unreachable) == 1 and np.allclose(agent.unreachable[0], LINE.xy)
+    assert frontier_options([LINE], "table", GEO, agent.reached, agent.unreachable, agent.config)[0] == []
+    body = _Body([_plan(waypoints=[SE2Pose(0.05, 0.05, 1.0)], reaches=False, blocked=True)], pose=here)
+    agent, option = _agent(replace(AgentConfig(), frontier_parts=False), body)
+    agent._explore(None, option, _Objective())
+    assert agent.unreachable == []
