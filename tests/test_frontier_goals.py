@@ -19,6 +19,13 @@ from helios.search.objective import FrontierOption
 from robots.hal import SE2Pose
 
 GEO = GridGeometry(cell_size=0.1, size=200, origin_x=-10.0, origin_y=-10.0)
+ON = replace(AgentConfig(), frontier_parts=True, frontier_approach=1.5, unstick_distance=0.5)
+"""The three exploration fixes switched on (the defaults are the earlier behaviour)."""
+OFF = AgentConfig()
+
+
+def test_the_exploration_fixes_are_off_by_default():
+    assert (OFF.frontier_parts, OFF.frontier_approach, OFF.unstick_distance) == (False, 0.0, 0.0)
 
 
 def _frontier(points_xy, centre_xy) -> Frontier:
@@ -33,7 +40,7 @@ LINE = _frontier([(0.05 + 0.1 * k, 0.05) for k in range(30)], (1.55, 0.05))
 
 
 def test_a_frontier_stays_on_offer_while_part_of_it_is_unreached():
-    cfg = AgentConfig()
+    cfg = ON
     options, goals = frontier_options([LINE], "table", GEO, reached=[np.array([0.05, 0.05])], unreachable=[],
                                       config=cfg)
     assert len(options) == 1 and options[0].value == 0.5
@@ -56,8 +63,13 @@ def test_a_frontier_stays_on_offer_while_part_of_it_is_unreached():
 class _Body:
     """Plans from a script of PlanResults; walking moves the pose to the last waypoint."""
 
-    def __init__(self, plans, pose=SE2Pose(0.05, 0.05, 0.0)):
+    def __init__(self, plans, pose=SE2Pose(0.05, 0.05, 0.0), unsticks=False):
         self.plans, self.pose, self.calls, self.looks = list(plans), pose, [], 0
+        self.unsticks, self.unstick_calls = unsticks, 0
+
+    def unstick(self, robot):
+        self.unstick_calls += 1
+        return self.unsticks
 
     def xy(self):
         return np.array([self.pose.x, self.pose.y])
@@ -106,7 +118,7 @@ def test_standing_at_one_end_of_a_frontier_does_not_reach_it():
     reaches the whole frontier (its centre is remembered)."""
     far = SE2Pose(2.8, 0.05, 0.0)
     body = _Body([_plan(waypoints=[far], goal_index=0)])
-    agent, option = _agent(AgentConfig(), body)
+    agent, option = _agent(ON, body)
     agent._explore(None, option, _Objective())
     goals, radius = body.calls[0]
     assert radius == agent.config.frontier_reach
@@ -115,7 +127,7 @@ def test_standing_at_one_end_of_a_frontier_does_not_reach_it():
     assert len(agent.reached) == 1 and np.allclose(agent.reached[0], LINE.xy)
     # the earlier reading: arrived without a step, the whole frontier reached at its centre
     body = _Body([_plan(waypoints=[], goal_index=3)])
-    agent, option = _agent(replace(AgentConfig(), frontier_parts=False), body)
+    agent, option = _agent(OFF, body)
     agent._explore(None, option, _Objective())
     assert len(body.calls[0][0]) == 1 + len(LINE.cells[:: max(1, len(LINE.cells) // 16)])
     assert np.allclose(agent.reached, [LINE.xy])
@@ -123,7 +135,7 @@ def test_standing_at_one_end_of_a_frontier_does_not_reach_it():
 
 def test_a_frontier_wholly_within_reach_is_looked_at_and_reached_without_planning():
     body = _Body([], pose=SE2Pose(1.55, 0.05, 0.0))
-    config = replace(AgentConfig(), frontier_reach=2.0)
+    config = replace(ON, frontier_reach=2.0)
     agent, option = _agent(config, body)
     agent._explore(None, option, _Objective())
     assert body.calls == [] and body.looks == 1
@@ -135,13 +147,13 @@ def test_a_frontier_out_of_reach_is_looked_at_from_nearer_or_marked_unreachable(
     that distance instead and looks; with 0 the frontier is marked unreachable at once."""
     near = SE2Pose(1.9, 0.9, 0.0)
     body = _Body([_plan(success=False, reason="unreachable"), _plan(waypoints=[near])])
-    agent, option = _agent(AgentConfig(), body)
+    agent, option = _agent(ON, body)
     agent._explore(None, option, _Objective())
     assert [r for _, r in body.calls] == [agent.config.frontier_reach, agent.config.frontier_approach]
     assert body.pose == near and body.looks == 1 and agent.unreachable == []
     assert any("out of reach" in line for line in agent.log)
     body = _Body([_plan(success=False, reason="unreachable")])
-    agent, option = _agent(replace(AgentConfig(), frontier_approach=0.0), body)
+    agent, option = _agent(replace(ON, frontier_approach=0.0), body)
     agent._explore(None, option, _Objective())
     assert len(body.calls) == 1 and body.looks == 0
     assert len(agent.unreachable) == 1 and agent.observer.changes == 1
@@ -150,11 +162,28 @@ def test_a_frontier_out_of_reach_is_looked_at_from_nearer_or_marked_unreachable(
 def test_blocked_at_the_first_step_marks_the_frontier_unreachable_instead_of_looping():
     here = SE2Pose(0.05, 0.05, 0.0)
     body = _Body([_plan(waypoints=[SE2Pose(0.05, 0.05, 1.0)], reaches=False, blocked=True)], pose=here)
-    agent, option = _agent(AgentConfig(), body)
+    agent, option = _agent(ON, body)
     agent._explore(None, option, _Objective())
     assert len(agent.unreachable) == 1 and np.allclose(agent.unreachable[0], LINE.xy)
     assert frontier_options([LINE], "table", GEO, agent.reached, agent.unreachable, agent.config)[0] == []
     body = _Body([_plan(waypoints=[SE2Pose(0.05, 0.05, 1.0)], reaches=False, blocked=True)], pose=here)
-    agent, option = _agent(replace(AgentConfig(), frontier_parts=False), body)
+    agent, option = _agent(OFF, body)
     agent._explore(None, option, _Objective())
     assert agent.unreachable == []
+
+
+def test_a_plan_blocked_at_the_first_step_steps_aside_before_giving_up_on_the_frontier():
+    """A "blocked" plan (the path exists, the first turn or step does not fit) asks the body to
+    unstick; only when it cannot is the frontier marked unreachable."""
+    for unsticks in (True, False):
+        body = _Body([_plan(success=False, reason="blocked"), _plan(success=False, reason="blocked")],
+                     unsticks=unsticks)
+        agent, option = _agent(ON, body)
+        agent._explore(None, option, _Objective())
+        assert body.unstick_calls == 1
+        assert (agent.unreachable == []) is unsticks
+    body = _Body([_plan(success=False, reason="unreachable"), _plan(success=False, reason="unreachable")],
+                 unsticks=True)
+    agent, option = _agent(ON, body)
+    agent._explore(None, option, _Objective())
+    assert body.unstick_calls == 0 and len(agent.unreachable) == 1

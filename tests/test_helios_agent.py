@@ -324,3 +324,50 @@ def test_a_failed_extra_view_is_not_offered_again_in_the_same_frame(fresh, monke
             assert offered_again and after is views
     finally:
         sim.close()
+
+
+def test_a_body_wedged_where_it_cannot_turn_steps_aside_once_and_can_turn_there():
+    """``unstick_distance``: with an obstacle 0.5 m to the robot's side a full turn sweeps into
+    it; ``Body.unstick`` steps straight, heading kept, to the nearest pose where the whole turn
+    is free on the map, and does so once per place; with 0 (the default) it sends no command."""
+    import math
+
+    ep = _episode(E2E_EPISODE)
+    sim = SimEpisode.create(ep)
+    try:
+        agent = make_agent("helios", sim)
+        agent.reset(ep.spec, np.random.default_rng(0))
+        robot = _Recorder(sim.backend)
+        agent.act(robot)                                   # the start scan maps the surroundings
+        body = agent.body
+        here = body.pose
+        side = None
+        for s in (1.0, -1.0):
+            a = here.yaw + s * math.pi / 2
+            wall = (here.x + 0.5 * math.cos(a), here.y + 0.5 * math.sin(a))
+            away = (here.x - 0.4 * math.cos(a), here.y - 0.4 * math.sin(a))
+            if body.checker().poses_free([[away[0], away[1], here.yaw]]).all():
+                side = wall
+                break
+        assert side is not None, "no free pose beside the start"
+        agent.map.occupancy.mark_obstacle(side, 0.05, height=1.0)
+        checker = body.checker().clear_under(here)
+        assert not checker.sweep_free(here.x, here.y, here.yaw, 2 * math.pi)
+        robot.calls.clear()
+        assert body.config.unstick_distance == 0.0           # off by default: no command
+        assert body.unstick(robot) is False and not robot.calls
+        body.config = on = replace(body.config, unstick_distance=0.5)
+        assert body.unstick(robot) is True
+        moves = [r for name, r in robot.calls if name == "navigate_to"]
+        assert len(moves) == 1 and moves[0].success
+        now = body.pose
+        assert 0.05 < math.hypot(now.x - here.x, now.y - here.y) <= on.unstick_distance + 0.05
+        assert abs(math.remainder(now.yaw - here.yaw, 2 * math.pi)) < math.radians(3)
+        assert math.hypot(now.x - side[0], now.y - side[1]) > 0.5
+        assert body.checker().clear_under(now).sweep_free(now.x, now.y, now.yaw, 2 * math.pi)
+        # back where it stepped from: not again
+        body.pose = here
+        robot.calls.clear()
+        assert body.unstick(robot) is False and not robot.calls
+    finally:
+        sim.close()

@@ -51,6 +51,7 @@ class Body:
         self.arm_stowed = False
         self.arm_direction: float | None = None     # world yaw the hand camera points along
         self.last_plan: PlanResult | None = None
+        self.unstuck_from: list[np.ndarray] = []     # where unstick() has stepped away from
 
     @property
     def map(self):
@@ -161,6 +162,8 @@ class Body:
         """Plan-walk-look until within ``radius`` of one of ``goals`` (and facing its yaw)."""
         for _ in range(self.config.max_walk_chunks):
             plan = self.plan(goals, radius, yaws)
+            if not plan.success and plan.reason == "blocked" and self.unstick(robot):
+                plan = self.plan(goals, radius, yaws)
             if not plan.success:
                 self.log.append(f"no path: {plan.reason}")
                 return False, -1
@@ -172,6 +175,33 @@ class Body:
                 return True, plan.goal_index
             self.look(robot, (0.0,))   # see what lies ahead (far and near) before the next stretch
         return False, -1
+
+    def unstick(self, robot: RobotBackend) -> bool:
+        """A plan is blocked at its first step: step straight, keeping the heading, to the nearest
+        pose within ``unstick_distance`` where the body can turn all the way round on the map
+        (see ``AgentConfig.unstick_distance``). Once per place; False if off, done here already,
+        or there is no such pose."""
+        limit = self.config.unstick_distance
+        here = self.xy()
+        if limit <= 0 or any(np.linalg.norm(here - p) < 0.2 for p in self.unstuck_from):
+            return False
+        self.unstuck_from.append(here)
+        x, y, yaw = self.pose.x, self.pose.y, self.pose.yaw
+        checker = self.checker().clear_under(self.pose)
+        steps = np.arange(-limit, limit + 1e-9, 0.1)
+        offsets = sorted(((dx, dy) for dx in steps for dy in steps if 0 < math.hypot(dx, dy) <= limit + 1e-9),
+                         key=lambda o: math.hypot(*o))
+        for dx, dy in offsets:
+            nx, ny = x + dx, y + dy
+            if checker.sweep_free(nx, ny, yaw, 2 * math.pi) and checker.segment_free(x, y, nx, ny, yaw):
+                if not self.arm_stowed:
+                    self.stow(robot)
+                res = robot.navigate_to(SE2Pose(nx, ny, yaw))
+                self.pose = res.final_pose if res.final_pose is not None else robot.observe().body_pose
+                self._mark_swept(here, [SE2Pose(nx, ny, yaw)], res.success)
+                self.log.append(f"blocked at the first step: stepped ({dx:+.1f}, {dy:+.1f}) m to turn freely")
+                return bool(res.success)
+        return False
 
     def approach(self, robot: RobotBackend, point, what: str) -> str | None:
         """Walk to a free standing pose from which the arm reaches ``point`` (most comfortable

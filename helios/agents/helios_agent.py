@@ -368,9 +368,10 @@ class HeliosAgent:
             if plan.success:
                 self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}) out of reach: "
                                 f"looking at it from within {approach:.1f} m")
-        if not plan.success:
+        if not plan.success and not (plan.reason == "blocked" and body.unstick(robot)):
             self._mark_unreachable(frontier.xy)
             self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}) unreachable: {plan.reason}")
+        if not plan.success:
             return
         if plan.waypoints and not body.execute(robot, plan):
             self._mark_unreachable(frontier.xy)
@@ -378,7 +379,8 @@ class HeliosAgent:
         if arrived:
             self.reached.append(np.asarray(frontier.xy, dtype=float))
         body.look(robot, self.config.view.look_yaws_deg, self._facing(frontier.xy) if arrived else None)
-        if self.config.frontier_parts and not arrived and np.linalg.norm(body.xy() - start) < 0.25:
+        if self.config.frontier_parts and not arrived and np.linalg.norm(body.xy() - start) < 0.25 \
+                and not body.unstick(robot):
             self._mark_unreachable(frontier.xy)     # blocked at the first step: never loop on it
             self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}): no way forward")
 
