@@ -1,6 +1,7 @@
-"""Exploration bookkeeping: which frontiers are on offer, which parts of them the robot walks to,
-and what going to one does when no path reaches it or the first step is blocked
-(``AgentConfig.frontier_parts``, ``frontier_approach``)."""
+"""Exploration and local-search bookkeeping: which frontiers are on offer, which parts of them
+the robot walks to, what going to one does when no path reaches it or the first step is blocked
+(``AgentConfig.frontier_parts``, ``frontier_approach``, ``unstick_distance``), and when a local
+search ends early (``end_local_search_on_doubt``)."""
 
 from __future__ import annotations
 
@@ -187,3 +188,55 @@ def test_a_plan_blocked_at_the_first_step_steps_aside_before_giving_up_on_the_fr
     agent, option = _agent(ON, body)
     agent._explore(None, option, _Objective())
     assert body.unstick_calls == 0 and len(agent.unreachable) == 1
+
+
+class _Instance:
+    def __init__(self, iid, scores):
+        self.id, self.class_scores = iid, scores
+        self.class_name = max(scores, key=scores.get)
+
+
+class _Seer:
+    """Observer stand-in that lists instances; the body stand-in counts views."""
+
+    def __init__(self, instances):
+        self.list = instances
+
+    def instances(self):
+        return self.list
+
+
+class _Viewer:
+    def __init__(self):
+        self.views = []
+
+    def view_from(self, robot, gp):
+        self.views.append(gp)
+        return True
+
+
+def test_a_local_search_ends_once_its_location_is_no_longer_a_candidate_when_asked():
+    """``end_local_search_on_doubt``: a closer look showed the "desk" is a table (or the instance
+    merged away): the remaining gaze points are dropped and the location counts as searched; by
+    default (the paper) every gaze point is visited."""
+    from helios.agents.helios_agent import _LocalSearch
+    from helios.config import HeliosConfig
+
+    cs = HeliosConfig().search.cs_start_receptacle
+    desk = {"desk": cs + 0.1, "table": cs - 0.1}
+    table = {"desk": cs + 0.05, "table": cs + 0.2}           # above cs_a, but most likely a table
+    for scores, ends in ((desk, False), (table, True), (None, True)):
+        for on in (True, False):
+            agent = HeliosAgent.__new__(HeliosAgent)
+            agent.config = replace(AgentConfig(), end_local_search_on_doubt=on)
+            agent.method, agent.start_class, agent.log, agent.stats = HeliosConfig(), "desk", [], Counter()
+            agent.observer = _Seer([] if scores is None else [_Instance(7, scores)])
+            agent.body, agent.visited = _Viewer(), set()
+            agent.local = _LocalSearch(7, ["a", "b", "c"])
+            agent.local_search_sizes = [3]
+            agent._continue_local_search(None)
+            if on and ends:
+                assert agent.body.views == [] and agent.local is None and agent.visited == {7}
+                assert "no longer a desk candidate" in agent.log[-1]
+            else:
+                assert agent.body.views == ["a"] and agent.local.queue == ["b", "c"] and agent.visited == set()

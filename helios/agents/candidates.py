@@ -30,6 +30,12 @@ def is_candidate(inst: Instance, cls: str, threshold: float, method: HeliosConfi
     return method.decision.candidate_class == "score_only" or inst.class_name == cls
 
 
+def still_candidate(observer: Observer, instance_id: int, cls: str, method: HeliosConfig) -> bool:
+    """Whether the instance still exists and is still a candidate pick location of class ``cls``."""
+    inst = next((i for i in observer.instances() if i.id == instance_id), None)
+    return inst is not None and is_candidate(inst, cls, method.search.cs_start_receptacle, method)
+
+
 def candidate_targets(observer: Observer, cls: str, config: AgentConfig, method: HeliosConfig,
                       failures: Counter) -> list[Target]:
     """Candidates for the object (or goal receptacle) class, best Psi first; candidates that

@@ -64,6 +64,11 @@ def gaze_cameras(views, body_height: float, view: ViewConfig) -> list[np.ndarray
     return [predicted_camera(g.pose, g.look_at, body_height, view) for g in views]
 
 
+def facing(pose: SE2Pose, xy) -> float:
+    """World yaw from ``pose`` towards the point ``xy``."""
+    return math.atan2(xy[1] - pose.y, xy[0] - pose.x)
+
+
 def away_from(points: np.ndarray, others, radius: float) -> np.ndarray:
     """(N,) True for the points (N, 2) at least ``radius`` (m) from every point in ``others``."""
     points = np.asarray(points, dtype=float).reshape(-1, 2)

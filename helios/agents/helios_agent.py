@@ -43,10 +43,10 @@ import numpy as np
 
 from helios.agents.activities import ACTIVITIES, DECISION_COUNTS  # noqa: F401  (ACTIVITIES: re-exported)
 from helios.agents.body import Body
-from helios.agents.candidates import candidate_targets, is_candidate
+from helios.agents.candidates import candidate_targets, is_candidate, still_candidate
 from helios.agents.config import AgentConfig
 from helios.agents.frontier_goals import frontier_options, revisit_goals
-from helios.agents.geometry import away_from, gaze_cameras
+from helios.agents.geometry import away_from, facing, gaze_cameras
 from helios.agents.observer import Observer
 from helios.agents.pick import pick
 from helios.agents.place import place
@@ -143,9 +143,8 @@ class HeliosAgent:
         return self.phase is Phase.DONE
 
     def _initial_scan(self, robot: RobotBackend) -> None:
-        """Look around the start: the front half with the arm, turn round, the other half. The
-        turn relies on the start clearance (``PlannerConfig.start_clearance``) that episode
-        generation guarantees; it is skipped if the map already shows it is not free."""
+        """Look around the start: front half with the arm, turn round, other half. The turn relies on the start
+        clearance that episode generation guarantees (``PlannerConfig.start_clearance``); skipped if not free."""
         body = self.body
         body.observe(robot)
         # the start clearance is free by construction: keep it as seen floor, or the strip beside
@@ -358,7 +357,7 @@ class HeliosAgent:
             near = ~away_from(goals, [body.xy()], self.config.frontier_reach)
             if near.all():       # every unreached part is within reach already: look, done
                 self.reached.extend(goals)
-                body.look(robot, self.config.view.look_yaws_deg, self._facing(frontier.xy))
+                body.look(robot, self.config.view.look_yaws_deg, facing(body.pose, frontier.xy))
                 return
             goals = goals[~near]
         plan = body.plan(goals, self.config.frontier_reach)
@@ -378,14 +377,11 @@ class HeliosAgent:
         arrived = plan.reaches_goal or not plan.waypoints
         if arrived:
             self.reached.append(np.asarray(frontier.xy, dtype=float))
-        body.look(robot, self.config.view.look_yaws_deg, self._facing(frontier.xy) if arrived else None)
+        body.look(robot, self.config.view.look_yaws_deg, facing(body.pose, frontier.xy) if arrived else None)
         if self.config.frontier_parts and not arrived and np.linalg.norm(body.xy() - start) < 0.25 \
                 and not body.unstick(robot):
             self._mark_unreachable(frontier.xy)     # blocked at the first step: never loop on it
             self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}): no way forward")
-
-    def _facing(self, xy) -> float:
-        return math.atan2(xy[1] - self.body.pose.y, xy[0] - self.body.pose.x)
 
     def _revisit(self, robot: RobotBackend, layer: str) -> bool:
         """No frontier left: walk to the most promising seen place (highest value-map score for
@@ -436,9 +432,13 @@ class HeliosAgent:
         self.log.append(f"local search of instance {instance_id}: {len(order)} gaze points")
 
     def _continue_local_search(self, robot: RobotBackend) -> None:
-        gp = self.local.queue.pop(0)
-        self.stats["gaze_point_visits"] += 1
-        self.body.view_from(robot, gp)
+        iid, cls = self.local.instance_id, self.start_class
+        if self.config.end_local_search_on_doubt and not still_candidate(self.observer, iid, cls, self.method):
+            self.log.append(f"local search of instance {iid} ended: no longer a {self.start_class} candidate")
+            self.local.queue.clear()
+        else:
+            self.stats["gaze_point_visits"] += 1
+            self.body.view_from(robot, self.local.queue.pop(0))
         if not self.local.queue:
             self.visited.add(self.local.instance_id)
             self.local = None
