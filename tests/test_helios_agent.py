@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -189,6 +190,22 @@ class _Recorder:
         return call
 
 
+@contextmanager
+def _after_the_start_scan():
+    """HELIOS on the E2E episode after its start scan, with a robot that records its commands;
+    the simulation is closed afterwards."""
+    ep = _episode(E2E_EPISODE)
+    sim = SimEpisode.create(ep)
+    try:
+        agent = make_agent("helios", sim)
+        agent.reset(ep.spec, np.random.default_rng(0))
+        robot = _Recorder(sim.backend)
+        agent.act(robot)                                   # the start scan maps the surroundings
+        yield agent, robot
+    finally:
+        sim.close()
+
+
 def test_a_near_gaze_point_is_one_straight_move_that_turns_while_it_walks():
     """``gaze_hop``: a gaze point 0.6 m to the side, facing 80 degrees round, is reached by one
     navigate command whose single SE2 segment is shorter in time than the planner's
@@ -199,13 +216,7 @@ def test_a_near_gaze_point_is_one_straight_move_that_turns_while_it_walks():
     from robots.hal import SE2Pose
     from robots.spot.motion import BaseLimits, plan_base
 
-    ep = _episode(E2E_EPISODE)
-    sim = SimEpisode.create(ep)
-    try:
-        agent = make_agent("helios", sim)
-        agent.reset(ep.spec, np.random.default_rng(0))
-        robot = _Recorder(sim.backend)
-        agent.act(robot)                                   # the start scan maps the surroundings
+    with _after_the_start_scan() as (agent, robot):
         body = agent.body
         here = body.pose
         checker = body.checker().clear_under(here)
@@ -245,8 +256,6 @@ def test_a_near_gaze_point_is_one_straight_move_that_turns_while_it_walks():
         far = SE2Pose(goal.x + 2.0 * math.cos(goal.yaw), goal.y + 2.0 * math.sin(goal.yaw), goal.yaw)
         assert body.hop(robot, far, 1.5, 0.15) is None and body.hop(robot, back, 0.0, 0.15) is None
         assert not robot.calls
-    finally:
-        sim.close()
 
 
 def _start_candidate_after_the_scan(agent, ep, sim, min_views: int):
@@ -332,13 +341,7 @@ def test_a_body_wedged_where_it_cannot_turn_steps_aside_once_and_can_turn_there(
     is free on the map, and does so once per place; with 0 (the default) it sends no command."""
     import math
 
-    ep = _episode(E2E_EPISODE)
-    sim = SimEpisode.create(ep)
-    try:
-        agent = make_agent("helios", sim)
-        agent.reset(ep.spec, np.random.default_rng(0))
-        robot = _Recorder(sim.backend)
-        agent.act(robot)                                   # the start scan maps the surroundings
+    with _after_the_start_scan() as (agent, robot):
         body = agent.body
         here = body.pose
         side = None
@@ -369,5 +372,3 @@ def test_a_body_wedged_where_it_cannot_turn_steps_aside_once_and_can_turn_there(
         body.pose = here
         robot.calls.clear()
         assert body.unstick(robot) is False and not robot.calls
-    finally:
-        sim.close()
