@@ -188,20 +188,22 @@ class Body:
         self.unstuck_from.append(here)
         x, y, yaw = self.pose.x, self.pose.y, self.pose.yaw
         checker = self.checker().clear_under(self.pose)
-        steps = np.arange(-limit, limit + 1e-9, 0.1)
-        offsets = sorted(((dx, dy) for dx in steps for dy in steps if 0 < math.hypot(dx, dy) <= limit + 1e-9),
-                         key=lambda o: math.hypot(*o))
-        for dx, dy in offsets:
+        for dx, dy in _offsets_nearest_first(limit):
             nx, ny = x + dx, y + dy
             if checker.sweep_free(nx, ny, yaw, 2 * math.pi) and checker.segment_free(x, y, nx, ny, yaw):
-                if not self.arm_stowed:
-                    self.stow(robot)
-                res = robot.navigate_to(SE2Pose(nx, ny, yaw))
-                self.pose = res.final_pose if res.final_pose is not None else robot.observe().body_pose
-                self._mark_swept(here, [SE2Pose(nx, ny, yaw)], res.success)
+                ok = self._step_to(robot, SE2Pose(nx, ny, yaw))
+                self._mark_swept(here, [SE2Pose(nx, ny, yaw)], ok)
                 self.log.append(f"blocked at the first step: stepped ({dx:+.1f}, {dy:+.1f}) m to turn freely")
-                return bool(res.success)
+                return ok
         return False
+
+    def _step_to(self, robot: RobotBackend, pose: SE2Pose) -> bool:
+        """One straight move to a near pose (arm stowed first); the pose is updated either way."""
+        if not self.arm_stowed:
+            self.stow(robot)
+        res = robot.navigate_to(pose)
+        self.pose = res.final_pose if res.final_pose is not None else robot.observe().body_pose
+        return bool(res.success)
 
     def approach(self, robot: RobotBackend, point, what: str) -> str | None:
         """Walk to a free standing pose from which the arm reaches ``point`` (most comfortable
@@ -336,17 +338,18 @@ class Body:
         x, y, yaw = self.pose.x, self.pose.y, self.pose.yaw
         checker = self.checker().clear_under(self.pose)
         c, s = math.cos(yaw), math.sin(yaw)
-        limit = self.config.view.make_room_distance
-        offsets = [(dx, dy) for dx in np.arange(-limit, limit + 1e-9, 0.1) for dy in np.arange(-limit, limit + 1e-9, 0.1)
-                   if 0 < math.hypot(dx, dy) <= limit + 1e-9]
-        for dx, dy in sorted(offsets, key=lambda o: math.hypot(*o)):
+        for dx, dy in _offsets_nearest_first(self.config.view.make_room_distance):
             nx, ny = x + dx * c - dy * s, y + dx * s + dy * c
             if self.elbow_clear(nx, ny, yaw) and checker.segment_free(x, y, nx, ny, yaw):
-                if not self.arm_stowed:
-                    self.stow(robot)
-                res = robot.navigate_to(SE2Pose(nx, ny, yaw))
-                self.pose = res.final_pose if res.final_pose is not None else robot.observe().body_pose
+                ok = self._step_to(robot, SE2Pose(nx, ny, yaw))
                 self.log.append(f"made room for the arm: stepped ({dx:+.1f}, {dy:+.1f}) m")
-                return bool(res.success) and self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw)
+                return ok and self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw)
         self.log.append("no room for the arm to look around here")
         return False
+
+
+def _offsets_nearest_first(limit: float) -> list[tuple[float, float]]:
+    """(dx, dy) steps on a 0.1 m lattice within ``limit`` (m), origin excluded, nearest first."""
+    steps = np.arange(-limit, limit + 1e-9, 0.1)
+    offsets = [(dx, dy) for dx in steps for dy in steps if 0 < math.hypot(dx, dy) <= limit + 1e-9]
+    return sorted(offsets, key=lambda o: math.hypot(*o))

@@ -354,7 +354,7 @@ class HeliosAgent:
         goals = self._frontier_cells.get(frontier.key, np.asarray(frontier.xy, dtype=float)[None])
         start = body.xy()
         if self.config.frontier_parts:
-            near = ~away_from(goals, [body.xy()], self.config.frontier_reach)
+            near = ~away_from(goals, [start], self.config.frontier_reach)
             if near.all():       # every unreached part is within reach already: look, done
                 self.reached.extend(goals)
                 body.look(robot, self.config.view.look_yaws_deg, facing(body.pose, frontier.xy))
@@ -367,10 +367,10 @@ class HeliosAgent:
             if plan.success:
                 self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}) out of reach: "
                                 f"looking at it from within {approach:.1f} m")
-        if not plan.success and not (plan.reason == "blocked" and body.unstick(robot)):
-            self._mark_unreachable(frontier.xy)
-            self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}) unreachable: {plan.reason}")
         if not plan.success:
+            if not (plan.reason == "blocked" and body.unstick(robot)):
+                self._mark_unreachable(frontier.xy)
+                self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}) unreachable: {plan.reason}")
             return
         if plan.waypoints and not body.execute(robot, plan):
             self._mark_unreachable(frontier.xy)
@@ -434,7 +434,7 @@ class HeliosAgent:
     def _continue_local_search(self, robot: RobotBackend) -> None:
         iid, cls = self.local.instance_id, self.start_class
         if self.config.end_local_search_on_doubt and not still_candidate(self.observer, iid, cls, self.method):
-            self.log.append(f"local search of instance {iid} ended: no longer a {self.start_class} candidate")
+            self.log.append(f"local search of instance {iid} ended: no longer a {cls} candidate")
             self.local.queue.clear()
         else:
             self.stats["gaze_point_visits"] += 1
