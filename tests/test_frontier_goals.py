@@ -1,7 +1,8 @@
 """Exploration and local-search bookkeeping: which frontiers are on offer, which parts of them
 the robot walks to, what going to one does when no path reaches it or the first step is blocked
-(``AgentConfig.frontier_parts``, ``frontier_approach``, ``unstick_distance``), and when a local
-search ends early (``end_local_search_on_doubt``)."""
+(``AgentConfig.frontier_parts``, ``frontier_approach``, ``unstick_distance``), which way the
+robot looks from a frontier (``face_unseen``), and when a local search ends early
+(``end_local_search_on_doubt``)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ from dataclasses import replace
 import numpy as np
 
 from helios.agents.config import AgentConfig
-from helios.agents.frontier_goals import frontier_options
+from helios.agents.body import Body
+from helios.agents.frontier_goals import frontier_options, unseen_bearing
 from helios.agents.helios_agent import HeliosAgent
 from helios.maps.frontiers import Frontier
 from helios.maps.grid import GridGeometry
@@ -84,6 +86,9 @@ class _Body:
         return True
 
     def look(self, robot, yaws, facing=None):
+        self.looks += 1
+
+    def look_from_frontier(self, robot, direction, parts):
         self.looks += 1
 
 
@@ -240,3 +245,94 @@ def test_a_local_search_ends_once_its_location_is_no_longer_a_candidate_when_ask
                 assert "no longer a desk candidate" in agent.log[-1]
             else:
                 assert agent.body.views == ["a"] and agent.local.queue == ["b", "c"] and agent.visited == set()
+
+
+# ---------------------------------------------------------------- facing the unseen side
+def _room_seen_north_of(y_edge: float, wall_x: float | None = None) -> np.ndarray:
+    """GEO's explored mask: everything north of ``y_edge`` seen, the south unseen; with
+    ``wall_x``, also everything east of a wall at that x left unseen (its far side)."""
+    rows, cols = np.mgrid[:GEO.size, :GEO.size]
+    xy = GEO.cell_to_world(rows.ravel(), cols.ravel()).reshape(GEO.size, GEO.size, 2)
+    seen = xy[..., 1] >= y_edge
+    if wall_x is not None:
+        seen &= xy[..., 0] <= wall_x
+    return seen
+
+
+def _edge_parts(y: float, x0: float, x1: float) -> np.ndarray:
+    return np.array([(x, y) for x in np.arange(x0, x1, 0.1)])
+
+
+def test_the_unseen_side_of_a_frontier_is_found_from_a_robot_standing_on_it():
+    explored = _room_seen_north_of(0.0)
+    parts = _edge_parts(0.05, -1.0, 1.0)            # the frontier row: seen, with unseen cells south
+    bearing = unseen_bearing(explored, GEO, (0.0, 0.05), parts, 1.8)
+    assert abs(bearing - (-np.pi / 2)) < np.radians(5)
+    # from 1 m north-east of the frontier's east end, the unseen side lies south-west
+    bearing = unseen_bearing(explored, GEO, (1.9, 1.0), parts, 1.8)
+    assert -np.pi < bearing < -np.pi / 2
+    # seen since: nothing to face
+    assert unseen_bearing(np.ones_like(explored), GEO, (0.0, 0.05), parts, 1.8) is None
+    assert unseen_bearing(explored, GEO, (0.0, 0.05), np.zeros((0, 2)), 1.8) is None
+
+
+def test_the_far_side_of_a_wall_does_not_pull_the_bearing():
+    """Unexplored cells beyond a wall east of the robot are not next to any frontier part: the
+    bearing stays on the frontier's unseen side (south), not east."""
+    explored = _room_seen_north_of(0.0, wall_x=0.5)
+    parts = _edge_parts(0.05, -1.5, 0.4)
+    bearing = unseen_bearing(explored, GEO, (0.3, 0.6), parts, 1.8)
+    assert np.degrees(bearing) < -60 and np.degrees(bearing) > -135
+
+
+class _Occupancy:
+    def __init__(self, explored):
+        self.explored = explored
+
+
+class _Map:
+    def __init__(self, explored):
+        self.occupancy, self.geometry = _Occupancy(explored), GEO
+
+
+def _looking_body(config: AgentConfig, pose: SE2Pose, can_turn: bool) -> Body:
+    """A Body on GEO's half-seen room whose turns and looks are recorded, not sent."""
+    body = Body.__new__(Body)
+    body.config, body.pose, body.log = config, pose, []
+    body.observer = type("O", (), {"map": _Map(_room_seen_north_of(0.0))})()
+    body.turns, body.looks = [], []
+
+    def turn_to(robot, yaw):
+        body.turns.append(yaw)
+        if can_turn:
+            body.pose = SE2Pose(body.pose.x, body.pose.y, yaw)
+        return can_turn
+
+    body.turn_to = turn_to
+    body.look = lambda robot, yaws, facing=None: body.looks.append(facing)
+    return body
+
+
+def test_looking_from_a_frontier_faces_its_unseen_side_and_turns_when_it_lies_behind():
+    parts = _edge_parts(0.05, -1.0, 1.0)
+    north = SE2Pose(0.0, 0.1, np.pi / 2)              # arrived heading north; the unseen floor is behind
+    on = replace(OFF, face_unseen=True)
+    body = _looking_body(on, north, can_turn=True)
+    body.look_from_frontier(None, None, parts)
+    assert len(body.turns) == 1 and abs(body.turns[0] + np.pi / 2) < np.radians(5)
+    assert abs(body.looks[0] + np.pi / 2) < np.radians(5) and abs(body.pose.yaw + np.pi / 2) < np.radians(5)
+    assert any("unseen side" in line for line in body.log)
+    # no room to turn: it still points the camera that way (the arm reaches what it can)
+    body = _looking_body(on, north, can_turn=False)
+    body.look_from_frontier(None, 1.0, parts)
+    assert len(body.turns) == 1 and abs(body.looks[0] + np.pi / 2) < np.radians(5) and body.pose.yaw == north.yaw
+    # the unseen side already within 90 degrees of the heading: no turn
+    body = _looking_body(on, SE2Pose(0.0, 0.1, -np.pi / 4), can_turn=True)
+    body.look_from_frontier(None, None, parts)
+    assert body.turns == [] and abs(body.looks[0] + np.pi / 2) < np.radians(5)
+    # off (the default): the given direction, never a turn
+    assert OFF.face_unseen is False
+    body = _looking_body(OFF, north, can_turn=True)
+    body.look_from_frontier(None, 0.3, parts)
+    body.look_from_frontier(None, None, parts)
+    assert body.turns == [] and body.looks == [0.3, None]

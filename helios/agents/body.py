@@ -18,6 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from helios.agents.config import AgentConfig
+from helios.agents.frontier_goals import unseen_bearing
 from helios.agents.geometry import approach_poses
 from helios.agents.observer import Observer
 from helios.planning.fmm import FMMPlanner, PlanResult
@@ -268,6 +269,28 @@ class Body:
                                     self.pose.y + view.near_look_distance * math.sin(a), 0.0])
             if res.success:
                 self.observe(robot)
+
+    def look_from_frontier(self, robot: RobotBackend, direction: float | None, parts) -> None:
+        """Look round from here at a frontier whose parts (world points) are ``parts``: towards
+        ``direction`` (None: straight ahead), or with ``AgentConfig.face_unseen`` towards the
+        frontier's never-seen side, turning in place first when that lies more than 90 degrees
+        off the heading and the map leaves room (the arm cannot look behind the body)."""
+        if self.config.face_unseen:
+            unseen = unseen_bearing(self.map.occupancy.explored, self.map.geometry, self.xy(), parts,
+                                    self.config.frontier_reach + 1.0)
+            if unseen is not None:
+                direction = unseen
+                if abs(wrap_angle(unseen - self.pose.yaw)) > math.pi / 2 and self.turn_to(robot, unseen):
+                    self.log.append(f"turned to face the unseen side of a frontier ({math.degrees(unseen):.0f} deg)")
+        self.look(robot, self.config.view.look_yaws_deg, direction)
+
+    def turn_to(self, robot: RobotBackend, yaw: float) -> bool:
+        """Turn in place to face world ``yaw`` (the planner may shuffle a little to make room);
+        False, without moving, when the map leaves no room to turn."""
+        plan = self.plan(self.xy()[None], 0.05, yaw)
+        if not plan.success or plan.final_turn_blocked or not plan.waypoints:
+            return False
+        return self.execute(robot, plan)
 
     def look_all_around(self, robot: RobotBackend) -> None:
         """The start's look pattern: wide far views plus the near floor on three sides."""

@@ -65,3 +65,38 @@ def revisit_goals(occupancy, geometry, value_layer: np.ndarray, avoid: Sequence[
         far &= np.linalg.norm(xy - p, axis=1) > config.revisit_spacing
     order = np.argsort(-value[far], kind="stable")[: config.revisit_candidates]
     return xy[far][order]
+
+
+def unseen_bearing(explored: np.ndarray, geometry, xy, parts: np.ndarray, radius: float) -> float | None:
+    """World yaw from ``xy`` towards the never-seen side of a frontier: the circular mean of the
+    bearings to the unexplored 4-neighbours of its ``parts`` (world points on the frontier)
+    within ``radius`` (m) of ``xy``, or of all of them when none is that close. None when no
+    part has an unexplored neighbour (the frontier has been seen since) or they balance out.
+
+    Why not the frontier's centre: the robot often arrives standing on the frontier, where the
+    bearing to the centre says nothing, and the unseen cells lie beside or behind it. Only cells
+    next to a frontier part count, so the far side of a wall (unexplored too) does not pull.
+    """
+    xy = np.asarray(xy, dtype=float).reshape(2)
+    parts = np.asarray(parts, dtype=float).reshape(-1, 2)
+    if not len(parts):
+        return None
+    rows, cols = geometry.world_to_cell(parts)
+    last = explored.shape[0] - 1
+    steps = np.array([(1, 0), (-1, 0), (0, 1), (0, -1)])
+    nr = np.clip(rows[:, None] + steps[None, :, 0], 0, last).ravel()
+    nc = np.clip(cols[:, None] + steps[None, :, 1], 0, explored.shape[1] - 1).ravel()
+    unseen = ~explored[nr, nc]
+    if not unseen.any():
+        return None
+    pts = geometry.cell_to_world(nr[unseen], nc[unseen]).reshape(-1, 2)
+    d = pts - xy
+    dist = np.hypot(d[:, 0], d[:, 1])
+    near = dist <= radius
+    if near.any():
+        d, dist = d[near], dist[near]
+    d = d[dist > 1e-9] / dist[dist > 1e-9][:, None]
+    mean = d.sum(axis=0)
+    if not len(d) or np.hypot(mean[0], mean[1]) < 1e-6 * len(d):
+        return None
+    return float(np.arctan2(mean[1], mean[0]))

@@ -351,13 +351,13 @@ class HeliosAgent:
             objective.note_frontier_chosen(frontier)
             self.last_frontier = np.asarray(frontier.xy, dtype=float)
         # any part of the frontier will do: its centre may sit in a corner the body cannot reach
-        goals = self._frontier_cells.get(frontier.key, np.asarray(frontier.xy, dtype=float)[None])
+        goals = parts = self._frontier_cells.get(frontier.key, np.asarray(frontier.xy, dtype=float)[None])
         start = body.xy()
         if self.config.frontier_parts:
             near = ~away_from(goals, [start], self.config.frontier_reach)
             if near.all():       # every unreached part is within reach already: look, done
                 self.reached.extend(goals)
-                body.look(robot, self.config.view.look_yaws_deg, facing(body.pose, frontier.xy))
+                body.look_from_frontier(robot, facing(body.pose, frontier.xy), goals)
                 return
             goals = goals[~near]
         plan = body.plan(goals, self.config.frontier_reach)
@@ -377,7 +377,7 @@ class HeliosAgent:
         arrived = plan.reaches_goal or not plan.waypoints
         if arrived:
             self.reached.append(np.asarray(frontier.xy, dtype=float))
-        body.look(robot, self.config.view.look_yaws_deg, facing(body.pose, frontier.xy) if arrived else None)
+        body.look_from_frontier(robot, facing(body.pose, frontier.xy) if arrived else None, parts)
         if self.config.frontier_parts and not arrived and np.linalg.norm(body.xy() - start) < 0.25 \
                 and not body.unstick(robot):
             self._mark_unreachable(frontier.xy)     # blocked at the first step: never loop on it
