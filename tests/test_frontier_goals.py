@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 
 from helios.agents.config import AgentConfig
-from helios.agents.body import Body
+from helios.agents.body import MAX_GAZE_YAW, UNSEEN_SIDE_NO_TURN, Body
 from helios.agents.frontier_goals import frontier_options, unseen_bearing
 from helios.agents.helios_agent import HeliosAgent
 from helios.maps.frontiers import Frontier
@@ -322,10 +322,13 @@ def test_looking_from_a_frontier_faces_its_unseen_side_and_turns_when_it_lies_be
     assert len(body.turns) == 1 and abs(body.turns[0] + np.pi / 2) < np.radians(5)
     assert abs(body.looks[0] + np.pi / 2) < np.radians(5) and abs(body.pose.yaw + np.pi / 2) < np.radians(5)
     assert any("unseen side" in line for line in body.log)
-    # no room to turn: it still points the camera that way (the arm reaches what it can)
+    # no room to turn: the views lean that way as far as the arm still reaches (the unseen side
+    # is straight behind, so either side will do); looking straight behind would skip every view
     body = _looking_body(on, north, can_turn=False)
     body.look_from_frontier(None, 1.0, parts)
-    assert len(body.turns) == 1 and abs(body.looks[0] + np.pi / 2) < np.radians(5) and body.pose.yaw == north.yaw
+    assert len(body.turns) == 1 and body.pose.yaw == north.yaw
+    assert abs(abs(body.looks[0] - north.yaw) - UNSEEN_SIDE_NO_TURN) < 1e-9
+    assert abs(body.looks[0] - north.yaw) + max(abs(d) for d in np.radians(on.view.look_yaws_deg)) <= MAX_GAZE_YAW
     # the unseen side already within 90 degrees of the heading: no turn
     body = _looking_body(on, SE2Pose(0.0, 0.1, -np.pi / 4), can_turn=True)
     body.look_from_frontier(None, None, parts)

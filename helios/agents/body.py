@@ -28,6 +28,9 @@ from robots.hal import CommandResult, Observation, Reason, RobotBackend, SE2Pose
 from robots.transforms import wrap_angle
 
 MAX_GAZE_YAW = math.radians(105)
+UNSEEN_SIDE_NO_TURN = math.radians(45)
+"""Where a body that cannot turn looks towards an unseen side behind it: 45 degrees off its
+heading, so the wider side view (60 degrees further) stays within ``MAX_GAZE_YAW``."""
 """The hand camera can be pointed this far to the side of the body heading."""
 
 HOP_EXTRA_MARGIN = 0.05
@@ -279,9 +282,14 @@ class Body:
             unseen = unseen_bearing(self.map.occupancy.explored, self.map.geometry, self.xy(), parts,
                                     self.config.frontier_reach + 1.0)
             if unseen is not None:
-                direction = unseen
-                if abs(wrap_angle(unseen - self.pose.yaw)) > math.pi / 2 and self.turn_to(robot, unseen):
+                off = float(wrap_angle(unseen - self.pose.yaw))
+                if abs(off) <= math.pi / 2:
+                    direction = unseen
+                elif self.turn_to(robot, unseen):
+                    direction = unseen
                     self.log.append(f"turned to face the unseen side of a frontier ({math.degrees(unseen):.0f} deg)")
+                else:       # no room to turn: as far that way as the side views still reach
+                    direction = self.pose.yaw + math.copysign(UNSEEN_SIDE_NO_TURN, off)
         self.look(robot, self.config.view.look_yaws_deg, direction)
 
     def turn_to(self, robot: RobotBackend, yaw: float) -> bool:
