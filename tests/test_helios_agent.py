@@ -176,7 +176,7 @@ class _Recorder:
     """Counts HAL commands on their way to the simulated Spot."""
 
     def __init__(self, backend):
-        self.backend, self.calls = backend, []
+        self.backend, self.calls, self.sent = backend, [], []     # sent: (name, args) of each call
 
     def __getattr__(self, name):
         attr = getattr(self.backend, name)
@@ -186,6 +186,7 @@ class _Recorder:
         def call(*args, **kwargs):
             result = attr(*args, **kwargs)
             self.calls.append((name, result))
+            self.sent.append((name, args))
             return result
         return call
 
@@ -372,3 +373,52 @@ def test_a_body_wedged_where_it_cannot_turn_steps_aside_once_and_can_turn_there(
         body.pose = here
         robot.calls.clear()
         assert body.unstick(robot) is False and not robot.calls
+
+
+def test_a_body_turns_in_place_to_face_the_unseen_side_of_a_frontier_and_looks_there():
+    """``face_unseen``: ``Body.turn_to`` turns the simulated body in place (it refuses, sending
+    nothing, once the map leaves no room), and looking from a frontier whose never-seen side lies
+    behind the body turns first, then points every view within the side views' reach of it."""
+    import math
+
+    from helios.agents.frontier_goals import unseen_bearing
+    from robots.transforms import wrap_angle
+
+    with _after_the_start_scan() as (agent, robot):
+        body = agent.body
+        here = body.pose
+        occ, geo = agent.map.occupancy, agent.map.geometry
+        frontiers = []
+        for f in agent.map.frontiers():
+            parts = geo.cell_to_world(f.cells[:, 0], f.cells[:, 1]).reshape(-1, 2)
+            b = unseen_bearing(occ.explored, geo, body.xy(), parts, body.config.frontier_reach + 1.0)
+            if b is not None:
+                frontiers.append((b, parts))
+        assert frontiers, "no frontier after the start scan"
+        bearing, parts = frontiers[0]
+        target = float(wrap_angle(bearing + math.pi))        # turn the frontier's unseen side behind
+        robot.calls.clear()
+        assert body.turn_to(robot, target) is True
+        now = body.pose
+        assert abs(wrap_angle(now.yaw - target)) < math.radians(3)
+        assert math.hypot(now.x - here.x, now.y - here.y) < 0.3
+        assert {name for name, _ in robot.calls} <= {"navigate_to", "stow_arm", "observe"}
+        bearing = unseen_bearing(occ.explored, geo, body.xy(), parts, body.config.frontier_reach + 1.0)
+        assert abs(wrap_angle(bearing - now.yaw)) > math.pi / 2
+        body.config = replace(body.config, face_unseen=True)
+        robot.calls.clear()
+        robot.sent.clear()
+        body.look_from_frontier(robot, None, parts)
+        assert abs(wrap_angle(body.pose.yaw - bearing)) < math.radians(5)       # turned round first
+        looks = [args[0] for name, args in robot.sent if name == "gaze_at"]
+        assert looks, "no view taken"
+        reach = math.radians(max(abs(d) for d in body.config.view.look_yaws_deg) + 5)
+        for p in looks:
+            assert abs(wrap_angle(math.atan2(p[1] - body.pose.y, p[0] - body.pose.x) - bearing)) <= reach
+        # wedged: obstacles on the map on every side within the turning circle: no turn, no command
+        for k in range(8):
+            a = k * math.pi / 4
+            occ.mark_obstacle((body.pose.x + 0.45 * math.cos(a), body.pose.y + 0.45 * math.sin(a)), 0.05, height=1.0)
+        robot.calls.clear()
+        assert body.turn_to(robot, float(wrap_angle(body.pose.yaw + math.pi))) is False
+        assert not robot.calls
