@@ -153,13 +153,10 @@ class HeliosAgent:
         body.look_all_around(robot)
         if not self.config.view.start_turn_around:
             return
-        back = SE2Pose(body.pose.x, body.pose.y, float(wrap_angle(body.pose.yaw + math.pi)))
-        plan = body.plan(np.array([[back.x, back.y]]), 0.05, back.yaw)
-        if not plan.success or plan.final_turn_blocked or not plan.waypoints:
-            self.log.append("start: no room to turn round")
-            return
-        if body.execute(robot, plan):
+        if body.turn_to(robot, float(wrap_angle(body.pose.yaw + math.pi))):
             body.look_all_around(robot)
+        else:
+            self.log.append("start: could not turn round")
 
     # ================================================================== hooks for trial batches
     def memory_bytes(self) -> dict[str, int]:
