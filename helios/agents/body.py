@@ -28,10 +28,10 @@ from robots.hal import CommandResult, Observation, Reason, RobotBackend, SE2Pose
 from robots.transforms import wrap_angle
 
 MAX_GAZE_YAW = math.radians(105)
+"""The hand camera can be pointed this far to the side of the body heading."""
 UNSEEN_SIDE_NO_TURN = math.radians(45)
 """Where a body that cannot turn looks towards an unseen side behind it: 45 degrees off its
 heading, so the wider side view (60 degrees further) stays within ``MAX_GAZE_YAW``."""
-"""The hand camera can be pointed this far to the side of the body heading."""
 
 HOP_EXTRA_MARGIN = 0.05
 """Metres added to the footprint's margin for a straight hop (``Body.hop``): planned paths keep
