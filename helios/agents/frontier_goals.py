@@ -82,21 +82,20 @@ def unseen_bearing(explored: np.ndarray, geometry, xy, parts: np.ndarray, radius
     if not len(parts):
         return None
     rows, cols = geometry.world_to_cell(parts)
-    last = explored.shape[0] - 1
     steps = np.array([(1, 0), (-1, 0), (0, 1), (0, -1)])
-    nr = np.clip(rows[:, None] + steps[None, :, 0], 0, last).ravel()
-    nc = np.clip(cols[:, None] + steps[None, :, 1], 0, explored.shape[1] - 1).ravel()
+    nr = np.clip(rows[:, None] + steps[:, 0], 0, explored.shape[0] - 1).ravel()
+    nc = np.clip(cols[:, None] + steps[:, 1], 0, explored.shape[1] - 1).ravel()
     unseen = ~explored[nr, nc]
     if not unseen.any():
         return None
-    pts = geometry.cell_to_world(nr[unseen], nc[unseen]).reshape(-1, 2)
-    d = pts - xy
+    d = geometry.cell_to_world(nr[unseen], nc[unseen]).reshape(-1, 2) - xy
     dist = np.hypot(d[:, 0], d[:, 1])
-    near = dist <= radius
-    if near.any():
-        d, dist = d[near], dist[near]
-    d = d[dist > 1e-9] / dist[dist > 1e-9][:, None]
-    mean = d.sum(axis=0)
-    if not len(d) or np.hypot(mean[0], mean[1]) < 1e-6 * len(d):
+    keep = dist > 1e-9                      # a cell under the robot has no bearing
+    if (dist <= radius).any():
+        keep &= dist <= radius
+    if not keep.any():
+        return None
+    mean = (d[keep] / dist[keep][:, None]).sum(axis=0)
+    if np.hypot(mean[0], mean[1]) < 1e-6 * keep.sum():
         return None
     return float(np.arctan2(mean[1], mean[0]))
