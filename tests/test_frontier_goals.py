@@ -24,11 +24,14 @@ from robots.hal import SE2Pose
 GEO = GridGeometry(cell_size=0.1, size=200, origin_x=-10.0, origin_y=-10.0)
 ON = replace(AgentConfig(), frontier_parts=True, frontier_approach=1.5, unstick_distance=0.5)
 """The three exploration fixes switched on (the defaults are the earlier behaviour)."""
-OFF = AgentConfig()
+OFF = AgentConfig(face_unseen=False)
+"""Every exploration option off: the behaviour before 2026-12-02."""
 
 
-def test_the_exploration_fixes_are_off_by_default():
-    assert (OFF.frontier_parts, OFF.frontier_approach, OFF.unstick_distance) == (False, 0.0, 0.0)
+def test_three_exploration_fixes_are_off_by_default_and_facing_the_unseen_side_is_on():
+    default = AgentConfig()
+    assert (default.frontier_parts, default.frontier_approach, default.unstick_distance) == (False, 0.0, 0.0)
+    assert default.face_unseen is True and replace(default, face_unseen=False) == OFF
 
 
 def _frontier(points_xy, centre_xy) -> Frontier:
@@ -333,8 +336,8 @@ def test_looking_from_a_frontier_faces_its_unseen_side_and_turns_when_it_lies_be
     body = _looking_body(on, SE2Pose(0.0, 0.1, -np.pi / 4), can_turn=True)
     body.look_from_frontier(None, None, parts)
     assert body.turns == [] and abs(body.looks[0] + np.pi / 2) < np.radians(5)
-    # off (the default): the given direction, never a turn
-    assert OFF.face_unseen is False
+    # off (the earlier behaviour): the given direction, never a turn; on by default
+    assert AgentConfig().face_unseen is True
     body = _looking_body(OFF, north, can_turn=True)
     body.look_from_frontier(None, 0.3, parts)
     body.look_from_frontier(None, None, parts)
