@@ -69,37 +69,16 @@ def revisit_goals(occupancy, geometry, value_layer: np.ndarray, avoid: Sequence[
 
 STALL_DISTANCE = 0.25
 """m: a step towards a frontier that ends closer than this to where it began made no progress."""
-STALL_SAME_FRONTIER = 0.5
-"""m: two frontier centres this close are the same frontier (as ``HeliosAgent.last_frontier``)."""
 
 
 def stalled(new_frames: int, start, end, arrived: bool) -> bool:
     """A step towards a frontier that took no view, did not arrive and ended within
-    ``STALL_DISTANCE`` of where it began: it left the map and the pose as they were."""
+    ``STALL_DISTANCE`` of where it began: map and pose are as they were, so the next decision
+    would choose the same frontier and take the same step again, until the budget runs out.
+    (train-00020: walk 0.2 m towards a frontier beside a wall, step 0.2 m back to give the arm
+    room, find no direction the arm may look in, and again, every 2 s for the last minute.)"""
     moved = float(np.linalg.norm(np.asarray(end, dtype=float) - np.asarray(start, dtype=float)))
     return new_frames == 0 and not arrived and moved < STALL_DISTANCE
-
-
-class StallWatch:
-    """Notices exploration going round in a circle: two stalled steps (see :func:`stalled`) in a
-    row at the same frontier. The second leaves map and pose as the first did, so every later
-    decision would choose that frontier and take that step again until the budget ran out
-    (train-00020: walk 0.2 m towards a frontier beside a wall, step 0.2 m back to give the arm
-    room, find no direction the arm may look in, and again, for the last minute). A single
-    stalled step is left alone: most are followed by a choice elsewhere."""
-
-    def __init__(self) -> None:
-        self.last: np.ndarray | None = None      # the frontier of the previous step, if it stalled
-
-    def again(self, frontier_xy, new_frames: int, start, end, arrived: bool) -> bool:
-        """Record one step towards ``frontier_xy``; True when it stalled where the previous one did."""
-        if not stalled(new_frames, start, end, arrived):
-            self.last = None
-            return False
-        xy = np.asarray(frontier_xy, dtype=float)
-        repeat = self.last is not None and float(np.linalg.norm(xy - self.last)) <= STALL_SAME_FRONTIER
-        self.last = xy
-        return repeat
 
 
 def unseen_bearing(explored: np.ndarray, geometry, xy, parts: np.ndarray, radius: float) -> float | None:

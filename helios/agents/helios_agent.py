@@ -45,7 +45,7 @@ from helios.agents.activities import ACTIVITIES, DECISION_COUNTS  # noqa: F401  
 from helios.agents.body import Body
 from helios.agents.candidates import candidate_targets, is_candidate, still_candidate
 from helios.agents.config import AgentConfig
-from helios.agents.frontier_goals import StallWatch, frontier_options, revisit_goals
+from helios.agents.frontier_goals import frontier_options, revisit_goals, stalled
 from helios.agents.geometry import away_from, facing, gaze_cameras
 from helios.agents.observer import Observer
 from helios.agents.pick import pick
@@ -122,8 +122,8 @@ class HeliosAgent:
         self.revisited: list[np.ndarray] = []
         self._frontier_cells: dict[int, np.ndarray] = {}
         self.last_frontier: np.ndarray | None = None
-        self.stalls = StallWatch()
-        self._logged = self.decisions = 0
+        self._logged = 0
+        self.decisions = 0
         self.activity = "start_scan"
         """What the latest ``act`` did, one of ``ACTIVITIES`` (the runner times each)."""
         self.stats: Counter = Counter()   # decision counts, see decision_stats()
@@ -379,9 +379,9 @@ class HeliosAgent:
                 and not body.unstick(robot):
             self._mark_unreachable(frontier.xy)     # blocked at the first step: never loop on it
             self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}): no way forward")
-        elif self.stalls.again(frontier.xy, self.map.frame - frame, start, body.xy(), arrived):
+        elif stalled(self.map.frame - frame, start, body.xy(), arrived):   # the same step again and again
             self._mark_unreachable(frontier.xy)
-            self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}): going round in a circle")
+            self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}): no view, no progress")
 
     def _revisit(self, robot: RobotBackend, layer: str) -> bool:
         """No frontier left: walk to the most promising seen place (highest value-map score for
