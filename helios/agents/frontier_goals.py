@@ -67,20 +67,6 @@ def revisit_goals(occupancy, geometry, value_layer: np.ndarray, avoid: Sequence[
     return xy[far][order]
 
 
-STALL_DISTANCE = 0.25
-"""m: a step towards a frontier that ends closer than this to where it began made no progress."""
-
-
-def stalled(new_frames: int, start, end, arrived: bool) -> bool:
-    """A step towards a frontier that took no view, did not arrive and ended within
-    ``STALL_DISTANCE`` of where it began: map and pose are as they were, so the next decision
-    would choose the same frontier and take the same step again, until the budget runs out.
-    (train-00020: walk 0.2 m towards a frontier beside a wall, step 0.2 m back to give the arm
-    room, find no direction the arm may look in, and again, every 2 s for the last minute.)"""
-    moved = float(np.linalg.norm(np.asarray(end, dtype=float) - np.asarray(start, dtype=float)))
-    return new_frames == 0 and not arrived and moved < STALL_DISTANCE
-
-
 def unseen_bearing(explored: np.ndarray, geometry, xy, parts: np.ndarray, radius: float) -> float | None:
     """World yaw from ``xy`` towards the never-seen side of a frontier: the circular mean of the
     bearings to the unexplored 4-neighbours of its ``parts`` (world points on the frontier)

@@ -45,7 +45,7 @@ from helios.agents.activities import ACTIVITIES, DECISION_COUNTS  # noqa: F401  
 from helios.agents.body import Body
 from helios.agents.candidates import candidate_targets, is_candidate, still_candidate
 from helios.agents.config import AgentConfig
-from helios.agents.frontier_goals import frontier_options, revisit_goals, stalled
+from helios.agents.frontier_goals import frontier_options, revisit_goals
 from helios.agents.geometry import away_from, facing, gaze_cameras
 from helios.agents.observer import Observer
 from helios.agents.pick import pick
@@ -349,7 +349,7 @@ class HeliosAgent:
             self.last_frontier = np.asarray(frontier.xy, dtype=float)
         # any part of the frontier will do: its centre may sit in a corner the body cannot reach
         goals = parts = self._frontier_cells.get(frontier.key, np.asarray(frontier.xy, dtype=float)[None])
-        start, frame = body.xy(), self.map.frame
+        start = body.xy()
         if self.config.frontier_parts:
             near = ~away_from(goals, [start], self.config.frontier_reach)
             if near.all():       # every unreached part is within reach already: look, done
@@ -379,9 +379,6 @@ class HeliosAgent:
                 and not body.unstick(robot):
             self._mark_unreachable(frontier.xy)     # blocked at the first step: never loop on it
             self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}): no way forward")
-        elif stalled(self.map.frame - frame, start, body.xy(), arrived):   # the same step again and again
-            self._mark_unreachable(frontier.xy)
-            self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}): no view, no progress")
 
     def _revisit(self, robot: RobotBackend, layer: str) -> bool:
         """No frontier left: walk to the most promising seen place (highest value-map score for
