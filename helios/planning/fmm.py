@@ -53,6 +53,13 @@ class PlannerConfig:
     are tried to find room for it (Spot walks in any direction)."""
     horizon: float = 3.0
     """Metres of path turned into actions per plan (the agent replans after executing them)."""
+    turn_while_walking: float = 0.0
+    """Largest change of heading (rad) taken while walking the next straight move instead of
+    turning in place first, when the footprint's sweep of that combined move is free
+    (``FootprintChecker.straight_move_free``; Spot's SE2 trajectories change x, y and yaw
+    together). 0 (default): the paper's planner, rotate then forward, one stop per action. On
+    8 train episodes the robot spent 67 % of its time walking or turning, more of it turning in
+    place (713 rad, 1346 s) than walking (381 m in 858 straight moves, 1207 s)."""
     max_plan_cells: int = 400_000
     """Largest FMM grid (coarse cells). When the known region (plus start, goal and margin) would
     need more, the plan cell grows by whole multiples until it fits: a fully explored 50 m grid
@@ -77,6 +84,7 @@ class PlannerConfig:
         require_range(self, "forward_min forward_max", 0.0, 10.0, lo_open=True)
         require_range(self, "rotate_min rotate_max", 0.0, math.pi, lo_open=True)
         require_range(self, "horizon", 0.0, 100.0, lo_open=True)
+        require_range(self, "turn_while_walking", 0.0, math.pi)
         require_range(self, "max_plan_cells", 0, 100_000_000)
         if 0 < self.max_plan_cells < 100:
             raise ValueError(f"max_plan_cells must be 0 (no limit) or >= 100, got {self.max_plan_cells}")
@@ -295,6 +303,19 @@ class FMMPlanner:
                 continue
             heading = math.atan2(ty - y, tx - x)
             turn = float(wrap_angle(heading - yaw))
+            walk_turning = cfg.rotate_min <= abs(turn) <= cfg.turn_while_walking
+            if walk_turning:
+                move = min(dist, cfg.forward_max)
+                ex, ey = x + move * math.cos(heading), y + move * math.sin(heading)
+                walk_turning = checker.straight_move_free(x, y, yaw, ex, ey, turn)
+            if walk_turning:      # see PlannerConfig.turn_while_walking
+                actions.extend([Action("rotate", turn), Action("forward", move)])
+                x, y, yaw = ex, ey, heading
+                waypoints.append(SE2Pose(x, y, yaw))
+                travelled += move
+                if move == dist:
+                    i = j
+                continue
             if abs(turn) >= cfg.rotate_min:
                 long_way = False
                 if not checker.turn_free(x, y, yaw, heading):
