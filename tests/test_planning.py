@@ -577,3 +577,51 @@ def test_a_huge_known_region_plans_on_coarser_cells_and_the_limit_can_be_lifted(
     assert np.array_equal(default.path, fine.path)          # 160,000 cells: under the default limit
     with pytest.raises(ValueError, match="max_plan_cells"):
         PlannerConfig(max_plan_cells=5)
+
+
+# ---------------------------------------------------------------------------------- turning while walking
+def _walked_as_executed(start: SE2Pose, waypoints: list[SE2Pose], ds=0.01, dth=math.radians(1)) -> np.ndarray:
+    """Poses the robot passes through from waypoint to waypoint, x, y and yaw changing in
+    proportion (Spot's phase-synchronised SE2 segments), sampled every 1 cm and 1 degree."""
+    out, prev = [], start
+    for w in waypoints:
+        turn = float(wrap_angle(w.yaw - prev.yaw))
+        n = 2 + max(int(math.hypot(w.x - prev.x, w.y - prev.y) / ds), int(abs(turn) / dth))
+        t = np.linspace(0.0, 1.0, n)
+        out.append(np.stack([prev.x + t * (w.x - prev.x), prev.y + t * (w.y - prev.y), prev.yaw + t * turn], axis=1))
+        prev = w
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("seed", (0, 3, 10, 13, 25, 29))   # 10-29: cluttered enough that an unchecked fold collides
+def test_turning_while_walking_folds_small_turns_into_free_moves(seed):
+    """``turn_while_walking``: a change of heading up to the limit is taken while walking the next
+    straight move (one waypoint that changes x, y and yaw) when that sweep is free, so the plan
+    has fewer stops; every executed pose stays free. Off (the default): rotate, then forward."""
+    s, wx = random_map(seed)
+    rng = np.random.default_rng(seed)
+    start, goal = free_pose(s, rng, -4.0, wx - 0.7), free_pose(s, rng, wx + 0.8, 4.0)
+    limit = 0.8
+    plain = s.plan(start, (goal.x, goal.y), horizon=100.0)
+    folded = s.plan(start, (goal.x, goal.y), planner=FMMPlanner(dataclasses.replace(CFG, turn_while_walking=limit)),
+                    horizon=100.0)
+    assert plain.success and folded.success
+
+    def both(r):     # waypoints that walk and turn at once, with the turn they take
+        prev, out = start, []
+        for w in r.waypoints:
+            turn = abs(float(wrap_angle(w.yaw - prev.yaw)))
+            if math.hypot(w.x - prev.x, w.y - prev.y) > 1e-9 and turn > 1e-9:
+                out.append(turn)
+            prev = w
+        return out
+
+    assert both(plain) == []                               # the paper's planner never does both
+    turns = both(folded)
+    assert turns and max(turns) <= limit + 1e-9
+    assert len(folded.waypoints) < len(plain.waypoints)
+    checker = s.checker(REPLAY_TOL).clear_under(start)
+    poses = _walked_as_executed(start, folded.waypoints)
+    assert checker.poses_free(poses).all()
+    if plain.reaches_goal:
+        assert folded.reaches_goal
