@@ -324,7 +324,7 @@ def test_a_failed_extra_view_is_not_offered_again_in_the_same_frame(fresh, monke
         monkeypatch.setattr(agent.body, "view_from", lambda robot, gp: False)
         agent._take_view(sim.backend, target, failing)
         assert agent.observer.last_obs.frame_id == frame          # no new frame was taken
-        assert agent.looks[target.key] == 1
+        assert agent.viewed[target.key] == [(failing.pose.x, failing.pose.y)]
         after = agent._gaze_points_of(inst.id)
         offered_again = any(abs(g.pose.x - failing.pose.x) < 1e-9 and abs(g.pose.y - failing.pose.y) < 1e-9
                             for g in after)

@@ -155,6 +155,16 @@ class AgentConfig:
     max_looks_per_candidate: int = 6
     """Extra views of one target / goal candidate before it is left (a safety net: the decision
     rule stops asking for views once they cannot raise Psi by tau_inc)."""
+    fresh_view_distance: float = 0.0
+    """An extra view of a candidate (the Psi' rule's "take another view") comes from the gaze
+    point with the best predicted Psi' among those at least this far (m) from where earlier extra
+    views of it were taken, while any is left. 0 (default, the paper's rule read literally): the
+    best predicted view, which is the same gaze point again and again, since the prediction does
+    not know where the earlier views came from. A detector sees the same frame the same way, so
+    repeated views from one spot add little: in train-00063 all seven views of the orange came
+    from one gaze point without the robot moving, its Psi crept from 0.38 to 0.47 and stopped
+    below tau_object = 0.5, the looks ran out, and the robot searched elsewhere until the time
+    ran out, 330 s later."""
     fresh_gaze_after_failure: bool = True
     """A goal found unreachable drops the gaze points cached for the current frame, so a failed
     view is not chosen again at once; False restores the earlier behaviour (the same failing gaze

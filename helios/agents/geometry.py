@@ -79,6 +79,16 @@ def away_from(points: np.ndarray, others, radius: float) -> np.ndarray:
     return d.min(axis=1) >= radius
 
 
+def fresh_views(views, used_xy, distance: float) -> list:
+    """The gaze points at least ``distance`` (m) from every place in ``used_xy`` (where earlier
+    views of the same candidate were taken), or all of them when none is (or ``distance`` is 0).
+    See ``AgentConfig.fresh_view_distance``."""
+    if distance <= 0 or not views or not len(used_xy):
+        return list(views)
+    new = away_from([[g.pose.x, g.pose.y] for g in views], used_xy, distance)
+    return [g for g, n in zip(views, new) if n] or list(views)
+
+
 def approach_poses(target, reach: ReachConfig, checker: FootprintChecker) -> np.ndarray:
     """(K, 3) standing poses (x, y, yaw) facing ``target`` (x, y, z) from which the arm reaches
     it, whose footprint is free on the map; most comfortable first."""

@@ -34,7 +34,7 @@ The agent sees the world only through ``observe()`` and the detector/scorer it w
 from __future__ import annotations
 
 import math
-from collections import Counter
+from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Sequence
@@ -46,7 +46,7 @@ from helios.agents.body import Body
 from helios.agents.candidates import candidate_targets, is_candidate, still_candidate
 from helios.agents.config import AgentConfig
 from helios.agents.frontier_goals import frontier_options, revisit_goals
-from helios.agents.geometry import away_from, facing, gaze_cameras
+from helios.agents.geometry import away_from, facing, fresh_views, gaze_cameras
 from helios.agents.observer import Observer
 from helios.agents.pick import pick
 from helios.agents.place import place
@@ -114,7 +114,7 @@ class HeliosAgent:
         self.pick_attempts = 0
         self.visited: set[int] = set()
         self.local: _LocalSearch | None = None
-        self.looks: Counter = Counter()
+        self.viewed: defaultdict[tuple, list] = defaultdict(list)   # per candidate: where its extra views were taken
         self.failures: Counter = Counter()
         self.reached: list[np.ndarray] = []        # frontiers walked to and looked past
         self.unreachable: list[np.ndarray] = []    # goals the planner or the walk failed on
@@ -265,7 +265,7 @@ class HeliosAgent:
             if t.psi >= tau:
                 return t, Verdict.ACT, None
         for t in targets:
-            if t.instance_id is None or self.looks[t.key] >= self.config.max_looks_per_candidate:
+            if t.instance_id is None or len(self.viewed[t.key]) >= self.config.max_looks_per_candidate:
                 continue
             view, predicted = self._best_view(t, cls)
             if decide(t.psi, predicted, tau, decision.tau_increase) is Verdict.LOOK:
@@ -277,7 +277,7 @@ class HeliosAgent:
         best, best_psi = None, None
         assumption = "optimistic" if self.method.decision.view_prediction == "optimistic" \
             else self.method.search.information_gain
-        views = self._gaze_points_of(t.instance_id)
+        views = fresh_views(self._gaze_points_of(t.instance_id), self.viewed[t.key], self.config.fresh_view_distance)
         for gp, T in zip(views, gaze_cameras(views, self.body.body_height, self.config.view)):
             p = predicted_object_score(self.map.objects, t.instance_id, cls, self.observer.last_obs.intrinsics,
                                        T, assumption=assumption).predicted_psi
@@ -441,6 +441,6 @@ class HeliosAgent:
             self.local = None
 
     def _take_view(self, robot: RobotBackend, target: Target, view: GazePoint) -> None:
-        self.looks[target.key] += 1
+        self.viewed[target.key].append((view.pose.x, view.pose.y))
         if not self.body.view_from(robot, view):
             self._mark_unreachable((view.pose.x, view.pose.y))

@@ -1,0 +1,66 @@
+"""Where an extra view of a candidate comes from (``AgentConfig.fresh_view_distance``): the gaze
+point with the best predicted Psi', or with the option the best one away from where earlier
+views of that candidate were taken (no simulator: the prediction is stubbed)."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+
+from helios.agents import helios_agent
+from helios.agents.config import AgentConfig
+from helios.agents.geometry import fresh_views
+from helios.agents.helios_agent import HeliosAgent
+from helios.agents.target import Target
+from helios.config import HeliosConfig
+from helios.search.gaze_points import GazePoint
+from robots.hal import SE2Pose
+
+# three gaze points round an object at the origin; the first promises the best view
+VIEWS = [GazePoint(SE2Pose(x, y, 0.0), np.array([0.0, 0.0, 0.5])) for x, y in ((0.9, 0.0), (0.0, 0.9), (-0.9, 0.0))]
+PROMISED = {(0.9, 0.0): 0.8, (0.0, 0.9): 0.7, (-0.9, 0.0): 0.6}
+
+
+def test_fresh_views_keeps_the_gaze_points_away_from_earlier_views_or_all_when_none_is():
+    assert fresh_views(VIEWS, [], 0.3) == VIEWS
+    assert fresh_views(VIEWS, [(0.9, 0.0)], 0.0) == VIEWS                       # off
+    assert fresh_views(VIEWS, [(0.85, 0.05)], 0.3) == VIEWS[1:]
+    assert fresh_views(VIEWS, [(0.9, 0.0), (0.0, 0.9)], 0.3) == VIEWS[2:]
+    assert fresh_views(VIEWS, [(0.9, 0.0), (0.0, 0.9), (-0.9, 0.0)], 0.3) == VIEWS   # all used: any will do
+    assert fresh_views([], [(0.9, 0.0)], 0.3) == []
+
+
+def _agent(config: AgentConfig, monkeypatch) -> HeliosAgent:
+    agent = HeliosAgent.__new__(HeliosAgent)
+    agent.config, agent.method = config, HeliosConfig()
+    agent.viewed = defaultdict(list)
+    agent.body = SimpleNamespace(body_height=0.6)
+    agent.observer = SimpleNamespace(last_obs=SimpleNamespace(intrinsics=None), map=SimpleNamespace(objects=None))
+    monkeypatch.setattr(agent, "_gaze_points_of", lambda instance_id: list(VIEWS), raising=False)
+    monkeypatch.setattr(helios_agent, "gaze_cameras", lambda views, h, v: [(g.pose.x, g.pose.y) for g in views])
+    monkeypatch.setattr(helios_agent, "predicted_object_score",
+                        lambda gmap, iid, cls, intr, T, assumption: SimpleNamespace(predicted_psi=PROMISED[T]))
+    return agent
+
+
+def test_an_extra_view_comes_from_a_new_spot_only_with_the_option(monkeypatch):
+    target = Target(("instance", 7), np.zeros(3), np.zeros((1, 2)), 0.5, 0.4, None, 7)
+    # the paper's rule read literally (default): the best promised view, however often it was taken
+    agent = _agent(AgentConfig(), monkeypatch)
+    assert AgentConfig().fresh_view_distance == 0.0
+    agent.viewed[target.key] = [(0.9, 0.0), (0.9, 0.0)]
+    view, psi = agent._best_view(target, "mug")
+    assert (view.pose.x, view.pose.y) == (0.9, 0.0) and psi == 0.8
+    # with the option: the best promised view among the spots not looked from yet
+    agent = _agent(replace(AgentConfig(), fresh_view_distance=0.3), monkeypatch)
+    view, psi = agent._best_view(target, "mug")
+    assert (view.pose.x, view.pose.y) == (0.9, 0.0) and psi == 0.8             # nothing taken yet
+    agent.viewed[target.key] = [(0.9, 0.0)]
+    view, psi = agent._best_view(target, "mug")
+    assert (view.pose.x, view.pose.y) == (0.0, 0.9) and psi == 0.7
+    agent.viewed[target.key] = [(0.9, 0.0), (0.0, 0.9), (-0.9, 0.0)]            # every spot used: the best again
+    view, psi = agent._best_view(target, "mug")
+    assert (view.pose.x, view.pose.y) == (0.9, 0.0)
