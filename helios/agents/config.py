@@ -164,7 +164,9 @@ class AgentConfig:
     repeated views from one spot add little: in train-00063 all seven views of the orange came
     from one gaze point without the robot moving, its Psi crept from 0.38 to 0.47 and stopped
     below tau_object = 0.5, the looks ran out, and the robot searched elsewhere until the time
-    ran out, 330 s later."""
+    ran out, 330 s later (with 0.3 it grasps and succeeds at 370 s). Measured with 0.3 on the
+    first 100 train episodes: Pick 38 against 38 (+4 -4), SR 12 against 13 (+3 -4), timeouts 25
+    against 25: views from elsewhere lower Psi as often as they raise it, so the default stays."""
     fresh_gaze_after_failure: bool = True
     """A goal found unreachable drops the gaze points cached for the current frame, so a failed
     view is not chosen again at once; False restores the earlier behaviour (the same failing gaze
