@@ -282,6 +282,7 @@ class AgentConfig:
         require_range(self, "frontier_approach", 0.0, 100.0)
         require_range(self, "unstick_distance", 0.0, 3.0)
         require_range(self, "gaze_hop", 0.0, 10.0)
+        require_range(self, "fresh_view_distance", 0.0, 10.0)
         require(self.local_search_views in ("all", "informative"),
                 f"local_search_views must be 'all' or 'informative', got {self.local_search_views!r}")
         require_range(self, "local_search_min_gain", 0.0, 1.0)
