@@ -1,6 +1,7 @@
 """Where an extra view of a candidate comes from (``AgentConfig.fresh_view_distance``): the gaze
 point with the best predicted Psi', or with the option the best one away from where earlier
-views of that candidate were taken (no simulator: the prediction is stubbed)."""
+views of that candidate were taken (no simulator: a fixed table of promised Psi' replaces the
+prediction)."""
 
 from __future__ import annotations
 

@@ -441,6 +441,7 @@ class HeliosAgent:
             self.local = None
 
     def _take_view(self, robot: RobotBackend, target: Target, view: GazePoint) -> None:
-        self.viewed[target.key].append((view.pose.x, view.pose.y))
+        spot = (view.pose.x, view.pose.y)
+        self.viewed[target.key].append(spot)
         if not self.body.view_from(robot, view):
-            self._mark_unreachable((view.pose.x, view.pose.y))
+            self._mark_unreachable(spot)

@@ -306,12 +306,10 @@ class FMMPlanner:
                 continue
             heading = math.atan2(ty - y, tx - x)
             turn = float(wrap_angle(heading - yaw))
-            walk_turning = cfg.rotate_min <= abs(turn) <= cfg.turn_while_walking
-            if walk_turning:
-                move = min(dist, cfg.forward_max)
-                ex, ey = x + move * math.cos(heading), y + move * math.sin(heading)
-                walk_turning = checker.straight_move_free(x, y, yaw, ex, ey, turn)
-            if walk_turning:      # see PlannerConfig.turn_while_walking
+            move = min(dist, cfg.forward_max)
+            ex, ey = x + move * math.cos(heading), y + move * math.sin(heading)
+            if cfg.rotate_min <= abs(turn) <= cfg.turn_while_walking and \
+                    checker.straight_move_free(x, y, yaw, ex, ey, turn):      # see PlannerConfig.turn_while_walking
                 actions.extend([Action("rotate", turn), Action("forward", move)])
                 x, y, yaw = ex, ey, heading
                 waypoints.append(SE2Pose(x, y, yaw))
