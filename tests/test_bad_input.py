@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
+from cli_helpers import run_cli
 from robots.hal import CameraIntrinsics, InvalidCommandError, InvalidObservationError, Observation, SE2Pose
 from robots.spot.sim_backend import SimSpotBackend
 from robots.spot.urdf import UrdfError, parse_urdf
@@ -93,15 +91,13 @@ def test_observations_reject_nan_depth_and_wrong_shapes():
 
 
 def test_cli_reports_bad_config_in_one_line_without_traceback():
-    proc = subprocess.run([sys.executable, "-m", "tools", "demo", "--no-record", "camera.width=abc"],
-                          capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2
-    assert proc.stderr.strip().splitlines()[-1] == "error: camera.width: expected an integer, got 'abc'"
-    assert "Traceback" not in proc.stderr
-    proc = subprocess.run([sys.executable, "-m", "tools", "demo", "--no-record", "camera.widht=320"],
-                          capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2 and "unknown config key 'camera.widht'" in proc.stderr
-    assert "Traceback" not in proc.stderr
+    rc, _, err = run_cli(["demo", "--no-record", "camera.width=abc"])
+    assert rc == 2
+    assert err.strip().splitlines()[-1] == "error: camera.width: expected an integer, got 'abc'"
+    assert "Traceback" not in err
+    rc, _, err = run_cli(["demo", "--no-record", "camera.widht=320"])
+    assert rc == 2 and "unknown config key 'camera.widht'" in err
+    assert "Traceback" not in err
 
 
 def test_backend_refuses_commands_after_close(world):

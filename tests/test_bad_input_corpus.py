@@ -16,8 +16,6 @@ README "Reliability" lists the guarantees these cases check.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import shutil
 import time
@@ -25,26 +23,16 @@ from pathlib import Path
 
 import pytest
 
+from cli_helpers import run_cli
 from tasks.episodes import load_split
 from tasks.trials import (DAMAGED_FILE, FINGERPRINT_FIELD, TrialConfig, append_result, config_fingerprint,
                           deterministic_view, prepare_run_folder, read_results)
-from tools.cli import main
 
 TASK = "Move the mug from the stool to the table"
 LONG = "x" * 10_000
 UNWRITABLE = "/sys/helios-bad-input/out"        # mkdir there fails even for root
 BUDGET = ["runner.max_commands=3"]              # damage corpus: episodes end after 3 HAL commands
 RUN_ARGS = ["trials", "--agent", "oracle", "--split", "smoke", "--episodes", "3", "--progress", "none"]
-
-
-def run_cli(argv: list[str]) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            rc = main(argv)
-        except SystemExit as exc:           # argparse
-            rc = exc.code if isinstance(exc.code, int) else 2
-    return rc, out.getvalue(), err.getvalue()
 
 
 def snapshot(root: Path) -> dict[str, bytes | None]:

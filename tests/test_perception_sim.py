@@ -3,6 +3,7 @@ persistent errors, recall against distance, the scorer's evidence, and one clear
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import Counter
 
@@ -30,23 +31,36 @@ from sim.scenes.catalog import ALL_CATEGORIES, OBJECT_CATEGORIES
 from sim.spot import SpotBody
 from sim.world import World
 
+# A home the search below finds on today's val split (it generates 40 layouts, ~11 s, to get there):
+# tried first; if the split no longer has a busy table there, the search runs.
+_BUSY_HOME_EPISODE = "val-00195"
+
+
+@functools.lru_cache(maxsize=1)
 def _pick_home():
-    """The first val home with a table carrying at least 5 objects and a counter in a kitchen (the
+    """A val home with a table carrying at least 5 objects and a counter in a kitchen (the
     look-alikes on a busy table are the detector's hard cases): (episode, table, its objects, counter)."""
     from sim.scenes.layout import generate_layout
     from tasks.episodes import load_split
 
-    seen = set()
-    for ep in load_split("val"):
-        if ep.scene.seed in seen:
-            continue
-        seen.add(ep.scene.seed)
+    def busy_table(ep):
         layout = generate_layout(ep.scene.seed, ep.scene.layout_config())
         counters = [r.name for r in layout.receptacles if r.category == "counter" and r.room == "kitchen"]
         for r in layout.receptacles:
             on = sorted(o.name for o in layout.objects if o.receptacle == r.name)
             if r.category == "table" and len(on) >= 5 and counters:
                 return ep, r.name, tuple(on), counters[0]
+        return None
+
+    episodes = load_split("val")
+    hinted = [ep for ep in episodes if ep.episode_id == _BUSY_HOME_EPISODE]
+    seen = set()
+    for ep in hinted + episodes:
+        if ep.scene.seed in seen:
+            continue
+        seen.add(ep.scene.seed)
+        if (found := busy_table(ep)) is not None:
+            return found
     raise AssertionError("no val home with a busy table and a kitchen counter")
 
 

@@ -9,6 +9,7 @@ import sys
 
 import pytest
 
+from cli_helpers import run_cli
 from tasks.episodes import load_split
 from tasks.registry import UnknownAgentError, make_agent
 from tasks.runner import RunnerConfig, run_sim_episode
@@ -147,10 +148,17 @@ def _cli(*args):
     (["tsdf", "smoke-99999"], "error: no episode 'smoke-99999'"),
 ])
 def test_cli_bad_input_is_one_clear_line(args, message):
-    proc = _cli(*args)
+    rc, out, err = run_cli(args)          # in-process; the entry point itself: the test below
+    assert rc == 2, out + err
+    assert err.strip().splitlines()[-1].startswith(message)
+    assert "Traceback" not in err
+
+
+def test_the_entry_point_exits_2_with_one_line_on_bad_input():
+    proc = _cli("trials", "--agent", "helio")
     assert proc.returncode == 2, proc.stdout + proc.stderr
-    assert proc.stderr.strip().splitlines()[-1].startswith(message)
-    assert "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines() == [proc.stderr.strip().splitlines()[-1]]
+    assert proc.stderr.startswith("error: unknown agent 'helio'; valid agents: ")
 
 
 def test_cli_trials_and_episodes_commands(tmp_path):
@@ -233,16 +241,16 @@ def test_cli_replace_stale_moves_another_configurations_results_aside_and_runs_a
     _folder_with_one_record(out, TrialConfig(agent="oracle", split="smoke", episodes=1, seed=7))
     old = (out / "episodes.jsonl").read_text()
     args = ("trials", "--agent", "oracle", "--split", "smoke", "--episodes", "1", "--out", str(out))
-    refused = _cli(*args)                      # without the flag: one clear line, nothing touched
-    assert refused.returncode == 2 and "different configuration (differs in: seed)" in refused.stderr
-    proc = _cli(*args, "--replace-stale")
-    assert proc.returncode == 0, proc.stderr
+    rc, _, err = run_cli([*args])             # without the flag: one clear line, nothing touched
+    assert rc == 2 and "different configuration (differs in: seed)" in err
+    rc, out_text, err = run_cli([*args, "--replace-stale"])
+    assert rc == 0, err
     moved = [p for p in tmp_path.iterdir() if p.name.startswith("r.")]
     assert len(moved) == 1 and (moved[0] / "episodes.jsonl").read_text() == old
     assert (f"[trials] {out} held results of a different configuration (differs in: seed); "
-            f"moved it to {moved[0]} and starting a new run") in proc.stdout
-    assert "1/1 smoke-00000 success" in proc.stdout
+            f"moved it to {moved[0]} and starting a new run") in out_text
+    assert "1/1 smoke-00000 success" in out_text
     assert [r["seed"] for r in read_results(out / "episodes.jsonl").values()] == [episode_seed(0, "smoke-00000")]
-    again = _cli(*args, "--replace-stale")     # the same configuration at the same commit: a resume
-    assert again.returncode == 0 and "moved it" not in again.stdout
+    rc, out_text, _ = run_cli([*args, "--replace-stale"])     # the same configuration at the same commit: a resume
+    assert rc == 0 and "moved it" not in out_text
     assert len([p for p in tmp_path.iterdir() if p.name.startswith("r.")]) == 1
