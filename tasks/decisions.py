@@ -88,3 +88,37 @@ def summarize_activity_time(records: Iterable[dict]) -> dict | None:
     return {"episodes": n, "of": len(records), "activities": activities, "seconds": seconds,
             "share_percent": {a: (100.0 * s / total if total > 0 else 0.0) for a, s in seconds.items()},
             "seconds_per_episode": {a: s / n for a, s in seconds.items()}}
+
+
+# How far a timed-out episode got: the first phase it never reached names the stage it ran out in.
+TIMEOUT_STAGES = (("before_find_obj", "find_obj"), ("found_not_picked", "pick"),
+                  ("picked_goal_not_found", "find_rec"), ("at_goal_not_placed", "place"))
+
+
+def summarize_timeouts(records: Iterable[dict]) -> dict | None:
+    """Where the time ran out: the scored episodes that ended in ``timeout``, split by the stage
+    they ran out in (``TIMEOUT_STAGES``: never found the object; found it, never picked it;
+    picked it, never found the goal receptacle; reached the goal receptacle, never placed), and
+    what those episodes spent their simulated time on. None when no record is scored.
+
+    Returns ``scored``, ``timeouts``, ``percent`` (of ``scored``), ``stages`` (stage -> count),
+    ``activity_seconds_per_episode`` (mean over the timeouts with activity times; None when none
+    has them) and ``gaze_point_visits_per_episode`` / ``extra_views_per_episode`` (mean over the
+    timeouts with decision counts; None when none has them).
+    """
+    scored = [r for r in records if isinstance(r.get("metrics"), dict)]
+    if not scored:
+        return None
+    timeouts = [r for r in scored if r["metrics"].get("failure_reason") == "timeout"]
+    stages = {stage: 0 for stage, _ in TIMEOUT_STAGES}
+    for r in timeouts:
+        stage = next((s for s, key in TIMEOUT_STAGES if not r["metrics"].get(key)), TIMEOUT_STAGES[-1][0])
+        stages[stage] += 1
+    activity = summarize_activity_time(timeouts) if timeouts else None
+    decisions = summarize_decisions(timeouts) if timeouts else None
+    per = decisions["per_episode"] if decisions else None
+    return {"scored": len(scored), "timeouts": len(timeouts), "percent": 100.0 * len(timeouts) / len(scored),
+            "stages": stages,
+            "activity_seconds_per_episode": activity["seconds_per_episode"] if activity else None,
+            "gaze_point_visits_per_episode": per["gaze_point_visits"] if per else None,
+            "extra_views_per_episode": (per["extra_views_object"] + per["extra_views_goal"]) if per else None}

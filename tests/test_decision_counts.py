@@ -9,7 +9,8 @@ from types import SimpleNamespace
 import pytest
 
 from helios.schema import with_overrides
-from tasks.decisions import ACTIVITIES, DECISION_COUNTS, summarize_activity_time, summarize_decisions
+from tasks.decisions import (ACTIVITIES, DECISION_COUNTS, summarize_activity_time, summarize_decisions,
+                             summarize_timeouts)
 from tasks.episodes import load_split
 from tasks.runner import RunnerConfig, run_episode
 from tasks.trials import TrialConfig, append_result, prepare_run_folder, read_results, run_batch, run_one
@@ -181,3 +182,55 @@ def test_report_prints_the_sections_with_na_for_old_runs(tmp_path):
     assert "<h2>Decisions: totals" in page and "<h2>Simulated time per phase" in page
     # n/a: decisions 12 + phase times 7, and the search-speed table's 3 + 5 (these records keep no phase times)
     assert "<td>40.0 (40 s)</td>" in page and page.count("<td>n/a</td>") == 12 + 7 + 8
+
+
+def _timed_out(i: int, reached: tuple[str, ...], extra: dict) -> dict:
+    r = _record(i, extra)
+    r["metrics"] = {**r["metrics"], **{k: k in reached for k in ("find_obj", "pick", "find_rec", "place")},
+                    "failure_reason": "timeout"}
+    r["sim_time"] = 600.0
+    return r
+
+
+TIMEOUTS = [
+    _timed_out(10, (), {"activity_time": {"start_scan": 40.0, "exploration": 300.0, "local_search": 260.0},
+                        "decisions": _decisions(gaze_point_visits=20, extra_views_object=1, sizes=[9, 11])}),
+    _timed_out(11, (), {"activity_time": {"start_scan": 40.0, "exploration": 500.0, "local_search": 60.0},
+                        "decisions": _decisions(gaze_point_visits=6, sizes=[6])}),
+    _timed_out(12, ("find_obj",), {"activity_time": {"start_scan": 40.0, "exploration": 200.0,
+                                                     "local_search": 360.0},
+                                   "decisions": _decisions(gaze_point_visits=10, extra_views_object=6, sizes=[10])}),
+    _timed_out(13, ("find_obj", "pick", "find_rec"), {"activity_time": {"start_scan": 40.0, "pick": 20.0,
+                                                                         "carry": 540.0},
+                                                      "decisions": _decisions(extra_views_goal=5)}),
+]
+
+
+def test_timeouts_are_split_by_the_stage_they_ran_out_in():
+    t = summarize_timeouts(NEW + [OLD] + TIMEOUTS)
+    assert t["scored"] == 7 and t["timeouts"] == 4 and abs(t["percent"] - 400 / 7) < 1e-9
+    assert t["stages"] == {"before_find_obj": 2, "found_not_picked": 1, "picked_goal_not_found": 0,
+                           "at_goal_not_placed": 1}
+    per = t["activity_seconds_per_episode"]           # over the 4 timeouts only
+    assert per["exploration"] == 250.0 and per["local_search"] == 170.0 and per["carry"] == 135.0
+    assert t["gaze_point_visits_per_episode"] == 9.0 and t["extra_views_per_episode"] == 3.0
+    none = summarize_timeouts(NEW)                     # scored, no timeout: zeros, nothing to average
+    assert none["timeouts"] == 0 and none["percent"] == 0.0 and set(none["stages"].values()) == {0}
+    assert none["activity_seconds_per_episode"] is None and none["gaze_point_visits_per_episode"] is None
+    assert summarize_timeouts([{"episode_id": "x", "metrics": None}]) is None
+
+
+def test_report_has_the_timeouts_table(tmp_path):
+    runs = {}
+    for name, records in (("with", NEW + TIMEOUTS), ("without", NEW)):
+        runs[name] = tmp_path / name
+        prepare_run_folder(runs[name], TrialConfig(agent="helios", split="val", episodes=len(records)))
+        for r in records:
+            append_result(runs[name] / "episodes.jsonl", r)
+    result = make_report([runs["with"], runs["without"]], tmp_path / "rep", episode_pages=False)
+    md = result["markdown"]
+    assert "**Timeouts: where the time ran out" in md
+    assert ("| with | 4/6 (66.7 %) | 2 | 1 | 0 | 1 | 40 | 250 | 170 | 5 | 135 | 0 | 9.0 | 3.0 |") in md
+    assert "| without | 0/2 (0.0 %) | 0 | 0 | 0 | 0 | - | - | - | - | - | - | - | - |" in md
+    report = json.loads((tmp_path / "rep" / "report.json").read_text())
+    assert report["with"]["timeouts"]["stages"]["before_find_obj"] == 2

@@ -371,6 +371,40 @@ def activity_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     return headers, rows
 
 
+TIMEOUTS_TITLE = ("Timeouts: where the time ran out (stage = the first phase never reached; then the mean "
+                  "simulated s per phase and gaze point visits in those episodes); n/a: no phase times or decisions")
+
+
+def timeout_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
+    """Per run, the episodes that ran out of time, by the stage they ran out in, and what they
+    spent that time on (``tasks.decisions.summarize_timeouts``): a high timeout share with most
+    of them before FindObj and much local search points at search cost, one with most of them
+    found-not-picked at the Psi' rule."""
+    from tasks.decisions import ACTIVITIES, summarize_timeouts
+
+    summaries = [summarize_timeouts(r.records) for r in runs]
+    activities = list(ACTIVITIES)
+    for s in summaries:
+        activities += [a for a in ((s or {}).get("activity_seconds_per_episode") or ()) if a not in activities]
+    headers = (["run", "timeouts", "before FindObj", "found, not picked", "picked, goal not found",
+                "at goal, not placed"] + [f"{a} s" for a in activities] + ["gaze pt visits", "extra views"])
+    rows = []
+    for r, s in zip(runs, summaries):
+        if s is None:
+            rows.append([r.name, "0 scored"] + ["-"] * (len(headers) - 2))
+            continue
+        row = [r.name, f"{s['timeouts']}/{s['scored']} ({s['percent']:.1f} %)"] + [str(v) for v in s["stages"].values()]
+        per = s["activity_seconds_per_episode"]
+        if not s["timeouts"]:
+            row += ["-"] * (len(activities) + 2)
+        else:
+            row += [f"{per.get(a, 0.0):.0f}" if per is not None else "n/a" for a in activities]
+            row += [f"{s[k]:.1f}" if s[k] is not None else "n/a"
+                    for k in ("gaze_point_visits_per_episode", "extra_views_per_episode")]
+        rows.append(row)
+    return headers, rows
+
+
 # ------------------------------------------------------------------------------------------------
 # Plots
 # ------------------------------------------------------------------------------------------------
@@ -623,6 +657,7 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     tables.append((SPEED_TITLE, *speed_rows(runs)))
     tables.append((DECISIONS_TITLE, *decision_rows(runs)))
     tables.append((TIME_TITLE, *activity_rows(runs)))
+    tables.append((TIMEOUTS_TITLE, *timeout_rows(runs)))
     text = "\n\n".join(format_table(h, r, title=t) for t, h, r in tables)
     markdown = "\n\n".join(f"**{t}**\n\n" + format_markdown(h, r) for t, h, r in tables)
     (out / "table.txt").write_text(text + "\n")
@@ -645,11 +680,12 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
         except ImportError as exc:
             warnings.append(f"episode pages need Pillow (pip install -e '.[viz]'): {exc}; wrote the tables only")
     write_html(out / "index.html", runs, tables, figures, episodes)
-    from tasks.decisions import summarize_activity_time, summarize_decisions
+    from tasks.decisions import summarize_activity_time, summarize_decisions, summarize_timeouts
 
     (out / "report.json").write_text(json.dumps({r.name: {"path": str(r.path), "summary": r.summary,
                                                           "decisions": summarize_decisions(r.records),
-                                                          "activity_time": summarize_activity_time(r.records)}
+                                                          "activity_time": summarize_activity_time(r.records),
+                                                          "timeouts": summarize_timeouts(r.records)}
                                                  for r in runs}, indent=2, sort_keys=True))
     return {"text": text, "markdown": markdown, "figures": figures, "html": out / "index.html", "warnings": warnings,
             "pages": {r.name: pages for r, pages in episodes}}
