@@ -321,6 +321,14 @@ class DecisionConfig:
     IG (``SearchConfig.information_gain``: the optimistic best case for HELIOS, the expectation
     over {class, background} for the 50-50 ablation), or always optimistic (our earlier reading,
     under which the 50-50 ablation changed only the start-receptacle IG)."""
+    view_prediction_poses: Literal["best", "all"] = "best"
+    """Which views Psi' assumes when deciding whether to take another view. The paper predicts
+    Psi' "if we take m observations Y from poses P" and its appendix generates the gaze points
+    but "only go[es] to one", the one with the highest Psi' from that viewpoint. ``best``: Psi'
+    of that one view decides (our reading so far); ``all``: Psi' of one view from every gaze
+    point together decides (P = the gaze points), and the robot still goes to the best one.
+    Large instances (a bed, a counter) gain little from any single view, so under ``best`` their
+    Psi can sit just below tau with no view predicted to lift it."""
 
     def __post_init__(self) -> None:
         for name in ("tau_object", "tau_goal_receptacle", "cs_object", "cs_goal_receptacle"):
@@ -331,6 +339,8 @@ class DecisionConfig:
                 "candidate_class must be 'most_likely' or 'score_only'")
         require(self.view_prediction in ("follow_information_gain", "optimistic"),
                 "view_prediction must be 'follow_information_gain' or 'optimistic'")
+        require(self.view_prediction_poses in ("best", "all"),
+                f"view_prediction_poses must be 'best' or 'all', got {self.view_prediction_poses!r}")
 
 
 @dataclass(frozen=True)

@@ -65,3 +65,34 @@ def test_an_extra_view_comes_from_a_new_spot_only_with_the_option(monkeypatch):
     agent.viewed[target.key] = [(0.9, 0.0), (0.0, 0.9), (-0.9, 0.0)]            # every spot used: the best again
     view, psi = agent._best_view(target, "mug")
     assert (view.pose.x, view.pose.y) == (0.9, 0.0)
+
+
+def test_the_look_decision_can_weigh_one_view_from_every_gaze_point(monkeypatch):
+    """``DecisionConfig.view_prediction_poses``: with ``best`` (default) the Psi' of the best single
+    view decides; with ``all`` the Psi' of one view from every gaze point together decides, and the
+    view taken is still the best single one. Psi 0.40, tau 0.5, tau_inc 0.05: a view must promise
+    0.45. No single view does (0.44 at best); all three together do (0.47)."""
+    from helios.search.decisions import Verdict
+
+    promised = {(0.9, 0.0): 0.44, (0.0, 0.9): 0.43, (-0.9, 0.0): 0.42}
+    target = Target(("instance", 7), np.zeros(3), np.zeros((1, 2)), 0.45, 0.40, None, 7)
+    seen_cams = []
+
+    def of_views(gmap, iid, cls, intr, cams, assumption):
+        seen_cams.append(list(cams))
+        return SimpleNamespace(predicted_psi=0.40 + 0.07 * len(cams) / 3)
+
+    for poses, verdict in (("best", Verdict.IGNORE), ("all", Verdict.LOOK)):
+        agent = _agent(AgentConfig(), monkeypatch)
+        agent.method = replace(agent.method, decision=replace(agent.method.decision, view_prediction_poses=poses))
+        agent.object_class, agent.failures = "mug", {}
+        monkeypatch.setattr(helios_agent, "predicted_object_score",
+                            lambda gmap, iid, cls, intr, T, assumption: SimpleNamespace(predicted_psi=promised[T]))
+        monkeypatch.setattr(helios_agent, "predicted_object_score_of_views", of_views)
+        monkeypatch.setattr(helios_agent, "candidate_targets", lambda *a, **k: [target])
+        chosen, got, view = agent._judge_targets("mug")
+        assert got is verdict, poses
+        if verdict is Verdict.LOOK:
+            assert chosen is target and (view.pose.x, view.pose.y) == (0.9, 0.0)     # still the best single view
+    assert seen_cams == [[(0.9, 0.0), (0.0, 0.9), (-0.9, 0.0)]]                      # asked once, with every view
+    assert HeliosConfig().decision.view_prediction_poses == "best"

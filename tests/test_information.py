@@ -9,7 +9,8 @@ from helios.config import HeliosConfig
 from helios.maps import ClassSet, GridGeometry, MapInputError, UnknownClassError
 from helios.maps.gaussians import GaussianMap
 from helios.search.information import (dirichlet_entropy, fifty_fifty_information_gain, information_gain,
-                                       optimistic_evidence, optimistic_information_gain, predicted_object_score)
+                                       optimistic_evidence, optimistic_information_gain, predicted_object_score,
+                                       predicted_object_score_of_views)
 from robots.transforms import look_at_camera as look_at
 from sim.synthetic_boxes import pinhole
 
@@ -163,3 +164,23 @@ def test_informative_views_skip_repeats_and_blind_views_but_cover_every_side():
     assert informative_views(gmap, iid, "table", CAM, [away, away], 0.5) == [0, 1]   # no information anywhere
     with pytest.raises(ValueError, match="min_fraction"):
         informative_views(gmap, iid, "table", CAM, cams, 1.5)
+
+
+def test_psi_prime_of_several_views_adds_their_evidence():
+    """``predicted_object_score_of_views``: one copy of the concentrations takes the evidence of
+    every pose (the paper's m observations from poses P); one pose is ``predicted_object_score``,
+    the same pose twice is two views from it, and no pose leaves Psi as it is."""
+    gmap, iid = blob_map([2.0, 1.0, 1.0])
+    side = look_at([0.6, 0.9, 1.0], [2.0, 0.0, 1.0])         # oblique: sees the sheet, less of it
+    for assumption in ("optimistic", "fifty_fifty"):
+        single = predicted_object_score(gmap, iid, "cup", CAM, POSE, assumption=assumption)
+        assert predicted_object_score_of_views(gmap, iid, "cup", CAM, [POSE], assumption) == single
+        twice = predicted_object_score(gmap, iid, "cup", CAM, POSE, views=2, assumption=assumption)
+        assert predicted_object_score_of_views(gmap, iid, "cup", CAM, [POSE, POSE], assumption).predicted_psi == \
+            pytest.approx(twice.predicted_psi, rel=1e-12)
+        none = predicted_object_score_of_views(gmap, iid, "cup", CAM, [], assumption)
+        assert none.predicted_psi == pytest.approx(none.psi)
+    both = predicted_object_score_of_views(gmap, iid, "cup", CAM, [POSE, side])
+    assert both.predicted_psi > max(predicted_object_score(gmap, iid, "cup", CAM, T).predicted_psi for T in (POSE, side))
+    with pytest.raises(ValueError, match="assumption"):
+        predicted_object_score_of_views(gmap, iid, "cup", CAM, [POSE], "pessimistic")

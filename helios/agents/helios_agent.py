@@ -57,7 +57,8 @@ from helios.perception.detection import Detector, ImageTextScorer
 from helios.planning.fmm import FMMPlanner
 from helios.search.decisions import Verdict, decide
 from helios.search.gaze_points import GazePoint, gaze_points
-from helios.search.information import informative_views, predicted_object_score, views_information_gain
+from helios.search.information import (informative_views, predicted_object_score,
+                                       predicted_object_score_of_views, views_information_gain)
 from helios.search.objective import CandidateLocation, FrontierOption, GlobalObjective
 from robots.hal import RobotBackend, SE2Pose
 from robots.transforms import wrap_angle
@@ -273,16 +274,23 @@ class HeliosAgent:
         return None, Verdict.IGNORE, None
 
     def _best_view(self, t: Target, cls: str) -> tuple[GazePoint | None, float | None]:
-        """The gaze point whose view would give the highest Psi' (under ``view_prediction``)."""
+        """The gaze point whose view would give the highest Psi' (under ``view_prediction``), and
+        the Psi' that decides whether to take it: that view's, or with
+        ``view_prediction_poses=all`` the Psi' of one view from every gaze point offered."""
         best, best_psi = None, None
-        assumption = "optimistic" if self.method.decision.view_prediction == "optimistic" \
+        decision = self.method.decision
+        assumption = "optimistic" if decision.view_prediction == "optimistic" \
             else self.method.search.information_gain
         views = fresh_views(self._gaze_points_of(t.instance_id), self.viewed[t.key], self.config.fresh_view_distance)
-        for gp, T in zip(views, gaze_cameras(views, self.body.body_height, self.config.view)):
-            p = predicted_object_score(self.map.objects, t.instance_id, cls, self.observer.last_obs.intrinsics,
-                                       T, assumption=assumption).predicted_psi
+        cams = gaze_cameras(views, self.body.body_height, self.config.view)
+        intr = self.observer.last_obs.intrinsics
+        for gp, T in zip(views, cams):
+            p = predicted_object_score(self.map.objects, t.instance_id, cls, intr, T, assumption=assumption).predicted_psi
             if best_psi is None or p > best_psi:
                 best, best_psi = gp, p
+        if best is not None and decision.view_prediction_poses == "all":
+            best_psi = predicted_object_score_of_views(self.map.objects, t.instance_id, cls, intr, cams,
+                                                       assumption=assumption).predicted_psi
         return best, best_psi
 
     def _gaze_points_of(self, instance_id: int) -> list[GazePoint]:

@@ -94,13 +94,38 @@ def predicted_object_score(gmap: GaussianMap, instance_id: int, target_class: st
     assumption carried into the decision rule)."""
     if views < 0:
         raise ValueError(f"views must be >= 0, got {views}")
+    _check_assumption(assumption)
+    idx, delta = optimistic_evidence(gmap, instance_id, intrinsics, T_world_cam)
+    return _predicted(gmap, idx, target_class, views * delta, assumption)
+
+
+def predicted_object_score_of_views(gmap: GaussianMap, instance_id: int, target_class: str,
+                                    intrinsics: CameraIntrinsics, T_world_cams,
+                                    assumption: str = "optimistic") -> PredictedScore:
+    """Psi'_o after one view from each pose together (the paper's "m observations Y from poses
+    P"): the evidence of all views is added to one copy of the concentrations, as
+    ``views_information_gain`` does for IG. No pose: Psi' = Psi."""
+    _check_assumption(assumption)
+    idx = gmap.instance_indices(instance_id)
+    delta = torch.zeros(idx.size, dtype=torch.float64, device=gmap.device)
+    for T in T_world_cams:
+        delta += optimistic_evidence(gmap, instance_id, intrinsics, T)[1]
+    return _predicted(gmap, idx, target_class, delta, assumption)
+
+
+def _check_assumption(assumption: str) -> None:
     if assumption not in ("optimistic", "fifty_fifty"):
         raise ValueError(f"unknown measurement assumption {assumption!r}")
+
+
+def _predicted(gmap: GaussianMap, idx: np.ndarray, target_class: str, delta: torch.Tensor,
+               assumption: str) -> PredictedScore:
+    """S, U, Psi of the instance's Gaussians ``idx`` now and with ``delta`` evidence on the class
+    (optimistic) or its 50-50 expectation with the evidence on background instead."""
     cls = gmap.classes.index(target_class)
-    idx, delta = optimistic_evidence(gmap, instance_id, intrinsics, T_world_cam)
     gamma = gmap.concentrations[torch.as_tensor(idx, device=gmap.device)]
     after = gamma.clone()
-    after[:, cls] += views * delta
+    after[:, cls] += delta
     alpha_cs = gmap.scoring.alpha_cs
 
     def score(g: torch.Tensor) -> tuple[float, float, float]:
@@ -112,7 +137,7 @@ def predicted_object_score(gmap: GaussianMap, instance_id: int, target_class: st
     s1, u1, p1 = score(after)
     if assumption == "fifty_fifty":
         against = gamma.clone()
-        against[:, gmap.classes.background_index] += views * delta
+        against[:, gmap.classes.background_index] += delta
         s2, u2, p2 = score(against)
         s1, u1, p1 = 0.5 * (s1 + s2), 0.5 * (u1 + u2), 0.5 * (p1 + p2)
     return PredictedScore(s0, u0, p0, s1, u1, p1)
