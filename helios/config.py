@@ -328,7 +328,10 @@ class DecisionConfig:
     of that one view decides (our reading so far); ``all``: Psi' of one view from every gaze
     point together decides (P = the gaze points), and the robot still goes to the best one.
     Large instances (a bed, a counter) gain little from any single view, so under ``best`` their
-    Psi can sit just below tau with no view predicted to lift it."""
+    Psi can sit just below tau with no view predicted to lift it. Measured with ``all`` on the
+    first 100 train episodes: as many target-object views (355), 21 more goal-receptacle views,
+    outcomes identical but one FindObj (+1 -0), timeouts 24 against 25 (README), so ``best``
+    stays."""
 
     def __post_init__(self) -> None:
         for name in ("tau_object", "tau_goal_receptacle", "cs_object", "cs_goal_receptacle"):
