@@ -17,6 +17,7 @@ from helios.agents.geometry import fresh_views
 from helios.agents.helios_agent import HeliosAgent
 from helios.agents.target import Target
 from helios.config import HeliosConfig
+from helios.search import information
 from helios.search.gaze_points import GazePoint
 from robots.hal import SE2Pose
 
@@ -42,7 +43,7 @@ def _agent(config: AgentConfig, monkeypatch) -> HeliosAgent:
     agent.observer = SimpleNamespace(last_obs=SimpleNamespace(intrinsics=None), map=SimpleNamespace(objects=None))
     monkeypatch.setattr(agent, "_gaze_points_of", lambda instance_id: list(VIEWS), raising=False)
     monkeypatch.setattr(helios_agent, "gaze_cameras", lambda views, h, v: [(g.pose.x, g.pose.y) for g in views])
-    monkeypatch.setattr(helios_agent, "predicted_object_score",
+    monkeypatch.setattr(information, "predicted_object_score",
                         lambda gmap, iid, cls, intr, T, assumption: SimpleNamespace(predicted_psi=PROMISED[T]))
     return agent
 
@@ -86,9 +87,9 @@ def test_the_look_decision_can_weigh_one_view_from_every_gaze_point(monkeypatch)
         agent = _agent(AgentConfig(), monkeypatch)
         agent.method = replace(agent.method, decision=replace(agent.method.decision, view_prediction_poses=poses))
         agent.object_class, agent.failures = "mug", {}
-        monkeypatch.setattr(helios_agent, "predicted_object_score",
+        monkeypatch.setattr(information, "predicted_object_score",
                             lambda gmap, iid, cls, intr, T, assumption: SimpleNamespace(predicted_psi=promised[T]))
-        monkeypatch.setattr(helios_agent, "predicted_object_score_of_views", of_views)
+        monkeypatch.setattr(information, "predicted_object_score_of_views", of_views)
         monkeypatch.setattr(helios_agent, "candidate_targets", lambda *a, **k: [target])
         chosen, got, view = agent._judge_targets("mug")
         assert got is verdict, poses

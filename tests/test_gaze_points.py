@@ -10,6 +10,7 @@ import pytest
 from helios.maps.grid import GridGeometry
 from helios.planning.footprint import FootprintChecker, FootprintConfig
 from helios.search.gaze_points import GazeConfig, GazePoint, contour_points, gaze_points, line_of_sight
+from robots.hal import SE2Pose
 from robots.transforms import wrap_angle
 
 GEO = GridGeometry(0.025, 400, -5.0, -5.0)
@@ -244,3 +245,12 @@ def test_gaze_config_validation():
     for bad in (dict(standoffs=()), dict(standoffs=(0.9, -1.0)), dict(spacing=0.0), dict(min_points=2)):
         with pytest.raises(ValueError):
             GazeConfig(**bad)
+
+
+def test_a_local_search_visits_the_nearest_gaze_point_first_then_the_nearest_to_the_last():
+    from helios.search.gaze_points import visiting_order
+
+    pts = [GazePoint(SE2Pose(x, y, 0.0), np.zeros(3)) for x, y in ((3.0, 0.0), (1.0, 0.0), (0.0, 2.5), (2.0, 0.1))]
+    order = visiting_order(pts, (0.0, 0.0))
+    assert [(g.pose.x, g.pose.y) for g in order] == [(1.0, 0.0), (2.0, 0.1), (3.0, 0.0), (0.0, 2.5)]
+    assert len(pts) == 4 and visiting_order([], (0.0, 0.0)) == []      # the caller's list is left alone

@@ -56,9 +56,8 @@ from helios.maps.hierarchical import HierarchicalMap
 from helios.perception.detection import Detector, ImageTextScorer
 from helios.planning.fmm import FMMPlanner
 from helios.search.decisions import Verdict, decide
-from helios.search.gaze_points import GazePoint, gaze_points
-from helios.search.information import (informative_views, predicted_object_score,
-                                       predicted_object_score_of_views, views_information_gain)
+from helios.search.gaze_points import GazePoint, gaze_points, visiting_order
+from helios.search.information import best_view_prediction, informative_views, views_information_gain
 from helios.search.objective import CandidateLocation, FrontierOption, GlobalObjective
 from robots.hal import RobotBackend, SE2Pose
 from robots.transforms import wrap_angle
@@ -275,23 +274,15 @@ class HeliosAgent:
 
     def _best_view(self, t: Target, cls: str) -> tuple[GazePoint | None, float | None]:
         """The gaze point whose view would give the highest Psi' (under ``view_prediction``), and
-        the Psi' that decides whether to take it: that view's, or with
-        ``view_prediction_poses=all`` the Psi' of one view from every gaze point offered."""
-        best, best_psi = None, None
+        the Psi' that decides whether to take it (``view_prediction_poses``)."""
         decision = self.method.decision
         assumption = "optimistic" if decision.view_prediction == "optimistic" \
             else self.method.search.information_gain
         views = fresh_views(self._gaze_points_of(t.instance_id), self.viewed[t.key], self.config.fresh_view_distance)
-        cams = gaze_cameras(views, self.body.body_height, self.config.view)
-        intr = self.observer.last_obs.intrinsics
-        for gp, T in zip(views, cams):
-            p = predicted_object_score(self.map.objects, t.instance_id, cls, intr, T, assumption=assumption).predicted_psi
-            if best_psi is None or p > best_psi:
-                best, best_psi = gp, p
-        if best is not None and decision.view_prediction_poses == "all":
-            best_psi = predicted_object_score_of_views(self.map.objects, t.instance_id, cls, intr, cams,
-                                                       assumption=assumption).predicted_psi
-        return best, best_psi
+        i, psi = best_view_prediction(self.map.objects, t.instance_id, cls, self.observer.last_obs.intrinsics,
+                                      gaze_cameras(views, self.body.body_height, self.config.view), assumption,
+                                      decision.view_prediction_poses)
+        return (None if i is None else views[i]), psi
 
     def _gaze_points_of(self, instance_id: int) -> list[GazePoint]:
         """The instance's gaze points on seen floor, away from goals found unreachable (cached
@@ -427,11 +418,7 @@ class HeliosAgent:
             keep = informative_views(self.map.objects, instance_id, self.start_class, self.observer.last_obs.intrinsics,
                                      cams, self.config.local_search_min_gain, self.method.search.information_gain)
             views = [views[i] for i in sorted(keep)]
-        order, here = [], self.body.xy()
-        while views:   # nearest first, then nearest to the last one
-            i = int(np.argmin([math.hypot(g.pose.x - here[0], g.pose.y - here[1]) for g in views]))
-            order.append(views.pop(i))
-            here = np.array([order[-1].pose.x, order[-1].pose.y])
+        order = visiting_order(views, self.body.xy())
         self.local = _LocalSearch(instance_id, order)
         self.local_search_sizes.append(len(order))
         self.log.append(f"local search of instance {instance_id}: {len(order)} gaze points")

@@ -155,3 +155,14 @@ class _Window:
         t = np.linspace(0.0, 1.0, n)[:, None]
         rows, cols = self.local_cells(a + t * (b - a))
         return not bool(local_blocking[rows, cols].any())
+
+
+def visiting_order(views: list[GazePoint], start_xy) -> list[GazePoint]:
+    """The order a local search visits its gaze points in: the nearest to ``start_xy`` first,
+    then each time the nearest to the last one (the paper: "starting from the closest")."""
+    views, order, here = list(views), [], np.asarray(start_xy, dtype=float)
+    while views:
+        i = int(np.argmin([math.hypot(g.pose.x - here[0], g.pose.y - here[1]) for g in views]))
+        order.append(views.pop(i))
+        here = np.array([order[-1].pose.x, order[-1].pose.y])
+    return order

@@ -113,6 +113,24 @@ def predicted_object_score_of_views(gmap: GaussianMap, instance_id: int, target_
     return _predicted(gmap, idx, target_class, delta, assumption)
 
 
+def best_view_prediction(gmap: GaussianMap, instance_id: int, target_class: str, intrinsics: CameraIntrinsics,
+                         T_world_cams, assumption: str = "optimistic",
+                         poses: str = "best") -> tuple[int | None, float | None]:
+    """For "take another view?": the index of the camera whose one view promises the highest Psi'
+    (the first of equals), and the Psi' that decides: that view's (``poses="best"``) or that of
+    one view from every camera together (``"all"``, ``predicted_object_score_of_views``).
+    (None, None) without cameras."""
+    best, best_psi = None, None
+    for i, T in enumerate(T_world_cams):
+        p = predicted_object_score(gmap, instance_id, target_class, intrinsics, T, assumption=assumption).predicted_psi
+        if best_psi is None or p > best_psi:
+            best, best_psi = i, p
+    if best is not None and poses == "all":
+        best_psi = predicted_object_score_of_views(gmap, instance_id, target_class, intrinsics, T_world_cams,
+                                                   assumption=assumption).predicted_psi
+    return best, best_psi
+
+
 def _check_assumption(assumption: str) -> None:
     if assumption not in ("optimistic", "fifty_fifty"):
         raise ValueError(f"unknown measurement assumption {assumption!r}")
