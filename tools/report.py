@@ -350,15 +350,24 @@ def decision_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     return headers, rows
 
 
+def _activity_columns(per_run) -> list[str]:
+    """Table columns for phases: ``ACTIVITIES`` in their order, then any other a run has, in the
+    order first seen (``per_run``: each run's activity names)."""
+    from tasks.decisions import ACTIVITIES
+
+    columns = list(ACTIVITIES)
+    for names in per_run:
+        columns += [a for a in names if a not in columns]
+    return columns
+
+
 def activity_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     """Per run, the share of simulated time spent in each phase (time-weighted over the episodes)
     and the mean seconds per episode (``tasks.decisions.summarize_activity_time``)."""
-    from tasks.decisions import ACTIVITIES, summarize_activity_time
+    from tasks.decisions import summarize_activity_time
 
     summaries = [summarize_activity_time(r.records) for r in runs]
-    activities = list(ACTIVITIES)
-    for s in summaries:
-        activities += [a for a in (s["activities"] if s else ()) if a not in activities]
+    activities = _activity_columns(s["activities"] if s else () for s in summaries)
     headers = ["run", "episodes", "sim s/ep"] + activities
     rows = []
     for r, s in zip(runs, summaries):
@@ -380,12 +389,10 @@ def timeout_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     spent that time on (``tasks.decisions.summarize_timeouts``): a high timeout share with most
     of them before FindObj and much local search points at search cost, one with most of them
     found-not-picked at the Psi' rule."""
-    from tasks.decisions import ACTIVITIES, summarize_timeouts
+    from tasks.decisions import summarize_timeouts
 
     summaries = [summarize_timeouts(r.records) for r in runs]
-    activities = list(ACTIVITIES)
-    for s in summaries:
-        activities += [a for a in ((s or {}).get("activity_seconds_per_episode") or ()) if a not in activities]
+    activities = _activity_columns(((s or {}).get("activity_seconds_per_episode") or ()) for s in summaries)
     headers = (["run", "timeouts", "before FindObj", "found, not picked", "picked, goal not found",
                 "at goal, not placed"] + [f"{a} s" for a in activities] + ["gaze pt visits", "extra views"])
     rows = []

@@ -107,10 +107,8 @@ def predicted_object_score_of_views(gmap: GaussianMap, instance_id: int, target_
     ``views_information_gain`` does for IG. No pose: Psi' = Psi."""
     _check_assumption(assumption)
     idx = gmap.instance_indices(instance_id)
-    delta = torch.zeros(idx.size, dtype=torch.float64, device=gmap.device)
-    for T in T_world_cams:
-        delta += optimistic_evidence(gmap, instance_id, intrinsics, T)[1]
-    return _predicted(gmap, idx, target_class, delta, assumption)
+    return _predicted(gmap, idx, target_class, _summed_evidence(gmap, instance_id, intrinsics, T_world_cams, idx.size),
+                      assumption)
 
 
 def best_view_prediction(gmap: GaussianMap, instance_id: int, target_class: str, intrinsics: CameraIntrinsics,
@@ -174,10 +172,17 @@ def views_information_gain(gmap: GaussianMap, instance_id: int, target_class: st
     if idx.size == 0:
         return 0.0
     gamma = gmap.concentrations[torch.as_tensor(idx, device=gmap.device)]
-    delta = torch.zeros(idx.size, dtype=torch.float64, device=gmap.device)
+    delta = _summed_evidence(gmap, instance_id, intrinsics, T_world_cams, idx.size)
+    return _views_gain(gamma, cls, gmap.classes.background_index, delta, assumption)
+
+
+def _summed_evidence(gmap: GaussianMap, instance_id: int, intrinsics: CameraIntrinsics, T_world_cams,
+                     n: int) -> torch.Tensor:
+    """(n,) float64: the evidence one view from each pose adds to the instance's n Gaussians."""
+    delta = torch.zeros(n, dtype=torch.float64, device=gmap.device)
     for T in T_world_cams:
         delta += optimistic_evidence(gmap, instance_id, intrinsics, T)[1]
-    return _views_gain(gamma, cls, gmap.classes.background_index, delta, assumption)
+    return delta
 
 
 def _views_gain(gamma: torch.Tensor, cls: int, background: int, delta: torch.Tensor, assumption: str) -> float:
