@@ -168,11 +168,11 @@ def test_cli_trials_and_episodes_commands(tmp_path):
     assert "1/1 smoke-00000 success" in proc.stdout
     assert (tmp_path / "r" / "config.yaml").read_text().startswith("helios_version:")
     out = tmp_path / "mine.jsonl"
-    proc = _cli("episodes", "generate", "--name", "mine", "--seed", "3", "--count", "2", "--difficulty", "easy",
-                "--out", str(out))
-    assert proc.returncode == 0 and len(out.read_text().splitlines()) == 2
-    proc = _cli("episodes", "check", str(out))
-    assert "2 valid episodes" in proc.stdout
+    rc, _, _ = run_cli(["episodes", "generate", "--name", "mine", "--seed", "3", "--count", "2", "--difficulty",
+                        "easy", "--out", str(out)])
+    assert rc == 0 and len(out.read_text().splitlines()) == 2
+    _, stdout, _ = run_cli(["episodes", "check", str(out)])
+    assert "2 valid episodes" in stdout
 
 
 def test_every_command_help_describes_it_in_whole_sentences():
