@@ -11,7 +11,7 @@ from scipy import ndimage
 from helios.config import RenderConfig
 from helios.maps.grid import GridGeometry
 from helios.maps.renderer import (Rendering, _kept, _kept_torch, _minus_run_start, _minus_run_start_torch,
-                                  _select, _select_torch, _sorted_pairs, _sorting_permutation,
+                                  _select, _select_torch, _sorted_pairs, _sorted_segments, _sorting_permutation,
                                   empty_rendering, render_gaussians)
 from helios.planning.fmm import FMMPlanner, _clearance, _descend, _far_enough_inside, _pool
 from helios.planning.footprint import FootprintChecker, FootprintConfig
@@ -221,15 +221,38 @@ def test_packed_pair_sort_reads_back_what_the_key_sort_gathers():
     assert all(torch.equal(a, b) for a, b in zip(fallback, (sorted_pix, sorted_rank, perm)))
 
 
+def _segments(rng, n_ranks: int, n_pixels: int):
+    """Pairs in one segment per Gaussian (some empty), ranks a permutation, no (pixel, rank) twice."""
+    counts = rng.integers(0, 40, n_ranks)
+    counts[rng.random(n_ranks) < 0.2] = 0
+    segment_rank = rng.permutation(n_ranks)
+    pix = np.concatenate([rng.choice(n_pixels, c, replace=False) for c in counts])
+    return torch.as_tensor(pix), torch.as_tensor(counts), torch.as_tensor(segment_rank)
+
+
+def test_segment_sort_is_the_pair_sort():
+    rng = np.random.default_rng(11)
+    for n_pixels in (160 * 120, 1 << 16, 640 * 480):       # the last: too many pixels for 16 bits
+        pix, counts, segment_rank = _segments(rng, 3_000, n_pixels)
+        rank = torch.repeat_interleave(segment_rank, counts)
+        fast = _sorted_segments(pix, counts, segment_rank, n_pixels)
+        slow = _sorted_pairs(pix, rank, n_pixels, segment_rank.numel())
+        assert all(a.dtype == b.dtype and torch.equal(a, b) for a, b in zip(fast, slow))
+        key = fast[0] * segment_rank.numel() + fast[1]
+        assert bool((key[1:] > key[:-1]).all())            # (pixel, rank) order, every pair once
+        assert torch.equal(pix[fast[2]], fast[0]) and torch.equal(rank[fast[2]], fast[1])
+
+
 def test_kept_pairs_and_selection_on_the_cpu_equal_the_torch_ops():
     rng = np.random.default_rng(8)
     alpha = torch.as_tensor(rng.random((700, 45), dtype=np.float32))
     keep = alpha >= 0.6
-    rank = torch.as_tensor(rng.permutation(5000)[:700].astype(np.int64))
+    keep[3] = False                                         # a row without pairs: a count of 0
     base_pix = torch.as_tensor(rng.integers(0, 19_200, 700))
     offset_pix = torch.as_tensor(rng.integers(-500, 500, 45))
-    fast, slow = _kept(keep, rank, base_pix, offset_pix, alpha), _kept_torch(keep, rank, base_pix, offset_pix, alpha)
-    assert len(fast[0]) == int(keep.sum()) > 0
+    fast, slow = _kept(keep, base_pix, offset_pix, alpha), _kept_torch(keep, base_pix, offset_pix, alpha)
+    assert torch.equal(fast[0], keep.sum(dim=1)) and int(fast[0][3]) == 0
+    assert len(fast[1]) == int(keep.sum()) > 0
     assert all(a.dtype == b.dtype and torch.equal(a, b) for a, b in zip(fast, slow))
     mask = alpha.reshape(-1) >= 0.3
     arrays = (alpha.reshape(-1), torch.arange(mask.numel()), alpha.reshape(-1).to(torch.float64))
@@ -481,3 +504,4 @@ def test_touching_from_collider_boxes_finds_what_the_whole_robot_box_finds():
         assert touched > 20, "the sampled poses should touch the home often"
     finally:
         world.close()
+

@@ -147,6 +147,43 @@ def _sorted_pairs(pix: torch.Tensor, rank: torch.Tensor, n_pixels: int, n_ranks:
     return pix.index_select(0, perm), rank.index_select(0, perm), perm
 
 
+def _sorted_segments(pix: torch.Tensor, counts: torch.Tensor, segment_rank: torch.Tensor, n_pixels: int
+                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`_sorted_pairs` for pairs that come in segments, one per Gaussian: segment ``s`` is
+    ``counts[s]`` consecutive pairs of depth rank ``segment_rank[s]`` (a permutation of the ranks
+    ``0 .. len(counts) - 1``).
+
+    On the CPU with at most 65 536 pixels, linear passes replace the comparison sort, which was
+    half of a render: the segments are laid out in rank order (a repeat and an add), then a stable
+    sort on the 16-bit pixel (numpy's radix sort) groups the pairs by pixel with their ranks still
+    ascending: the same unique (pixel, rank) order. Pixel, rank and pair index travel packed in
+    one int64, so the permutation costs one random gather (elsewhere: the packed key sort)."""
+    n_ranks = segment_rank.numel()
+    rank_bits = max(1, (n_ranks - 1).bit_length())
+    if (pix.device.type != "cpu" or n_pixels > (1 << 16) or pix.numel() >= (1 << _PACK_BITS)
+            or 16 + rank_bits + _PACK_BITS > 62):
+        return _sorted_pairs(pix, torch.repeat_interleave(segment_rank, counts), n_pixels, n_ranks)
+    c = counts.numpy()
+    segment_of_rank = np.empty(n_ranks, dtype=np.int64)
+    segment_of_rank[segment_rank.numpy()] = np.arange(n_ranks, dtype=np.int64)
+    count_r = c[segment_of_rank]
+    start_r = (np.cumsum(c) - c)[segment_of_rank]             # where each rank's segment starts
+    in_rank_order = np.repeat(start_r - (np.cumsum(count_r) - count_r), count_r)
+    in_rank_order += np.arange(in_rank_order.size, dtype=np.int64)
+    pix_r = pix.numpy()[in_rank_order]
+    by_pixel = np.argsort(pix_r.astype(np.uint16), kind="stable")
+    # One random gather instead of three: pixel, rank and pair index packed as in _sorted_pairs.
+    packed = np.repeat(np.arange(n_ranks, dtype=np.int64) << _PACK_BITS, count_r)
+    packed |= in_rank_order
+    pix_r <<= rank_bits + _PACK_BITS
+    packed |= pix_r
+    packed = packed[by_pixel]
+    perm = packed & ((1 << _PACK_BITS) - 1)
+    rank = (packed >> _PACK_BITS) & ((1 << rank_bits) - 1)
+    packed >>= rank_bits + _PACK_BITS
+    return torch.from_numpy(packed), torch.from_numpy(rank), torch.from_numpy(perm)
+
+
 _WINDOWS: dict = {}
 
 
@@ -189,25 +226,26 @@ def _minus_run_start_torch(values: torch.Tensor, runs: torch.Tensor) -> torch.Te
     return values - values[starts][segment]
 
 
-def _kept(keep: torch.Tensor, rank: torch.Tensor, base_pix: torch.Tensor, offset_pix: torch.Tensor,
-          alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The pairs of a chunk's true ``keep[i, j]`` (row-major): ``rank[i]``, the pixel
-    ``base_pix[i] + offset_pix[j]`` and ``alpha[i, j]``. On the CPU through numpy, a third of the
-    time of ``torch.nonzero`` and four gathers (which were a third of a render's pair loop)."""
+def _kept(keep: torch.Tensor, base_pix: torch.Tensor, offset_pix: torch.Tensor, alpha: torch.Tensor
+          ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The pairs of a chunk's true ``keep[i, j]`` (row-major, so each row's pairs are one segment):
+    the pair count of each row ``i``, the pixel ``base_pix[i] + offset_pix[j]`` and ``alpha[i, j]``.
+    On the CPU through numpy, a third of the time of ``torch.nonzero`` and the gathers."""
     if keep.device.type == "cpu":
         flat = np.flatnonzero(keep.numpy())
         i = flat // keep.shape[1]
         j = flat - i * keep.shape[1]
-        return (torch.from_numpy(rank.numpy()[i]), torch.from_numpy(base_pix.numpy()[i] + offset_pix.numpy()[j]),
+        return (torch.from_numpy(np.bincount(i, minlength=keep.shape[0])),
+                torch.from_numpy(base_pix.numpy()[i] + offset_pix.numpy()[j]),
                 torch.from_numpy(alpha.numpy().reshape(-1)[flat]))
-    return _kept_torch(keep, rank, base_pix, offset_pix, alpha)
+    return _kept_torch(keep, base_pix, offset_pix, alpha)
 
 
-def _kept_torch(keep: torch.Tensor, rank: torch.Tensor, base_pix: torch.Tensor, offset_pix: torch.Tensor,
-                alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _kept_torch(keep: torch.Tensor, base_pix: torch.Tensor, offset_pix: torch.Tensor, alpha: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """:func:`_kept` in torch ops (any device)."""
     i, j = torch.nonzero(keep, as_tuple=True)
-    return (rank.index_select(0, i), base_pix.index_select(0, i) + offset_pix.index_select(0, j),
+    return (torch.bincount(i, minlength=keep.shape[0]), base_pix.index_select(0, i) + offset_pix.index_select(0, j),
             alpha.view(-1).index_select(0, i * keep.shape[1] + j))
 
 
@@ -313,7 +351,7 @@ def render_gaussians(means: torch.Tensor, scales: torch.Tensor, opacities: torch
     ks, counts = torch.unique_consecutive(group_of.index_select(0, by_group), return_counts=True)
     ru, rv, ca, cb2, cc, op, ucv, vcv, base_pix = (t.index_select(0, by_group) for t in
                                                     (ru, rv, ca, cb2, cc, op, ucv, vcv, base_pix))
-    pair_pix, pair_alpha, pair_rank = [], [], []
+    pair_pix, pair_alpha, pair_counts = [], [], []
     candidates = 0
     first = 0
     for k, count in zip(ks.tolist(), counts.tolist()):
@@ -337,18 +375,19 @@ def render_gaussians(means: torch.Tensor, scales: torch.Tensor, opacities: torch
                 pix = base_pix[g, None] + offset_pix
                 keep &= pm_flat[pix.clamp(0, H * W - 1)]
             candidates += keep.numel()
-            rank_k, pix_k, alpha_k = _kept(keep, by_group[g], base_pix[g], offset_pix, alpha)
-            pair_rank.append(rank_k)
+            counts_k, pix_k, alpha_k = _kept(keep, base_pix[g], offset_pix, alpha)
+            pair_counts.append(counts_k)
             pair_pix.append(pix_k)
             pair_alpha.append(alpha_k)
         first += count
-    rank_all = torch.cat(pair_rank)
-    if rank_all.numel() == 0:
-        return empty_rendering(H, W, device)
     pix_all = torch.cat(pair_pix)
+    if pix_all.numel() == 0:
+        return empty_rendering(H, W, device)
 
-    # Sort by (pixel, depth rank), then composite each pixel's run front to back.
-    pix_all, rank_all, perm = _sorted_pairs(pix_all, rank_all, H * W, n_vis)
+    # Sort by (pixel, depth rank), then composite each pixel's run front to back. The chunks
+    # cover the groups' Gaussians in order, so the pairs are one segment per Gaussian, of rank
+    # ``by_group[q]`` for the q-th.
+    pix_all, rank_all, perm = _sorted_segments(pix_all, torch.cat(pair_counts), by_group, H * W)
     g_all = idx.index_select(0, rank_all)
     alpha_all = torch.cat(pair_alpha).index_select(0, perm)
     log_one_minus = torch.log1p(-alpha_all.to(torch.float64))
