@@ -625,3 +625,32 @@ def test_turning_while_walking_folds_small_turns_into_free_moves(seed):
     assert checker.poses_free(poses).all()
     if plain.reaches_goal:
         assert folded.reaches_goal
+
+
+def _shuffle_loop_case():
+    """The map, pose and frontier goals of train-00022 at t = 153 s (cropped to 14 x 14 m), where
+    the planner's shuffle back and forth ended where it began and the agent replanned it 113 times."""
+    from pathlib import Path
+
+    d = np.load(Path(__file__).parent / "data" / "planner_shuffle_loop.npz")
+    geo = GridGeometry(cell_size=float(d["cell"]), size=int(d["size"]), origin_x=float(d["origin"][0]),
+                       origin_y=float(d["origin"][1]))
+    return geo, d["obstacle"], d["explored"], d["max_height"], d["goals"], float(d["radius"]), SE2Pose(*d["start"])
+
+
+def test_a_blocked_plan_that_gets_no_nearer_the_goal_can_fail_as_blocked():
+    geo, obstacle, explored, max_height, goals, radius, start = _shuffle_loop_case()
+    old = FMMPlanner(PlannerConfig()).plan(geo, obstacle, explored, start, goals, radius, max_height=max_height)
+    # the behaviour before: a forward step, a shuffle back and a turn, "ok" though blocked
+    assert old.success and old.blocked_ahead and not old.reaches_goal and len(old.waypoints) >= 3
+    assert math.hypot(old.waypoints[-1].x - start.x, old.waypoints[-1].y - start.y) < 0.01
+    assert PlannerConfig().blocked_without_progress is False          # measured, left off
+    strict = FMMPlanner(PlannerConfig(blocked_without_progress=True))
+    new = strict.plan(geo, obstacle, explored, start, goals, radius, max_height=max_height)
+    assert not new.success and new.reason == "blocked" and not new.waypoints
+    # from farther back the same block still leaves progress: that plan is walked as before
+    back = SE2Pose(3.4, 4.0, -1.3)
+    kept = strict.plan(geo, obstacle, explored, back, goals, radius, max_height=max_height)
+    assert kept.success and kept.blocked_ahead and kept.waypoints
+    assert np.min(np.linalg.norm(goals - [kept.waypoints[-1].x, kept.waypoints[-1].y], axis=1)) < \
+        np.min(np.linalg.norm(goals - [back.x, back.y], axis=1)) - 0.5

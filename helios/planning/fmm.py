@@ -72,6 +72,16 @@ class PlannerConfig:
     unknown_is_obstacle: bool = True
     """Footprint checks treat never-seen cells (beyond ``start_clearance``) as occupied for the
     body, not for the raised arm; paths keep ``robot_radius`` inside seen space either way."""
+    blocked_without_progress: bool = False
+    """True: a plan whose actions stop at a block (``blocked_ahead``) without getting any nearer
+    the goal (the travel time where they end is not below the start's) fails as ``blocked``, as a
+    plan blocked at its first move does. Why one might: a forward step, a shuffle back and a turn
+    can end where they began, and an agent that walks such a plan replans the same one over and
+    over (train-00022 did so 113 times, 454 s, until the time limit; the target's room lay past
+    that frontier). Measured on the first 100 train episodes (README, "rooms never entered"): 62
+    records change, FindObj 57 against 55 (+3 -1), Pick 40 against 38, SR 11 against 13 (+1 -3),
+    timeouts 28 against 25; the loops end, but an agent out of options then gives up early
+    instead, so it stays off (False: such plans succeed with ``reaches_goal`` False)."""
     footprint: FootprintConfig = field(default_factory=FootprintConfig)
 
     def __post_init__(self) -> None:
@@ -210,6 +220,10 @@ class FMMPlanner:
         horizon = cfg.horizon if horizon is None else horizon
         actions, waypoints, complete, blocked, turn_blocked = self._actions(path, start, final_yaw, checker,
                                                                             (traversable, to_cell), horizon)
+        if blocked and waypoints and cfg.blocked_without_progress:
+            end_r, end_c = to_cell((waypoints[-1].x, waypoints[-1].y))
+            if not times[end_r, end_c] < times[start_cell]:
+                waypoints = []           # no nearer the goal: blocked, as at the first move
         if not waypoints:
             if blocked:
                 return PlanResult(False, "blocked", path, length=length, goal_index=goal_index)
