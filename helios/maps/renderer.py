@@ -232,11 +232,13 @@ def _kept(keep: torch.Tensor, base_pix: torch.Tensor, offset_pix: torch.Tensor, 
     the pair count of each row ``i``, the pixel ``base_pix[i] + offset_pix[j]`` and ``alpha[i, j]``.
     On the CPU through numpy, a third of the time of ``torch.nonzero`` and the gathers."""
     if keep.device.type == "cpu":
-        flat = np.flatnonzero(keep.numpy())
-        i = flat // keep.shape[1]
-        j = flat - i * keep.shape[1]
-        return (torch.from_numpy(np.bincount(i, minlength=keep.shape[0])),
-                torch.from_numpy(base_pix.numpy()[i] + offset_pix.numpy()[j]),
+        k = keep.numpy()
+        flat = np.flatnonzero(k)
+        counts = np.count_nonzero(k, axis=1)
+        # Row starts repeated over each row's pairs: no integer division by the row length.
+        j = flat - np.repeat(np.arange(0, k.size, k.shape[1], dtype=np.int64), counts)
+        return (torch.from_numpy(counts.astype(np.int64, copy=False)),
+                torch.from_numpy(np.repeat(base_pix.numpy(), counts) + offset_pix.numpy()[j]),
                 torch.from_numpy(alpha.numpy().reshape(-1)[flat]))
     return _kept_torch(keep, base_pix, offset_pix, alpha)
 
@@ -388,13 +390,15 @@ def render_gaussians(means: torch.Tensor, scales: torch.Tensor, opacities: torch
     # cover the groups' Gaussians in order, so the pairs are one segment per Gaussian, of rank
     # ``by_group[q]`` for the q-th.
     pix_all, rank_all, perm = _sorted_segments(pix_all, torch.cat(pair_counts), by_group, H * W)
-    g_all = idx.index_select(0, rank_all)
     alpha_all = torch.cat(pair_alpha).index_select(0, perm)
     log_one_minus = torch.log1p(-alpha_all.to(torch.float64))
     inclusive = torch.cumsum(log_one_minus, 0)
     exclusive = inclusive - log_one_minus
     log_T = _minus_run_start(exclusive, pix_all)
-    g_all, pix_all, log_T, alpha_all = _select(log_T >= math.log(cfg.transmittance_min), g_all, pix_all, log_T, alpha_all)
+    # Ranks, not Gaussian indices, through the cut: the index gather then skips the dropped pairs.
+    rank_all, pix_all, log_T, alpha_all = _select(log_T >= math.log(cfg.transmittance_min), rank_all, pix_all, log_T,
+                                                  alpha_all)
+    g_all = idx.index_select(0, rank_all)
     weight = (alpha_all.to(torch.float64) * torch.exp(log_T)).to(torch.float32)
     depth = z.index_select(0, g_all)
 
