@@ -8,6 +8,7 @@ and the claw are motor-driven, so grasps and carried objects obey physics.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -164,16 +165,127 @@ class SpotBody:
         base motion can be checked pose by pose. The floor and excluded bodies/links are ignored.
         """
         c = self.world.client
-        boxes = np.array([c.getAABB(self.id, link) for link in self._collider_links])   # never cached: it moves
-        pad = margin + 0.01
-        lo = boxes[:, 0].min(axis=0) - pad
-        hi = boxes[:, 1].max(axis=0) + pad
         hits: list[tuple[str, int]] = []
-        skip = set(exclude_bodies) | {self.id}
-        for body_id in self.world.bodies_overlapping(lo, hi, skip):
+        for body_id in self._bodies_near(self._collider_boxes(), margin, exclude_bodies):
             for pt in c.getClosestPoints(self.id, body_id, distance=margin):
                 link_name = self.link_name.get(pt[3], str(pt[3]))
                 if pt[3] in exclude_links:
                     continue
                 hits.append((link_name, body_id))
         return hits
+
+    def clearance(self, within: float, exclude_bodies=()) -> tuple[float, float]:
+        """(distance, reach) at the current poses: the least distance PyBullet measures between
+        the robot and any body but the floor and ``exclude_bodies`` (``within`` when none is
+        closer), and the robot's reach, the largest horizontal distance of its collider boxes
+        from the vertical axis through its base pose (bounds how far any point of the robot
+        moves when the base turns). See :class:`ContactGuard`."""
+        c = self.world.client
+        boxes = self._collider_boxes()
+        distance = float(within)
+        for body_id in self._bodies_near(boxes, within, exclude_bodies):
+            for pt in c.getClosestPoints(self.id, body_id, distance=within):
+                distance = min(distance, float(pt[8]))
+        base = self.base_pose()
+        dx = np.maximum(np.abs(boxes[:, 0, 0] - base.x), np.abs(boxes[:, 1, 0] - base.x))
+        dy = np.maximum(np.abs(boxes[:, 0, 1] - base.y), np.abs(boxes[:, 1, 1] - base.y))
+        return distance, float(np.sqrt(dx * dx + dy * dy).max())
+
+    def arm_reach(self) -> float:
+        """A bound, the same in every arm configuration, on the distance from the first arm
+        joint's origin to any point of the arm (its links from the shoulder on, claw included):
+        the link-frame offsets along the chain plus the farthest corner of each link's collider
+        box from its own frame. No arm point moves farther than this per radian of any arm joint
+        (:class:`ContactGuard`)."""
+        c = self.world.client
+        first = self.joint_index[model.ARM_JOINTS[0]]          # its child link is link ``first``
+        parent = {i: c.getJointInfo(self.id, i)[16] for i in range(c.getNumJoints(self.id))}
+        origin = {i: np.array(c.getLinkState(self.id, i, computeForwardKinematics=True)[4]) for i in parent}
+        colliders = set(self._collider_links)
+        path = {first: 0.0}
+        reach = 0.0
+        for link in sorted(parent):                      # parents come before their children
+            if link != first:
+                if parent[link] not in path:
+                    continue                             # not downstream of the shoulder
+                path[link] = path[parent[link]] + float(np.linalg.norm(origin[link] - origin[parent[link]]))
+            extent = 0.0
+            if link in colliders:
+                lo, hi = (np.array(v) for v in c.getAABB(self.id, link))
+                extent = float(np.linalg.norm(np.maximum(np.abs(lo - origin[link]), np.abs(hi - origin[link]))))
+            reach = max(reach, path[link] + extent)
+        return reach
+
+    def _collider_boxes(self) -> np.ndarray:
+        """(links, 2, 3) world AABBs of the links with a collision shape (never cached: they move)."""
+        c = self.world.client
+        return np.array([c.getAABB(self.id, link) for link in self._collider_links])
+
+    def _bodies_near(self, boxes: np.ndarray, margin: float, exclude_bodies) -> list[int]:
+        """Bodies (not the floor, not ``exclude_bodies``) whose boxes come within ``margin`` (+1 cm)
+        of the robot's: only they can hold a closest point within ``margin``."""
+        pad = margin + 0.01
+        lo = boxes[:, 0].min(axis=0) - pad
+        hi = boxes[:, 1].max(axis=0) + pad
+        return self.world.bodies_overlapping(lo, hi, set(exclude_bodies) | {self.id})
+
+
+class ContactGuard:
+    """Skips the contact queries of a kinematic motion that provably find nothing.
+
+    During a kinematic move (no physics stepped, so nothing but the robot moves) every point of
+    the robot moves, between two states of the move, by at most a bound the move's kind gives:
+    ``|dxy| + reach * |dyaw|`` for a base walk (the robot rigid, ``reach`` its largest distance
+    from the turning axis), ``arm_reach * sum_j |dq_j|`` for an arm move (the base still;
+    :meth:`SpotBody.arm_reach`). No distance between the robot and another body changes by more
+    than that. So once a clearance query finds every body at least ``d`` away, each state within
+    ``d - slack`` of it touches nothing, and :meth:`SpotBody.touching` would return no pairs
+    there: one query stands in for those of several 50 ms poses (conservative advancement).
+    ``slack`` (2 cm) covers PyBullet's distance tolerances with a wide margin. Where the robot
+    comes within ``slack`` of something the guard answers "check", the caller runs the exact
+    query, and the guard tries a clearance query again ``retry_after`` states later.
+    """
+
+    slack = 0.02
+
+    def __init__(self, spot: SpotBody, within: float, kind: str, exclude_bodies=(), retry_after: int = 4):
+        if kind not in ("base", "arm"):
+            raise ValueError(f"kind must be 'base' or 'arm', got {kind!r}")
+        self.spot = spot
+        self.within = float(within)
+        self.kind = kind
+        self.exclude = tuple(exclude_bodies)
+        self.retry_after = int(retry_after)
+        self._arm_reach = spot.arm_reach() if kind == "arm" else 0.0
+        self._anchor = None
+        self._distance = 0.0
+        self._reach = 0.0
+        self._wait = 0
+        self.skipped = 0
+        """States answered without a contact query (for tests and benchmarks)."""
+
+    def _moved(self, state) -> float:
+        a = self._anchor
+        if self.kind == "base":
+            turn = abs(math.remainder(state.yaw - a.yaw, 2.0 * math.pi))
+            return math.hypot(state.x - a.x, state.y - a.y) + self._reach * turn
+        return self._arm_reach * float(np.abs(np.asarray(state, dtype=float) - a).sum())
+
+    def free(self, state) -> bool:
+        """True when the robot, now at ``state`` (the base's SE2Pose, or the six arm joint
+        angles), certainly touches nothing; False: check it."""
+        if self._anchor is not None:
+            if self._moved(state) <= self._distance - self.slack:
+                self.skipped += 1
+                return True
+            self._anchor = None
+        if self._wait > 0:
+            self._wait -= 1
+            return False
+        distance, reach = self.spot.clearance(self.within, self.exclude)
+        if distance > self.slack:
+            self._anchor = state if self.kind == "base" else np.array(state, dtype=float)
+            self._distance, self._reach = distance, reach
+            return True
+        self._wait = self.retry_after
+        return False

@@ -39,7 +39,7 @@ from sim import grasping
 from sim.camera import CameraConfig
 from sim.grasping import GraspConfig
 from sim.render_worker import RenderWorker, moving_state
-from sim.spot import SpotBody
+from sim.spot import ContactGuard, SpotBody
 from sim.world import FURNITURE, OBJECT, STRUCTURE, World, WorldConfig
 
 
@@ -71,6 +71,11 @@ class SimBackendConfig:
     # the held object touches the scene. false: every carrying move steps physics at 240 Hz, which
     # was ~40 % of a carrying episode's wall time (see README, "The simulated Spot").
     kinematic_carry: bool = True
+    # Kinematic base walks and free-space arm moves (nothing held, nothing else moving) query
+    # contacts only where they are possible: one clearance query looking this far (m) vouches for
+    # the poses from which the robot cannot reach anything (sim.spot.ContactGuard); the contacts
+    # found are the same. 0: a contact query at every pose.
+    clearance_horizon: float = 0.5
 
     def __post_init__(self) -> None:
         require_range(self, "stream_hz", 0.0, 1000.0)     # 0 = no frame stream
@@ -81,6 +86,7 @@ class SimBackendConfig:
         require_range(self, "arm_tolerance hand_tolerance", 0.0, 1.0, lo_open=True)
         require_range(self, "arm_settle_time", 0.0, 60.0)
         require_range(self, "contact_check_every", 1, 10000)
+        require_range(self, "clearance_horizon", 0.0, 5.0)
 
 
 class MotionInterrupted(Exception):
@@ -248,12 +254,17 @@ class SimSpotBackend:
         times = path.sample_times(self.config.motion.control_dt)
         carry = self._kinematic_carry()
         dynamic = self._physics_needed(held_is_kinematic=carry is not None)
+        guard = self._contact_guard("base", carry, dynamic)
         for t_prev, t in zip(times[:-1], times[1:]):
             pose = path.pose_at(t)
             self.spot.set_base_pose(pose)
             if carry is not None:
                 carry.follow()
-            hits = self._new_base_hits()
+            if guard is not None and guard.free(pose):
+                hits = []
+                self._record_contacts(hits, "base")
+            else:
+                hits = self._new_base_hits()
             if hits:
                 self.spot.set_base_pose(prev)
                 if carry is not None:
@@ -449,12 +460,17 @@ class SimSpotBackend:
         carry = self._kinematic_carry()
         dynamic = self._physics_needed(held_is_kinematic=carry is not None)
         q_prev = self.spot.arm_q()
+        guard = self._contact_guard("arm", carry, dynamic)
         for t_prev, t in zip(times[:-1], times[1:]):
             q, qd = traj.at_time(t)
             self.spot.set_arm_state(q, qd)
             if carry is not None:
                 carry.follow()
-            hits = self._new_base_hits(phase)
+            if guard is not None and guard.free(q):
+                hits = []
+                self._record_contacts(hits, phase)
+            else:
+                hits = self._new_base_hits(phase)
             if hits:
                 static = [(l, b) for l, b in hits if self.world.bodies[b].kind != OBJECT]
                 if not static:
@@ -475,6 +491,13 @@ class SimSpotBackend:
         if carry is not None:
             carry.follow()
         return CommandResult(True, Reason.OK, duration=self.world.time - t0)
+
+    def _contact_guard(self, kind: str, carry, dynamic: bool) -> ContactGuard | None:
+        """The guard that spares a kinematic move's contact queries where they cannot find
+        anything (None: check every pose): only while nothing is held and nothing else moves."""
+        if carry is not None or dynamic or self._held is not None or self.config.clearance_horizon <= 0:
+            return None
+        return ContactGuard(self.spot, self.config.clearance_horizon, kind)
 
     def _kinematic_carry(self) -> "_KinematicCarry | None":
         """The held object's rigid ride on the wrist for the next move (None: nothing held, or
