@@ -59,6 +59,7 @@ class SpotBody:
         # none). Only they can touch anything, so their boxes bound every contact ``touching`` finds.
         self._collider_links = [link for link in range(-1, c.getNumJoints(self.id))
                                 if c.getCollisionShapeData(self.id, link)]
+        self._arm_reach: float | None = None
         for link in self.gripper_link_ids:  # rubber jaw pads
             c.changeDynamics(self.id, link, lateralFriction=1.5, spinningFriction=0.01)
         # The feet stand on the floor: those contacts are not collisions and cost solver time.
@@ -174,21 +175,25 @@ class SpotBody:
                 hits.append((link_name, body_id))
         return hits
 
-    def clearance(self, within: float, exclude_bodies=()) -> tuple[float, float]:
+    def clearance(self, within: float, exclude_bodies=(), turning_axis=None) -> tuple[float, float]:
         """(distance, reach) at the current poses: the least distance PyBullet measures between
         the robot and any body but the floor and ``exclude_bodies`` (``within`` when none is
-        closer), and the robot's reach, the largest horizontal distance of its collider boxes
-        from the vertical axis through its base pose (bounds how far any point of the robot
-        moves when the base turns). See :class:`ContactGuard`."""
+        closer), and, given a ``turning_axis`` (x, y), the robot's reach about it: the largest
+        horizontal distance of its collider boxes from that vertical axis (bounds how far any
+        point of the robot moves when the base turns about it; 0.0 without an axis). See
+        :class:`ContactGuard`."""
         c = self.world.client
         boxes = self._collider_boxes()
         distance = float(within)
         for body_id in self._bodies_near(boxes, within, exclude_bodies):
             for pt in c.getClosestPoints(self.id, body_id, distance=within):
-                distance = min(distance, float(pt[8]))
-        base = self.base_pose()
-        dx = np.maximum(np.abs(boxes[:, 0, 0] - base.x), np.abs(boxes[:, 1, 0] - base.x))
-        dy = np.maximum(np.abs(boxes[:, 0, 1] - base.y), np.abs(boxes[:, 1, 1] - base.y))
+                if pt[8] < distance:
+                    distance = float(pt[8])
+        if turning_axis is None:
+            return distance, 0.0
+        x, y = turning_axis
+        dx = np.maximum(np.abs(boxes[:, 0, 0] - x), np.abs(boxes[:, 1, 0] - x))
+        dy = np.maximum(np.abs(boxes[:, 0, 1] - y), np.abs(boxes[:, 1, 1] - y))
         return distance, float(np.sqrt(dx * dx + dy * dy).max())
 
     def arm_reach(self) -> float:
@@ -196,7 +201,9 @@ class SpotBody:
         joint's origin to any point of the arm (its links from the shoulder on, claw included):
         the link-frame offsets along the chain plus the farthest corner of each link's collider
         box from its own frame. No arm point moves farther than this per radian of any arm joint
-        (:class:`ContactGuard`)."""
+        (:class:`ContactGuard`). Measured once, in the configuration of the first call."""
+        if self._arm_reach is not None:
+            return self._arm_reach
         c = self.world.client
         first = self.joint_index[model.ARM_JOINTS[0]]          # its child link is link ``first``
         parent = {i: c.getJointInfo(self.id, i)[16] for i in range(c.getNumJoints(self.id))}
@@ -214,6 +221,7 @@ class SpotBody:
                 lo, hi = (np.array(v) for v in c.getAABB(self.id, link))
                 extent = float(np.linalg.norm(np.maximum(np.abs(lo - origin[link]), np.abs(hi - origin[link]))))
             reach = max(reach, path[link] + extent)
+        self._arm_reach = reach
         return reach
 
     def _collider_boxes(self) -> np.ndarray:
@@ -282,7 +290,8 @@ class ContactGuard:
         if self._wait > 0:
             self._wait -= 1
             return False
-        distance, reach = self.spot.clearance(self.within, self.exclude)
+        distance, reach = self.spot.clearance(self.within, self.exclude,
+                                              (state.x, state.y) if self.kind == "base" else None)
         if distance > self.slack:
             self._anchor = state if self.kind == "base" else np.array(state, dtype=float)
             self._distance, self._reach = distance, reach

@@ -101,7 +101,7 @@ def test_the_guard_never_vouches_for_a_pose_in_contact(world):
 def test_clearance_measures_the_gap_to_the_nearest_body_and_the_robots_reach(world):
     near = assets.add_box_object(world, "near", (1.2, 0.0, 0.6), half_extents=(0.05, 0.3, 0.6))   # a tall slab
     spot = SpotBody(world, SE2Pose(0.0, 0.0, 0.0))
-    distance, reach = spot.clearance(1.0)
+    distance, reach = spot.clearance(1.0, turning_axis=(0.0, 0.0))
     assert 0.4 < distance < 0.7                       # Spot's nose is ~0.55 m ahead of its base pose
     spot.set_base_pose(SE2Pose(distance - 0.005, 0.0, 0.0))    # the gap is the walk left to contact
     assert spot.touching() == []
@@ -109,8 +109,9 @@ def test_clearance_measures_the_gap_to_the_nearest_body_and_the_robots_reach(wor
     assert {body for _, body in spot.touching()} == {near}
     spot.set_base_pose(SE2Pose(0.0, 0.0, 0.0))
     assert 0.5 < reach < 1.5                          # Spot's half length and a bit
-    assert spot.clearance(0.1) == (0.1, reach)        # nothing within 10 cm: the horizon comes back
-    assert spot.clearance(1.0, exclude_bodies=[near])[0] == 1.0
+    assert spot.clearance(0.1, turning_axis=(0.0, 0.0)) == (0.1, reach)   # nothing within 10 cm: the horizon
+    assert spot.clearance(1.0, exclude_bodies=[near]) == (1.0, 0.0)        # no axis, no reach
+    assert spot.clearance(1.0, turning_axis=(-1.0, 0.0))[1] > reach + 0.9    # about an axis 1 m behind it
 
 
 def test_the_arm_guard_never_vouches_for_a_configuration_in_contact(world):
