@@ -74,16 +74,14 @@ def test_guarded_walks_end_and_collide_exactly_as_walks_checked_at_every_pose():
     assert queries_g < queries_c / 3, (queries_g, queries_c)    # most poses needed no contact query
 
 
-def test_the_guard_never_vouches_for_a_pose_in_contact(world):
-    _room(world)
-    spot = SpotBody(world, SE2Pose(0.0, 0.0, 0.0))
-    guard = ContactGuard(spot, 0.5, "base")
-    rng = np.random.default_rng(7)
-    pose = SE2Pose(0.0, 0.0, 0.0)
-    vouched = refused_in_contact = 0
-    for _ in range(600):    # a random walk in ~5 cm / 0.06 rad steps that bumps into walls and furniture
-        step = SE2Pose(pose.x + rng.normal(0.03, 0.05), pose.y + rng.normal(0.0, 0.05), pose.yaw + rng.normal(0.0, 0.06))
-        spot.set_base_pose(step)
+def _guarded_random_walk(spot: SpotBody, guard: ContactGuard, start, propose, place, steps: int) -> tuple[int, int]:
+    """``steps`` random steps (``propose(state, k)``, put in place by ``place``) that bounce back
+    from contact, as a move stops at its last free pose; the guard must never vouch for a state
+    in contact. Returns (states vouched for, states in contact handed back)."""
+    state, vouched, refused_in_contact = start, 0, 0
+    for k in range(steps):
+        step = propose(state, k)
+        place(step)
         contact = bool(spot.touching())
         if guard.free(step):
             vouched += 1
@@ -91,9 +89,23 @@ def test_the_guard_never_vouches_for_a_pose_in_contact(world):
         elif contact:
             refused_in_contact += 1
         if contact:
-            spot.set_base_pose(pose)     # bounced: back to the last free pose, as a walk stops there
+            place(state)
         else:
-            pose = step
+            state = step
+    return vouched, refused_in_contact
+
+
+def test_the_guard_never_vouches_for_a_pose_in_contact(world):
+    _room(world)
+    spot = SpotBody(world, SE2Pose(0.0, 0.0, 0.0))
+    guard = ContactGuard(spot, 0.5, "base")
+    rng = np.random.default_rng(7)
+
+    def propose(pose, _k):   # ~5 cm / 0.06 rad steps that bump into walls and furniture
+        return SE2Pose(pose.x + rng.normal(0.03, 0.05), pose.y + rng.normal(0.0, 0.05), pose.yaw + rng.normal(0.0, 0.06))
+
+    vouched, refused_in_contact = _guarded_random_walk(spot, guard, SE2Pose(0.0, 0.0, 0.0), propose,
+                                                       spot.set_base_pose, 600)
     assert refused_in_contact > 10          # the walk did reach things, and the guard handed those back
     assert vouched > 200 and guard.skipped > 100, (vouched, guard.skipped, refused_in_contact)
 
@@ -120,24 +132,15 @@ def test_the_arm_guard_never_vouches_for_a_configuration_in_contact(world):
     spot = SpotBody(world, SE2Pose(0.0, 0.0, 0.0))
     guard = ContactGuard(spot, 0.5, "arm")
     rng = np.random.default_rng(3)
-    q = np.array(spot.arm_q())
-    vouched = refused_in_contact = 0
     goals = [np.array(g) for g in ((0.0, 0.3, 0.5, 0.0, 0.3, 0.0), (1.4, -0.6, 1.0, 0.0, 0.5, 0.0),
                                    (0.0, -3.1, 3.1, 0.0, 0.0, 0.0))]    # down on the table, at the wall, stowed
-    for k in range(1500):   # a random arm walk in ~0.03 rad steps drifting to each goal in turn
+
+    def propose(q, k):       # ~0.03 rad steps drifting to each goal in turn
         goal = goals[(k // 150) % len(goals)]
-        step = q + 0.02 * np.sign(goal - q) + rng.normal(0.0, 0.02, 6)
-        spot.set_arm_state(step)
-        contact = bool(spot.touching())
-        if guard.free(step):
-            vouched += 1
-            assert not contact, f"the guard vouched for {step}, where the arm touches {spot.touching()}"
-        elif contact:
-            refused_in_contact += 1
-        if contact:
-            spot.set_arm_state(q)
-        else:
-            q = step
+        return q + 0.02 * np.sign(goal - q) + rng.normal(0.0, 0.02, 6)
+
+    vouched, refused_in_contact = _guarded_random_walk(spot, guard, np.array(spot.arm_q()), propose,
+                                                       spot.set_arm_state, 1500)
     assert refused_in_contact > 10
     assert vouched > 100 and guard.skipped > 50, (vouched, guard.skipped, refused_in_contact)
 
@@ -148,7 +151,7 @@ def test_arm_reach_bounds_how_far_any_arm_point_moves(world):
     assert 0.8 < reach < 1.3                  # Spot's arm and claw: about a metre from the shoulder
     rng = np.random.default_rng(0)
     for _ in range(50):                       # the bound, tried on each collider link's box corners
-        qa, qb = rng.uniform(-1.5, 1.5, 6), None
+        qa = rng.uniform(-1.5, 1.5, 6)
         qb = qa + rng.normal(0.0, 0.2, 6)
         spot.set_arm_state(qa)
         a = [np.array(world.aabb(spot.id, link)) for link in spot._collider_links]
