@@ -260,11 +260,7 @@ class SimSpotBackend:
             self.spot.set_base_pose(pose)
             if carry is not None:
                 carry.follow()
-            if guard is not None and guard.free(pose):
-                hits = []
-                self._record_contacts(hits, "base")
-            else:
-                hits = self._new_base_hits()
+            hits = self._new_base_hits("base", guard, pose)
             if hits:
                 self.spot.set_base_pose(prev)
                 if carry is not None:
@@ -285,10 +281,16 @@ class SimSpotBackend:
         return NavigateResult(True, Reason.OK, duration=self.world.time - t0, final_pose=self.spot.base_pose(),
                               distance=travelled)
 
-    def _new_base_hits(self, phase: str = "base") -> list[tuple[str, int]]:
-        """Robot-scene overlaps at the current (kinematically set) pose; records contact onsets."""
-        exclude = [self._held.body_id] if self._held else []
-        hits = self.spot.touching(exclude_bodies=exclude)
+    def _new_base_hits(self, phase: str = "base", guard: ContactGuard | None = None, state=None
+                       ) -> list[tuple[str, int]]:
+        """Robot-scene overlaps at the current (kinematically set) pose; records contact onsets.
+        None, without a query, where ``guard`` vouches for the move's ``state`` (base pose or arm
+        joints)."""
+        if guard is not None and guard.free(state):
+            hits = []
+        else:
+            exclude = [self._held.body_id] if self._held else []
+            hits = self.spot.touching(exclude_bodies=exclude)
         self._record_contacts(hits, phase)
         return hits
 
@@ -466,11 +468,7 @@ class SimSpotBackend:
             self.spot.set_arm_state(q, qd)
             if carry is not None:
                 carry.follow()
-            if guard is not None and guard.free(q):
-                hits = []
-                self._record_contacts(hits, phase)
-            else:
-                hits = self._new_base_hits(phase)
+            hits = self._new_base_hits(phase, guard, q)
             if hits:
                 static = [(l, b) for l, b in hits if self.world.bodies[b].kind != OBJECT]
                 if not static:
