@@ -16,6 +16,10 @@ and the scripted demo do not, and their runs read "n/a"):
     ``gaze_point_visits``: gaze points of local searches visited (walk there and look; a walk
     that fails still counts), so at most the sum of the planned sizes.
     ``local_search_sizes``: per candidate pick location searched, the gaze points planned for it.
+``extra["start_receptacle"]`` (the runner's ground-truth check, ``EpisodeJudge.start_receptacle_truth``)
+    Of the global decisions with open candidates (``decisions``), in how many the start receptacle
+    that really holds the object was among the candidates (``offered``), how many chose it
+    (``chosen``) and the first decision that offered it (``first_offered``, 1-based; None: never).
 ``extra["activity_time"]``
     Simulated seconds per activity (``ACTIVITIES``: start scan, exploration, local search, pick,
     carry, place); they sum to the episode's ``sim_time``.
@@ -26,7 +30,10 @@ candidates that chose a frontier. If nearly all such decisions chose a candidate
 always first) and the two runs coincide. Few ``extra_views_*`` mean the Psi' rule rarely asks for
 another view, so variants that only change Psi' (e.g. the 50-50 IG reading) cannot differ much.
 Large local searches and a large local-search share of the time point at timeouts spent on gaze
-points rather than on exploration.
+points rather than on exploration. The start-receptacle check says why an object was never found:
+never offered (the search never saw its receptacle as a candidate: coverage or recognition),
+offered and passed over until the end (the objective preferred frontiers or other candidates),
+or searched without finding the object (the local search or the detector missed it).
 """
 
 from __future__ import annotations
@@ -88,6 +95,35 @@ def summarize_activity_time(records: Iterable[dict]) -> dict | None:
     return {"episodes": n, "of": len(records), "activities": activities, "seconds": seconds,
             "share_percent": {a: (100.0 * s / total if total > 0 else 0.0) for a, s in seconds.items()},
             "seconds_per_episode": {a: s / n for a, s in seconds.items()}}
+
+
+def summarize_start_receptacle(records: Iterable[dict]) -> dict | None:
+    """How the runs' searches treated the start receptacle that holds the object (each record's
+    ``extra["start_receptacle"]``); None when no record has the check (an agent without a global
+    objective's candidates, or records made before the runner kept it).
+
+    Returns ``episodes`` (records with the check), ``of`` (all records), ``offered`` (episodes in
+    which it was ever an open candidate), ``searched`` (episodes in which a decision chose it),
+    ``never_searched`` (offered, never chosen), ``passed_over_per_offered`` (mean over the offered
+    episodes of the decisions that chose something else while it was open; None when none was
+    offered) and ``not_found``: the checked episodes that never reached FindObj, split into
+    ``never_offered``, ``offered_not_searched`` and ``searched``.
+    """
+    records = list(records)
+    checked = [(r, t) for r in records if (t := _extra(r, "start_receptacle")) is not None]
+    if not checked:
+        return None
+    offered = [t for _r, t in checked if t.get("offered", 0) > 0]
+    searched = [t for t in offered if t.get("chosen", 0) > 0]
+    missed = [t for r, t in checked if not (r.get("metrics") or {}).get("find_obj")]
+    return {"episodes": len(checked), "of": len(records), "offered": len(offered), "searched": len(searched),
+            "never_searched": len(offered) - len(searched),
+            "passed_over_per_offered": (statistics.fmean(t["offered"] - t.get("chosen", 0) for t in offered)
+                                        if offered else None),
+            "not_found": {"episodes": len(missed),
+                          "never_offered": sum(1 for t in missed if not t.get("offered")),
+                          "offered_not_searched": sum(1 for t in missed if t.get("offered") and not t.get("chosen")),
+                          "searched": sum(1 for t in missed if t.get("chosen"))}}
 
 
 # How far a timed-out episode got: the first phase it never reached names the stage it ran out in.

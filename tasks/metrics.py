@@ -31,6 +31,11 @@ from robots.hal import Observation
 from sim.camera import decode_body_ids
 from sim.world import FURNITURE
 
+CANDIDATE_MARGIN = 0.2
+"""m: how far an agent's candidate centre may lie outside a receptacle's footprint and still be
+that receptacle (``EpisodeJudge.start_receptacle_truth``; instance centres of a partly seen piece
+of furniture sit inside it, those of a neighbour 0.2 m away do not)."""
+
 FAILURE_REASONS = ("collision", "not_found", "misidentified", "pick_failed", "receptacle_not_found",
                    "place_failed", "fell_off", "timeout")
 
@@ -96,6 +101,7 @@ class EpisodeJudge:
         self.valid_targets = {oid for name, oid in scene.object_ids.items()
                               if world.bodies[oid].category == episode.object_category
                               and support_body(world, oid) in start_ids}
+        self.target_supports = sorted({support_body(world, oid) for oid in self.valid_targets})
         self.goal_ids = {rid for name, rid in scene.receptacle_ids.items()
                          if scene.receptacle(name).category == episode.goal_receptacle_category}
         if not self.valid_targets:
@@ -232,6 +238,32 @@ class EpisodeJudge:
             if rest is not None and rest.kind == FURNITURE:
                 return "misidentified"     # put down on a receptacle of the wrong category
         return "place_failed"
+
+    # ------------------------------------------------------------------ the search, checked
+    def start_receptacle_truth(self, choices) -> dict:
+        """How the agent's global search treated the start receptacle(s) the object rests on.
+
+        ``choices``: the agent's global decisions with open candidates, in order, each
+        ``{"chosen": instance id or None (a frontier), "candidates": [[id, x, y], ...]}``
+        (``HeliosAgent.decision_stats()["global_choices"]``). An offered candidate is that
+        receptacle when its centre lies within ``CANDIDATE_MARGIN`` of the footprint of a start
+        receptacle holding a valid target. Returns ``decisions``, ``offered`` (decisions in which
+        it was among the open candidates), ``chosen`` (decisions that chose it) and
+        ``first_offered`` (1-based index of the first decision that offered it; None: never).
+        Offered but never chosen means the policy passed over the right receptacle until the end;
+        never offered means it never saw it as a candidate (coverage or recognition)."""
+        offered = chosen = 0
+        first = None
+        for i, choice in enumerate(choices, start=1):
+            true_ids = {int(c[0]) for c in choice["candidates"]
+                        if any(self._footprint_distance(rid, np.asarray(c[1:3], dtype=float)) <= CANDIDATE_MARGIN
+                               for rid in self.target_supports)}
+            if not true_ids:
+                continue
+            offered += 1
+            first = i if first is None else first
+            chosen += choice["chosen"] is not None and int(choice["chosen"]) in true_ids
+        return {"decisions": len(choices), "offered": offered, "chosen": int(chosen), "first_offered": first}
 
     # ------------------------------------------------------------------ geometry
     def _on_goal(self, body: int) -> bool:

@@ -155,7 +155,12 @@ def run_episode(agent: Agent, backend: RobotBackend, episode: Episode, config: R
     decision_stats = getattr(agent, "decision_stats", None)
     if reset_done and callable(decision_stats):
         try:
-            extra["decisions"] = decision_stats()
+            stats = dict(decision_stats())
+            choices = stats.pop("global_choices", None)
+            extra["decisions"] = stats
+            truth = getattr(judge, "start_receptacle_truth", None)
+            if choices is not None and callable(truth):
+                extra["start_receptacle"] = truth(choices)
         except Exception as exc:  # a faulty hook is reported with the episode, never fatal
             error = (error + "\n" if error else "") + f"decision_stats: {type(exc).__name__}: {exc}"
     return EpisodeResult(episode_id=episode.episode_id, task=episode.task, agent=agent.name, seed=seed,

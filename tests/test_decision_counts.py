@@ -10,7 +10,7 @@ import pytest
 
 from helios.schema import with_overrides
 from tasks.decisions import (ACTIVITIES, DECISION_COUNTS, summarize_activity_time, summarize_decisions,
-                             summarize_timeouts)
+                             summarize_start_receptacle, summarize_timeouts)
 from tasks.episodes import load_split
 from tasks.runner import RunnerConfig, run_episode
 from tasks.trials import TrialConfig, append_result, prepare_run_folder, read_results, run_batch, run_one
@@ -61,6 +61,41 @@ def test_the_runner_times_each_activity_including_an_act_cut_short():
     assert result.extra["decisions"] == {"gaze_point_visits": 3}
 
 
+class _Choosing(_Phased):
+    """Reports its global decisions with candidates, as HELIOS does."""
+
+    def decision_stats(self):
+        return {"gaze_point_visits": self.n, "global_choices": [{"chosen": None, "candidates": [[3, 1.0, 2.0]]}]}
+
+
+class _Judge:
+    """Stands in for the sim judge: no metrics, and a truth check that echoes what it was given."""
+
+    def __init__(self):
+        self.given = None
+
+    def after_command(self, name, result=None):
+        pass
+
+    def finalize(self, limit_hit):
+        return None
+
+    def start_receptacle_truth(self, choices):
+        self.given = choices
+        return {"decisions": len(choices), "offered": 1, "chosen": 0, "first_offered": 1}
+
+
+def test_the_runner_checks_the_global_choices_with_the_judge_and_keeps_only_the_result():
+    ep = load_split("smoke")[0]
+    judge = _Judge()
+    result = run_episode(_Choosing(), _Standing(), ep, RunnerConfig(max_commands=2), judge)
+    assert judge.given == [{"chosen": None, "candidates": [[3, 1.0, 2.0]]}]
+    assert result.extra["start_receptacle"] == {"decisions": 1, "offered": 1, "chosen": 0, "first_offered": 1}
+    assert result.extra["decisions"] == {"gaze_point_visits": 2}          # the raw choices are not stored
+    bare = run_episode(_Choosing(), _Standing(), ep, RunnerConfig(max_commands=2))     # no judge (a real robot)
+    assert "start_receptacle" not in bare.extra and bare.extra["decisions"] == {"gaze_point_visits": 2}
+
+
 def test_agents_without_the_hooks_get_no_fields():
     class Bare:
         name = "bare"
@@ -99,6 +134,9 @@ def test_helios_records_carry_activity_time_and_decisions(real_runs):
     assert set(times) <= set(ACTIVITIES) and times["start_scan"] > 0 and len(times) >= 2
     assert set(decisions) == set(DECISION_COUNTS) | {"local_search_sizes"}
     assert all(isinstance(decisions[k], int) for k in DECISION_COUNTS)
+    truth = record["extra"]["start_receptacle"]         # checked against the scene, every decision
+    assert truth["decisions"] == decisions["global_with_candidates"]
+    assert 0 <= truth["chosen"] <= truth["offered"] <= truth["decisions"]
     other = read_results(oracle / "episodes.jsonl")["smoke-00000"]
     assert "activity_time" not in other["extra"] and "decisions" not in other["extra"]
 
@@ -234,3 +272,41 @@ def test_report_has_the_timeouts_table(tmp_path):
     assert "| without | 0/2 (0.0 %) | 0 | 0 | 0 | 0 | - | - | - | - | - | - | - | - |" in md
     report = json.loads((tmp_path / "rep" / "report.json").read_text())
     assert report["with"]["timeouts"]["stages"]["before_find_obj"] == 2
+
+
+def _checked(i: int, found: bool, offered: int, chosen: int) -> dict:
+    r = _record(i, {"start_receptacle": {"decisions": 9, "offered": offered, "chosen": chosen,
+                                         "first_offered": 2 if offered else None}})
+    r["metrics"] = {**r["metrics"], "find_obj": found, "failure_reason": "pick_failed" if found else "not_found"}
+    return r
+
+
+CHECKED = [_checked(20, True, 3, 1), _checked(21, False, 0, 0), _checked(22, False, 5, 0),
+           _checked(23, False, 2, 1), _checked(24, False, 0, 0)]
+
+
+def test_the_start_receptacle_check_is_summed_and_split_by_why_the_object_was_missed():
+    s = summarize_start_receptacle(CHECKED + [OLD])
+    assert (s["episodes"], s["of"], s["offered"], s["searched"], s["never_searched"]) == (5, 6, 3, 2, 1)
+    assert s["passed_over_per_offered"] == (2 + 5 + 1) / 3
+    assert s["not_found"] == {"episodes": 4, "never_offered": 2, "offered_not_searched": 1, "searched": 1}
+    assert summarize_start_receptacle([OLD]) is None
+    nothing = summarize_start_receptacle([_checked(25, False, 0, 0)])
+    assert nothing["passed_over_per_offered"] is None and nothing["not_found"]["never_offered"] == 1
+
+
+def test_report_has_the_start_receptacle_table_only_when_a_run_has_the_check(tmp_path):
+    runs = {}
+    for name, records in (("checked", CHECKED), ("old", [OLD])):
+        runs[name] = tmp_path / name
+        prepare_run_folder(runs[name], TrialConfig(agent="helios", split="val", episodes=len(records)))
+        for r in records:
+            append_result(runs[name] / "episodes.jsonl", r)
+    md = make_report([runs["checked"], runs["old"]], tmp_path / "rep", episode_pages=False)["markdown"]
+    assert "**The start receptacle that holds the object" in md
+    assert "| checked | 5/5 | 3 (60 %) | 2 (40 %) | 1 (20 %) | 2.7 | 4 | 2 | 1 | 1 |" in md
+    assert "| old | 0/1 | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a |" in md
+    report = json.loads((tmp_path / "rep" / "report.json").read_text())
+    assert report["checked"]["start_receptacle"]["offered"] == 3 and report["old"]["start_receptacle"] is None
+    alone = make_report([runs["old"]], tmp_path / "rep2", episode_pages=False)["markdown"]
+    assert "start receptacle that holds" not in alone

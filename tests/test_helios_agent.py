@@ -108,6 +108,7 @@ def test_trusting_agent_builds_no_gaussians_and_pick_limit_holds():
         sim.close()
     assert result.error is None, result.error
     assert len(agent.map.objects) == 0
+    assert "start_receptacle" not in result.extra      # no candidates, nothing to check against the scene
     assert agent.pick_attempts <= 1
     assert result.metrics.pick_attempts == agent.pick_attempts
 

@@ -198,3 +198,28 @@ def test_summary_rates_and_standard_errors():
     assert s["Pick"]["percent"] == 75.0 and s["Pick"]["se"] == pytest.approx(100 * math.sqrt(0.75 * 0.25 / 4))
     assert s["SR"]["count"] == 1 and s["failure_reasons"]["pick_failed"] == 3
     assert set(s["failure_reasons"]) == set(FAILURE_REASONS)
+
+
+def test_the_judge_checks_the_searchs_candidates_against_the_true_start_receptacle():
+    """The mug rests on table_1; a candidate within 0.2 m of the table's footprint is that table,
+    one 0.3 m off it or on the desk is not. Offered, chosen and the first offer are counted per
+    decision."""
+    sim = _sim()
+    try:
+        lo, hi = sim.world.aabb(sim.scene.receptacle_ids["table_1"])
+        cx, cy = (lo[:2] + hi[:2]) / 2
+        desk = sim.world.position(sim.scene.receptacle_ids["desk_1"])
+        assert sim.judge.target_supports == [sim.scene.receptacle_ids["table_1"]]
+        near, far = [hi[0] + 0.15, cy], [hi[0] + 0.3, cy]        # beside the table, x beyond its footprint
+        choices = [{"chosen": None, "candidates": [[4, float(desk[0]), float(desk[1])], [5, *far]]},
+                   {"chosen": 4, "candidates": [[4, float(desk[0]), float(desk[1])], [7, float(cx), float(cy)]]},
+                   {"chosen": None, "candidates": [[7, float(cx), float(cy)]]},
+                   {"chosen": 9, "candidates": [[9, *near]]}]
+        assert sim.judge.start_receptacle_truth(choices) == {"decisions": 4, "offered": 3, "chosen": 1,
+                                                             "first_offered": 2}
+        assert sim.judge.start_receptacle_truth(choices[:1]) == {"decisions": 1, "offered": 0, "chosen": 0,
+                                                                 "first_offered": None}
+        assert sim.judge.start_receptacle_truth([]) == {"decisions": 0, "offered": 0, "chosen": 0,
+                                                        "first_offered": None}
+    finally:
+        sim.close()

@@ -412,6 +412,40 @@ def timeout_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     return headers, rows
 
 
+START_REC_TITLE = ("The start receptacle that holds the object, checked against the true scene: episodes in "
+                   "which the search offered it as a candidate, chose it, or passed it over until the end "
+                   "(decisions that chose something else while it was open, mean per offered episode); "
+                   "then the episodes that never reached FindObj by why; n/a: no check in the records")
+
+
+def start_receptacle_rows(runs: list[Run]) -> tuple[list[str], list[list]] | None:
+    """Per run, how the global search treated the receptacle the object really rests on
+    (``tasks.decisions.summarize_start_receptacle``): a policy that loses on FindObj with its
+    misses mostly "never offered" explores too little or in the wrong places; with most
+    "offered, not searched" its objective passes over the right candidate. None when no run
+    has the check (the table is left out)."""
+    from tasks.decisions import summarize_start_receptacle
+
+    summaries = [summarize_start_receptacle(r.records) for r in runs]
+    if all(s is None for s in summaries):
+        return None
+    headers = ["run", "episodes", "offered", "searched", "offered, never searched", "passed over",
+               "no FindObj", "never offered", "offered, not searched", "searched, not found"]
+    rows = []
+    for r, s in zip(runs, summaries):
+        if s is None:
+            rows.append([r.name, f"0/{len(r.records)}"] + ["n/a"] * (len(headers) - 2))
+            continue
+        n = s["episodes"]
+        miss = s["not_found"]
+        passed = s["passed_over_per_offered"]
+        rows.append([r.name, f"{n}/{s['of']}"]
+                    + [f"{s[k]} ({100.0 * s[k] / n:.0f} %)" for k in ("offered", "searched", "never_searched")]
+                    + [f"{passed:.1f}" if passed is not None else "-", str(miss["episodes"])]
+                    + [str(miss[k]) for k in ("never_offered", "offered_not_searched", "searched")])
+    return headers, rows
+
+
 # ------------------------------------------------------------------------------------------------
 # Plots
 # ------------------------------------------------------------------------------------------------
@@ -665,6 +699,9 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     tables.append((DECISIONS_TITLE, *decision_rows(runs)))
     tables.append((TIME_TITLE, *activity_rows(runs)))
     tables.append((TIMEOUTS_TITLE, *timeout_rows(runs)))
+    start_rec = start_receptacle_rows(runs)
+    if start_rec is not None:
+        tables.append((START_REC_TITLE, *start_rec))
     text = "\n\n".join(format_table(h, r, title=t) for t, h, r in tables)
     markdown = "\n\n".join(f"**{t}**\n\n" + format_markdown(h, r) for t, h, r in tables)
     (out / "table.txt").write_text(text + "\n")
@@ -687,12 +724,14 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
         except ImportError as exc:
             warnings.append(f"episode pages need Pillow (pip install -e '.[viz]'): {exc}; wrote the tables only")
     write_html(out / "index.html", runs, tables, figures, episodes)
-    from tasks.decisions import summarize_activity_time, summarize_decisions, summarize_timeouts
+    from tasks.decisions import (summarize_activity_time, summarize_decisions, summarize_start_receptacle,
+                                 summarize_timeouts)
 
     (out / "report.json").write_text(json.dumps({r.name: {"path": str(r.path), "summary": r.summary,
                                                           "decisions": summarize_decisions(r.records),
                                                           "activity_time": summarize_activity_time(r.records),
-                                                          "timeouts": summarize_timeouts(r.records)}
+                                                          "timeouts": summarize_timeouts(r.records),
+                                                          "start_receptacle": summarize_start_receptacle(r.records)}
                                                  for r in runs}, indent=2, sort_keys=True))
     return {"text": text, "markdown": markdown, "figures": figures, "html": out / "index.html", "warnings": warnings,
             "pages": {r.name: pages for r, pages in episodes}}

@@ -127,6 +127,7 @@ class HeliosAgent:
         self.activity = "start_scan"
         """What the latest ``act`` did, one of ``ACTIVITIES`` (the runner times each)."""
         self.stats: Counter = Counter()   # decision counts, see decision_stats()
+        self.choices: list[dict] = []     # global decisions with open candidates, see decision_stats()
         self.local_search_sizes: list[int] = []
 
     def act(self, robot: RobotBackend) -> bool:
@@ -179,10 +180,14 @@ class HeliosAgent:
     def decision_stats(self) -> dict:
         """What the agent decided this episode, for the trial report: global decisions made with
         open candidates and how many chose a candidate or a frontier before / after F0 was
-        calibrated on a chosen frontier, extra views the Psi' rule asked for, and the gaze
-        points of each local search (planned) and visited."""
+        calibrated on a chosen frontier, extra views the Psi' rule asked for, the gaze points of
+        each local search (planned) and visited, and ``global_choices``: per decision with open
+        candidates, those offered (``[id, x, y]``, centres in world metres) and the one chosen
+        (None: a frontier), which the runner checks against the true scene and then drops."""
         out = {k: int(self.stats.get(k, 0)) for k in DECISION_COUNTS}
         out["local_search_sizes"] = list(self.local_search_sizes)
+        if self.config.flags.object_map:      # agents without candidates (trusting) have nothing to check
+            out["global_choices"] = list(self.choices)
         return out
 
     # ================================================================== the decision
@@ -325,6 +330,8 @@ class HeliosAgent:
         if cands and choice is not None:
             self.stats["global_with_candidates"] += 1
             self.stats[f"chose_{choice.kind}_{'after' if calibrated else 'before'}_f0"] += 1
+            self.choices.append({"chosen": choice.index if choice.kind == "candidate" else None,
+                                 "candidates": [[c.instance_id, float(c.centre[0]), float(c.centre[1])] for c in cands]})
         return choice, frontiers
 
     def _frontier_options(self, layer: str) -> list[FrontierOption]:
