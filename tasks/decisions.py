@@ -19,7 +19,8 @@ and the scripted demo do not, and their runs read "n/a"):
 ``extra["start_receptacle"]`` (the runner's ground-truth check, ``EpisodeJudge.start_receptacle_truth``)
     Of the global decisions with open candidates (``decisions``), in how many the start receptacle
     that really holds the object was among the candidates (``offered``), how many chose it
-    (``chosen``) and the first decision that offered it (``first_offered``, 1-based; None: never).
+    (``chosen``), the first decision that offered it (``first_offered``, 1-based; None: never) and
+    when it first covered a little of a frame the agent took (``in_view``, simulated s; None: never).
 ``extra["activity_time"]``
     Simulated seconds per activity (``ACTIVITIES``: start scan, exploration, local search, pick,
     carry, place); they sum to the episode's ``sim_time``.
@@ -31,7 +32,7 @@ always first) and the two runs coincide. Few ``extra_views_*`` mean the Psi' rul
 another view, so variants that only change Psi' (e.g. the 50-50 IG reading) cannot differ much.
 Large local searches and a large local-search share of the time point at timeouts spent on gaze
 points rather than on exploration. The start-receptacle check says why an object was never found:
-never offered (the search never saw its receptacle as a candidate: coverage or recognition),
+never offered (never in view: coverage; in view: not recognised as a candidate),
 offered and passed over until the end (the objective preferred frontiers or other candidates),
 or searched without finding the object (the local search or the detector missed it).
 """
@@ -107,7 +108,9 @@ def summarize_start_receptacle(records: Iterable[dict]) -> dict | None:
     ``never_searched`` (offered, never chosen), ``passed_over_per_offered`` (mean over the offered
     episodes of the decisions that chose something else while it was open; None when none was
     offered) and ``not_found``: the checked episodes that never reached FindObj, split into
-    ``never_offered``, ``offered_not_searched`` and ``searched``.
+    ``never_offered``, ``offered_not_searched`` and ``searched``, and the never-offered ones into
+    ``never_in_view`` and ``in_view`` (both None when no such record says, e.g. made before the
+    check kept ``in_view``).
     """
     records = list(records)
     checked = [(r, t) for r in records if (t := _extra(r, "start_receptacle")) is not None]
@@ -116,6 +119,7 @@ def summarize_start_receptacle(records: Iterable[dict]) -> dict | None:
     offered = [t for _r, t in checked if t.get("offered", 0) > 0]
     searched = [t for t in offered if t.get("chosen", 0) > 0]
     missed = [t for r, t in checked if not (r.get("metrics") or {}).get("find_obj")]
+    unoffered = [t for t in missed if not t.get("offered") and "in_view" in t]
     return {"episodes": len(checked), "of": len(records), "offered": len(offered), "searched": len(searched),
             "never_searched": len(offered) - len(searched),
             "passed_over_per_offered": (statistics.fmean(t["offered"] - t.get("chosen", 0) for t in offered)
@@ -123,7 +127,9 @@ def summarize_start_receptacle(records: Iterable[dict]) -> dict | None:
             "not_found": {"episodes": len(missed),
                           "never_offered": sum(1 for t in missed if not t.get("offered")),
                           "offered_not_searched": sum(1 for t in missed if t.get("offered") and not t.get("chosen")),
-                          "searched": sum(1 for t in missed if t.get("chosen"))}}
+                          "searched": sum(1 for t in missed if t.get("chosen")),
+                          "never_in_view": sum(1 for t in unoffered if t["in_view"] is None) if unoffered else None,
+                          "in_view": sum(1 for t in unoffered if t["in_view"] is not None) if unoffered else None}}
 
 
 # How far a timed-out episode got: the first phase it never reached names the stage it ran out in.

@@ -107,6 +107,9 @@ class EpisodeJudge:
         if not self.valid_targets:
             raise ValueError(f"episode {episode.episode_id}: no {episode.object_category} rests on a "
                              f"{start_cat} in scene {episode.scene.seed}")
+        self.support_seen_time: float | None = None
+        """When a start receptacle holding a valid target first covered ``min_coverage`` of a frame
+        the agent took (any distance; None: never), for ``start_receptacle_truth``."""
         self._last_held: int | None = None
         self._released: int | None = None
         self._release_xy: np.ndarray | None = None
@@ -119,9 +122,15 @@ class EpisodeJudge:
     # ------------------------------------------------------------------ live updates
     def on_observation(self, obs: Observation) -> None:
         m = self.metrics
+        ids = None
+        if self.support_seen_time is None:
+            ids = decode_body_ids(self.backend.segmentation_for(obs))
+            if any(np.count_nonzero(ids == rid) >= self.config.min_coverage * ids.size for rid in self.target_supports):
+                self.support_seen_time = self._now()
         if m.find_obj and (not m.pick or m.find_rec):
             return
-        ids = decode_body_ids(self.backend.segmentation_for(obs))
+        if ids is None:
+            ids = decode_body_ids(self.backend.segmentation_for(obs))
         n = ids.size
         body_xy = obs.T_world_body[:2, 3]
         if not m.find_obj:
@@ -250,8 +259,11 @@ class EpisodeJudge:
         receptacle holding a valid target. Returns ``decisions``, ``offered`` (decisions in which
         it was among the open candidates), ``chosen`` (decisions that chose it) and
         ``first_offered`` (1-based index of the first decision that offered it; None: never).
-        Offered but never chosen means the policy passed over the right receptacle until the end;
-        never offered means it never saw it as a candidate (coverage or recognition)."""
+        ``in_view`` is when that receptacle first covered ``min_coverage`` of a frame the agent
+        took (simulated s; None: never). Offered but never chosen means the policy passed over the
+        right receptacle until the end; never offered and never in view means the search never
+        looked its way (coverage); in view but never offered, that the detector and the candidate
+        test did not take it for one (recognition)."""
         offered = chosen = 0
         first = None
         for i, choice in enumerate(choices, start=1):
@@ -263,7 +275,8 @@ class EpisodeJudge:
             offered += 1
             first = i if first is None else first
             chosen += choice["chosen"] is not None and int(choice["chosen"]) in true_ids
-        return {"decisions": len(choices), "offered": offered, "chosen": int(chosen), "first_offered": first}
+        return {"decisions": len(choices), "offered": offered, "chosen": int(chosen), "first_offered": first,
+                "in_view": None if self.support_seen_time is None else float(self.support_seen_time)}
 
     # ------------------------------------------------------------------ geometry
     def _on_goal(self, body: int) -> bool:

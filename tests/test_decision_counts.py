@@ -136,6 +136,7 @@ def test_helios_records_carry_activity_time_and_decisions(real_runs):
     assert all(isinstance(decisions[k], int) for k in DECISION_COUNTS)
     truth = record["extra"]["start_receptacle"]         # checked against the scene, every decision
     assert truth["decisions"] == decisions["global_with_candidates"]
+    assert truth["in_view"] is None or 0.0 <= truth["in_view"] <= record["sim_time"]
     assert 0 <= truth["chosen"] <= truth["offered"] <= truth["decisions"]
     other = read_results(oracle / "episodes.jsonl")["smoke-00000"]
     assert "activity_time" not in other["extra"] and "decisions" not in other["extra"]
@@ -274,9 +275,9 @@ def test_report_has_the_timeouts_table(tmp_path):
     assert report["with"]["timeouts"]["stages"]["before_find_obj"] == 2
 
 
-def _checked(i: int, found: bool, offered: int, chosen: int) -> dict:
+def _checked(i: int, found: bool, offered: int, chosen: int, **in_view) -> dict:
     r = _record(i, {"start_receptacle": {"decisions": 9, "offered": offered, "chosen": chosen,
-                                         "first_offered": 2 if offered else None}})
+                                         "first_offered": 2 if offered else None, **in_view}})
     r["metrics"] = {**r["metrics"], "find_obj": found, "failure_reason": "pick_failed" if found else "not_found"}
     return r
 
@@ -289,22 +290,33 @@ def test_the_start_receptacle_check_is_summed_and_split_by_why_the_object_was_mi
     s = summarize_start_receptacle(CHECKED + [OLD])
     assert (s["episodes"], s["of"], s["offered"], s["searched"], s["never_searched"]) == (5, 6, 3, 2, 1)
     assert s["passed_over_per_offered"] == (2 + 5 + 1) / 3
-    assert s["not_found"] == {"episodes": 4, "never_offered": 2, "offered_not_searched": 1, "searched": 1}
+    assert s["not_found"] == {"episodes": 4, "never_offered": 2, "offered_not_searched": 1, "searched": 1,
+                              "never_in_view": None, "in_view": None}
     assert summarize_start_receptacle([OLD]) is None
     nothing = summarize_start_receptacle([_checked(25, False, 0, 0)])
     assert nothing["passed_over_per_offered"] is None and nothing["not_found"]["never_offered"] == 1
+    assert nothing["not_found"]["never_in_view"] is None          # records that do not say
+    viewed = summarize_start_receptacle(VIEWED)
+    assert viewed["not_found"] == {"episodes": 4, "never_offered": 3, "offered_not_searched": 1, "searched": 0,
+                                   "never_in_view": 1, "in_view": 2}
+
+
+VIEWED = [_checked(30, False, 0, 0, in_view=None), _checked(31, False, 0, 0, in_view=80.5),
+          _checked(32, False, 0, 0, in_view=12.0), _checked(33, False, 4, 0, in_view=30.0),
+          _checked(34, True, 0, 0, in_view=None)]
 
 
 def test_report_has_the_start_receptacle_table_only_when_a_run_has_the_check(tmp_path):
     runs = {}
-    for name, records in (("checked", CHECKED), ("old", [OLD])):
+    for name, records in (("checked", CHECKED), ("viewed", VIEWED), ("old", [OLD])):
         runs[name] = tmp_path / name
         prepare_run_folder(runs[name], TrialConfig(agent="helios", split="val", episodes=len(records)))
         for r in records:
             append_result(runs[name] / "episodes.jsonl", r)
-    md = make_report([runs["checked"], runs["old"]], tmp_path / "rep", episode_pages=False)["markdown"]
+    md = make_report([runs["checked"], runs["viewed"], runs["old"]], tmp_path / "rep", episode_pages=False)["markdown"]
     assert "**The start receptacle that holds the object" in md
     assert "| checked | 5/5 | 3 (60 %) | 2 (40 %) | 1 (20 %) | 2.7 | 4 | 2 | 1 | 1 |" in md
+    assert "| viewed | 5/5 | 1 (20 %) | 0 (0 %) | 1 (20 %) | 4.0 | 4 | 3 (1 / 2) | 1 | 0 |" in md
     assert "| old | 0/1 | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a |" in md
     report = json.loads((tmp_path / "rep" / "report.json").read_text())
     assert report["checked"]["start_receptacle"]["offered"] == 3 and report["old"]["start_receptacle"] is None

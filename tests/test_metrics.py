@@ -11,13 +11,14 @@ import pytest
 
 from robots.hal import SE2Pose
 from robots.spot.sim_backend import SimSpotBackend
+from sim.camera import decode_body_ids
 from sim.scenes.catalog import make_object, make_receptacle
 from sim.scenes.home import build_home
 from sim.scenes.layout import HomeLayout, PlacedObject, PlacedReceptacle, Room, Wall
 from sim.spot import SpotBody
 from sim.world import World
 from tasks.episodes import Episode, SceneRef
-from tasks.metrics import FAILURE_REASONS, EpisodeJudge
+from tasks.metrics import FAILURE_REASONS, EpisodeJudge, MetricsConfig
 from tasks.oracle import OracleAgent
 from tasks.runner import RunnerConfig, SimEpisode, run_episode
 from tasks.trials import summarize
@@ -216,10 +217,20 @@ def test_the_judge_checks_the_searchs_candidates_against_the_true_start_receptac
                    {"chosen": None, "candidates": [[7, float(cx), float(cy)]]},
                    {"chosen": 9, "candidates": [[9, *near]]}]
         assert sim.judge.start_receptacle_truth(choices) == {"decisions": 4, "offered": 3, "chosen": 1,
-                                                             "first_offered": 2}
+                                                             "first_offered": 2, "in_view": None}
         assert sim.judge.start_receptacle_truth(choices[:1]) == {"decisions": 1, "offered": 0, "chosen": 0,
-                                                                 "first_offered": None}
-        assert sim.judge.start_receptacle_truth([]) == {"decisions": 0, "offered": 0, "chosen": 0,
-                                                        "first_offered": None}
+                                                                 "first_offered": None, "in_view": None}
+        # in view: the first frame the agent took in which the table covers min_coverage of the pixels
+        robot = sim.backend
+        robot.gaze_at(np.array([float(cx), float(cy), 0.5]))
+        look = robot.observe()
+        table_px = np.count_nonzero(decode_body_ids(robot.segmentation_for(look)) == sim.scene.receptacle_ids["table_1"])
+        assert table_px > 0.05 * look.depth.size
+        strict = EpisodeJudge(robot, sim.scene, sim.episode, MetricsConfig(min_coverage=0.9))
+        strict.on_observation(look)
+        assert strict.support_seen_time is None        # 5 % of the frame is not 90 %
+        sim.judge.on_observation(look)
+        assert sim.judge.support_seen_time is not None and sim.judge.support_seen_time >= 0.0
+        assert sim.judge.start_receptacle_truth([])["in_view"] == sim.judge.support_seen_time
     finally:
         sim.close()

@@ -415,14 +415,16 @@ def timeout_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
 START_REC_TITLE = ("The start receptacle that holds the object, checked against the true scene: episodes in "
                    "which the search offered it as a candidate, chose it, or passed it over until the end "
                    "(decisions that chose something else while it was open, mean per offered episode); "
-                   "then the episodes that never reached FindObj by why; n/a: no check in the records")
+                   "then the episodes that never reached FindObj by why, never offered split into never in "
+                   "view / in view of the agent's camera; n/a: no check in the records")
 
 
 def start_receptacle_rows(runs: list[Run]) -> tuple[list[str], list[list]] | None:
     """Per run, how the global search treated the receptacle the object really rests on
     (``tasks.decisions.summarize_start_receptacle``): a policy that loses on FindObj with its
-    misses mostly "never offered" explores too little or in the wrong places; with most
-    "offered, not searched" its objective passes over the right candidate. None when no run
+    misses mostly "never offered" and never in view explores too little or in the wrong places,
+    in view but never offered does not recognise the receptacle, and with most "offered, not
+    searched" its objective passes over the right candidate. None when no run
     has the check (the table is left out)."""
     from tasks.decisions import summarize_start_receptacle
 
@@ -430,7 +432,7 @@ def start_receptacle_rows(runs: list[Run]) -> tuple[list[str], list[list]] | Non
     if all(s is None for s in summaries):
         return None
     headers = ["run", "episodes", "offered", "searched", "offered, never searched", "passed over",
-               "no FindObj", "never offered", "offered, not searched", "searched, not found"]
+               "no FindObj", "never offered (not in view / in view)", "offered, not searched", "searched, not found"]
     rows = []
     for r, s in zip(runs, summaries):
         if s is None:
@@ -442,7 +444,9 @@ def start_receptacle_rows(runs: list[Run]) -> tuple[list[str], list[list]] | Non
         rows.append([r.name, f"{n}/{s['of']}"]
                     + [f"{s[k]} ({100.0 * s[k] / n:.0f} %)" for k in ("offered", "searched", "never_searched")]
                     + [f"{passed:.1f}" if passed is not None else "-", str(miss["episodes"])]
-                    + [str(miss[k]) for k in ("never_offered", "offered_not_searched", "searched")])
+                    + [str(miss["never_offered"]) + (f" ({miss['never_in_view']} / {miss['in_view']})"
+                                                     if miss["never_in_view"] is not None else "")]
+                    + [str(miss[k]) for k in ("offered_not_searched", "searched")])
     return headers, rows
 
 
