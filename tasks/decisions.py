@@ -116,20 +116,29 @@ def summarize_start_receptacle(records: Iterable[dict]) -> dict | None:
     checked = [(r, t) for r in records if (t := _extra(r, "start_receptacle")) is not None]
     if not checked:
         return None
-    offered = [t for _r, t in checked if t.get("offered", 0) > 0]
-    searched = [t for t in offered if t.get("chosen", 0) > 0]
-    missed = [t for r, t in checked if not (r.get("metrics") or {}).get("find_obj")]
-    unoffered = [t for t in missed if not t.get("offered") and "in_view" in t]
-    return {"episodes": len(checked), "of": len(records), "offered": len(offered), "searched": len(searched),
-            "never_searched": len(offered) - len(searched),
+    kinds = [_search_kind(t) for _r, t in checked]
+    offered = [t for (_r, t), k in zip(checked, kinds) if k != "never_offered"]
+    missed = [(t, k) for (r, t), k in zip(checked, kinds) if not (r.get("metrics") or {}).get("find_obj")]
+    not_found = {"episodes": len(missed)}
+    not_found.update({kind: sum(1 for _t, k in missed if k == kind)
+                      for kind in ("never_offered", "offered_not_searched", "searched")})
+    unoffered = [t for t, k in missed if k == "never_offered" and "in_view" in t]
+    not_found["never_in_view"] = sum(1 for t in unoffered if t["in_view"] is None) if unoffered else None
+    not_found["in_view"] = sum(1 for t in unoffered if t["in_view"] is not None) if unoffered else None
+    searched = kinds.count("searched")
+    return {"episodes": len(checked), "of": len(records), "offered": len(offered), "searched": searched,
+            "never_searched": len(offered) - searched,
             "passed_over_per_offered": (statistics.fmean(t["offered"] - t.get("chosen", 0) for t in offered)
                                         if offered else None),
-            "not_found": {"episodes": len(missed),
-                          "never_offered": sum(1 for t in missed if not t.get("offered")),
-                          "offered_not_searched": sum(1 for t in missed if t.get("offered") and not t.get("chosen")),
-                          "searched": sum(1 for t in missed if t.get("chosen")),
-                          "never_in_view": sum(1 for t in unoffered if t["in_view"] is None) if unoffered else None,
-                          "in_view": sum(1 for t in unoffered if t["in_view"] is not None) if unoffered else None}}
+            "not_found": not_found}
+
+
+def _search_kind(check: dict) -> str:
+    """How one episode's search treated the right start receptacle: ``never_offered``,
+    ``offered_not_searched`` (passed over until the end) or ``searched`` (a decision chose it)."""
+    if not check.get("offered"):
+        return "never_offered"
+    return "searched" if check.get("chosen") else "offered_not_searched"
 
 
 # How far a timed-out episode got: the first phase it never reached names the stage it ran out in.

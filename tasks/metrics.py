@@ -274,8 +274,8 @@ class EpisodeJudge:
                 continue
             offered += 1
             first = i if first is None else first
-            chosen += choice["chosen"] is not None and int(choice["chosen"]) in true_ids
-        return {"decisions": len(choices), "offered": offered, "chosen": int(chosen), "first_offered": first,
+            chosen += int(choice["chosen"] is not None and int(choice["chosen"]) in true_ids)
+        return {"decisions": len(choices), "offered": offered, "chosen": chosen, "first_offered": first,
                 "in_view": None if self.support_seen_time is None else float(self.support_seen_time)}
 
     # ------------------------------------------------------------------ geometry
