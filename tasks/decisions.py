@@ -14,7 +14,10 @@ and the scripted demo do not, and their runs read "n/a"):
     ``extra_views_object`` / ``extra_views_goal``: extra views of a target-object / goal-receptacle
     candidate taken because the predicted Psi' said one more view was worth it.
     ``gaze_point_visits``: gaze points of local searches visited (walk there and look; a walk
-    that fails still counts), so at most the sum of the planned sizes.
+    that fails still counts), so at most the sum of the planned sizes; ``gaze_point_views``: those
+    visits that took their view (the walk arrived, the body faced the location and the arm had
+    room). Records made before the views were counted lack it; a run with such a record reports
+    None for it.
     ``local_search_sizes``: per candidate pick location searched, the gaze points planned for it.
 ``extra["start_receptacle"]`` (the runner's ground-truth check, ``EpisodeJudge.start_receptacle_truth``)
     Of the global decisions with open candidates (``decisions``), in how many the start receptacle
@@ -68,11 +71,13 @@ def summarize_decisions(records: Iterable[dict]) -> dict | None:
         return None
     n = len(stats)
     totals = {k: int(sum(int(d.get(k, 0) or 0) for d in stats)) for k in DECISION_COUNTS}
+    if any("gaze_point_views" not in d for d in stats):      # counted since 2026-12-03 only
+        totals["gaze_point_views"] = None
     sizes = [int(s) for d in stats for s in (d.get("local_search_sizes") or [])]
     planned = ({"mean": float(statistics.fmean(sizes)), "median": float(statistics.median(sizes)),
                 "max": max(sizes)} if sizes else None)
     return {"episodes": n, "of": len(records), "totals": totals,
-            "per_episode": {k: v / n for k, v in totals.items()},
+            "per_episode": {k: (None if v is None else v / n) for k, v in totals.items()},
             "local_searches": len(sizes), "local_searches_per_episode": len(sizes) / n,
             "gaze_points_planned": planned}
 

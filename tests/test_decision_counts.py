@@ -148,7 +148,7 @@ def test_report_on_real_runs_shows_helios_numbers_and_oracle_na(real_runs, tmp_p
     lines = result["text"].splitlines()
     row = lambda title, name: next(line for line in lines[next(i for i, x in enumerate(lines)  # noqa: E731
                                                                 if x.startswith(title)):] if line.startswith(name))
-    assert "n/a" not in row("Decisions", "helios") and row("Decisions", "oracle").count("n/a") == 12
+    assert "n/a" not in row("Decisions", "helios") and row("Decisions", "oracle").count("n/a") == 13
     assert "start_scan" in result["text"] and row("Simulated time per phase", "oracle").count("n/a") == 7
     report = json.loads((tmp_path / "rep" / "report.json").read_text())
     assert report["oracle"]["decisions"] is None and report["helios"]["activity_time"]["episodes"] == 1
@@ -174,10 +174,10 @@ NEW = [
     _record(0, {"activity_time": {"start_scan": 40.0, "local_search": 50.0, "pick": 10.0},
                 "decisions": _decisions(global_with_candidates=3, chose_candidate_before_f0=2,
                                         chose_frontier_after_f0=1, extra_views_object=1, gaze_point_visits=14,
-                                        sizes=[8, 10])}),
+                                        gaze_point_views=9, sizes=[8, 10])}),
     _record(1, {"activity_time": {"start_scan": 40.0, "exploration": 60.0},
                 "decisions": _decisions(global_with_candidates=1, chose_candidate_after_f0=1, extra_views_goal=2,
-                                        gaze_point_visits=3, sizes=[12])}),
+                                        gaze_point_visits=3, gaze_point_views=3, sizes=[12])}),
 ]
 OLD = _record(2, {})
 
@@ -187,8 +187,9 @@ def test_aggregation_of_hand_written_records():
     assert d["episodes"] == 2 and d["of"] == 3
     assert d["totals"] == {"global_with_candidates": 4, "chose_candidate_before_f0": 2, "chose_frontier_before_f0": 0,
                            "chose_candidate_after_f0": 1, "chose_frontier_after_f0": 1, "extra_views_object": 1,
-                           "extra_views_goal": 2, "gaze_point_visits": 17}
+                           "extra_views_goal": 2, "gaze_point_visits": 17, "gaze_point_views": 12}
     assert d["per_episode"]["global_with_candidates"] == 2.0 and d["per_episode"]["gaze_point_visits"] == 8.5
+    assert d["per_episode"]["gaze_point_views"] == 6.0
     assert d["local_searches"] == 3 and d["local_searches_per_episode"] == 1.5
     assert d["gaze_points_planned"] == {"mean": 10.0, "median": 10.0, "max": 12}
     t = summarize_activity_time(NEW + [OLD])
@@ -213,14 +214,30 @@ def test_report_prints_the_sections_with_na_for_old_runs(tmp_path):
     text, md, page = result["text"], result["markdown"], result["html"].read_text()
     assert "Decisions: totals over the episodes shown" in text and "Simulated time per phase" in text
     assert ("| new | 2/3 | 4 (2.0) | 2 (1.0) | 0 (0.0) | 1 (0.5) | 1 (0.5) | 1 (0.5) | 2 (1.0) | 3 (1.5) "
-            "| 10.0 | 10 | 12 | 17 (8.5) |") in md
+            "| 10.0 | 10 | 12 | 17 (8.5) | 12 (6.0) |") in md
     assert "| old | 0/1 | n/a | n/a |" in md
     assert ("| new | 2/3 | 100 | 40.0 (40 s) | 30.0 (30 s) | 25.0 (25 s) | 5.0 (5 s) | 0.0 (0 s) | 0.0 (0 s) |"
             in md)
     assert "**Decisions: totals" in md and "**Simulated time per phase" in md
     assert "<h2>Decisions: totals" in page and "<h2>Simulated time per phase" in page
-    # n/a: decisions 12 + phase times 7, and the search-speed table's 3 + 5 (these records keep no phase times)
-    assert "<td>40.0 (40 s)</td>" in page and page.count("<td>n/a</td>") == 12 + 7 + 8
+    # n/a: decisions 13 + phase times 7, and the search-speed table's 3 + 5 (these records keep no phase times)
+    assert "<td>40.0 (40 s)</td>" in page and page.count("<td>n/a</td>") == 13 + 7 + 8
+
+
+def test_gaze_point_views_unknown_when_a_record_predates_them(tmp_path):
+    """Records made before views were counted lack ``gaze_point_views``: the run's total is None and
+    the report's cell '-', never a 0 that would read as 'no visit took a view'."""
+    before = _record(4, {"decisions": {k: v for k, v in _decisions(gaze_point_visits=5).items()
+                                       if k != "gaze_point_views"}})
+    d = summarize_decisions(NEW + [before])
+    assert d["totals"]["gaze_point_views"] is None and d["per_episode"]["gaze_point_views"] is None
+    assert d["totals"]["gaze_point_visits"] == 22
+    run = tmp_path / "mixed"
+    prepare_run_folder(run, TrialConfig(agent="helios", split="val", episodes=3))
+    for r in NEW + [before]:
+        append_result(run / "episodes.jsonl", r)
+    md = make_report([run], tmp_path / "rep")["markdown"]
+    assert "| 22 (7.3) | - |" in md
 
 
 def _timed_out(i: int, reached: tuple[str, ...], extra: dict) -> dict:

@@ -329,7 +329,7 @@ def decision_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
             "chose_candidate_after_f0", "chose_frontier_after_f0", "extra_views_object", "extra_views_goal")
     headers = ["run", "episodes", "with candidates", "cand. before F0", "frontier before F0", "cand. after F0",
                "frontier after F0", "extra views obj", "extra views goal", "local searches",
-               "gaze pts/search mean", "median", "max", "gaze pt visits"]
+               "gaze pts/search mean", "median", "max", "gaze pt visits", "with a view"]
     rows = []
     for r in runs:
         d = summarize_decisions(r.records)
@@ -346,7 +346,8 @@ def decision_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
                     + [cell(d["local_searches"], d["local_searches_per_episode"])]
                     + ([f"{planned['mean']:.1f}", f"{planned['median']:g}", str(planned["max"])] if planned
                        else ["-", "-", "-"])
-                    + [cell(tot["gaze_point_visits"], per["gaze_point_visits"])])
+                    + [cell(tot["gaze_point_visits"], per["gaze_point_visits"])]
+                    + ["-" if tot["gaze_point_views"] is None else cell(tot["gaze_point_views"], per["gaze_point_views"])])
     return headers, rows
 
 

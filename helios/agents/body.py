@@ -343,17 +343,22 @@ class Body:
         tall obstacle lies on the arc the hand sweeps from where it points now (out to
         ``arm_swing_radius`` from the shoulder). Far to the side, unseen cells count as blocked too
         (a wall the camera has not looked at yet)."""
-        view = self.config.view
         if not self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw):
             return False
-        sx, sy = self._shoulder(self.pose.x, self.pose.y, self.pose.yaw)
         now = self.pose.yaw if self.arm_direction is None else self.arm_direction
+        return self._sweep_clear(self.pose.x, self.pose.y, self.pose.yaw, now, direction)
+
+    def _sweep_clear(self, x: float, y: float, yaw: float, now: float, direction: float) -> bool:
+        """No tall obstacle on the arc the hand sweeps from world yaw ``now`` to ``direction``
+        with the body at (x, y, yaw), nor unseen cells far to the side (see ``arm_clear``)."""
+        view = self.config.view
+        sx, sy = self._shoulder(x, y, yaw)
         sweep = float(wrap_angle(direction - now))
         lo, hi = min(0.0, sweep) - 0.3, max(0.0, sweep) + 0.3
         angles = now + np.linspace(lo, hi, max(7, int((hi - lo) / 0.1) + 1))
         r, a = np.meshgrid(np.linspace(0.1, view.arm_swing_radius, 10), angles)
         pts = np.stack([sx + r * np.cos(a), sy + r * np.sin(a)], axis=-1).reshape(-1, 2)
-        side = np.abs(wrap_angle(a.reshape(-1) - self.pose.yaw)) > math.radians(75)
+        side = np.abs(wrap_angle(a.reshape(-1) - yaw)) > math.radians(75)
         rows, cols = self.map.geometry.world_to_cell(pts)
         occ = self.map.occupancy
         blocked = occ.obstacle[rows, cols] & (occ.max_height[rows, cols] > view.arm_swing_height)
@@ -377,6 +382,44 @@ class Body:
                 return ok and self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw)
         self.log.append("no room for the arm to look around here")
         return False
+
+
+    def can_look_from(self, poses, look_at) -> np.ndarray:
+        """(N,) bool: a visit to each (x, y, yaw) pose could aim the camera at ``look_at`` by
+        ``view_from``'s own tests on the current map: the elbow has room there, or ``make_room``
+        finds a step to a pose where it has (nearest first, the straight step free); then the
+        stowed arm's sweep towards ``look_at`` is clear (``arm_clear``). For gaze points
+        (``GazeConfig.arm_room``): a point that fails would cost the walk there and take no view."""
+        poses = np.atleast_2d(np.asarray(poses, dtype=float))
+        out = np.zeros(len(poses), dtype=bool)
+        if not len(poses):
+            return out
+        view = self.config.view
+        occ, geo = self.map.occupancy, self.map.geometry
+        offsets = np.array([(0.0, 0.0), *_offsets_nearest_first(view.make_room_distance)])
+        ring = np.linspace(0.0, 2 * math.pi, 32, endpoint=False)
+        rr = np.linspace(0.1, view.elbow_radius, 4)
+        disc = np.stack([np.outer(rr, np.cos(ring)), np.outer(rr, np.sin(ring))], axis=-1).reshape(-1, 2)
+        base = self.checker()
+        for i, (x, y, yaw) in enumerate(poses):
+            c, s = math.cos(yaw), math.sin(yaw)
+            nx = x + offsets[:, 0] * c - offsets[:, 1] * s
+            ny = y + offsets[:, 0] * s + offsets[:, 1] * c
+            sx, sy = nx + view.shoulder_ahead * c, ny + view.shoulder_ahead * s
+            pts = np.stack([sx[:, None] + disc[None, :, 0], sy[:, None] + disc[None, :, 1]], axis=-1)
+            rows, cols = geo.world_to_cell(pts.reshape(-1, 2))
+            tall = occ.obstacle[rows, cols] & (occ.max_height[rows, cols] > view.arm_swing_height)
+            elbow = ~tall.reshape(len(offsets), -1).any(axis=1)
+            k = 0 if elbow[0] else None
+            if k is None:
+                checker = base.clear_under((x, y, yaw))
+                k = next((j for j in np.flatnonzero(elbow[1:]) + 1
+                          if checker.segment_free(x, y, float(nx[j]), float(ny[j]), yaw)), None)
+            if k is None:
+                continue
+            direction = math.atan2(look_at[1] - ny[k], look_at[0] - nx[k])
+            out[i] = self._sweep_clear(float(nx[k]), float(ny[k]), yaw, yaw, direction)
+        return out
 
 
 def _offsets_nearest_first(limit: float) -> list[tuple[float, float]]:

@@ -301,7 +301,8 @@ class HeliosAgent:
             else:
                 occ = self.map.occupancy
                 pts = gaze_points(inst.footprint_xy, inst.max_height, self.map.geometry, occ.obstacle, occ.max_height,
-                                  self.body.checker(), self.config.gaze, centre_xy=inst.centre[:2])
+                                  self.body.checker(), self.config.gaze, centre_xy=inst.centre[:2],
+                                  can_look=self.body.can_look_from)
                 rows, cols = self.map.geometry.world_to_cell(np.array([[g.pose.x, g.pose.y] for g in pts]).reshape(-1, 2))
                 known = occ.explored[rows, cols] if len(pts) else np.zeros(0, dtype=bool)
                 cache[key] = [g for g, k in zip(pts, known) if k and not self._blacklisted(g.pose)]
@@ -437,7 +438,8 @@ class HeliosAgent:
             self.local.queue.clear()
         else:
             self.stats["gaze_point_visits"] += 1
-            self.body.view_from(robot, self.local.queue.pop(0))
+            if self.body.view_from(robot, self.local.queue.pop(0)):
+                self.stats["gaze_point_views"] += 1
         if not self.local.queue:
             self.visited.add(self.local.instance_id)
             self.local = None

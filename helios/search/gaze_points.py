@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Callable, Literal
 
 import numpy as np
 from scipy import ndimage
@@ -52,6 +52,14 @@ class GazeConfig:
     """The instance's own footprint grown by this (m) is ignored by the line-of-sight test."""
     min_look_height: float = 0.05
     """Lower bound (m) of the look-at point's height (objects on the floor)."""
+    arm_room: bool = False
+    """True: a point from which the arm could not aim the camera (no room for the elbow there or
+    a short step away, or a tall obstacle on the hand's sweep; the agent's own test, passed in as
+    ``can_look``) counts as blocked, so the outer ring stands in for it. False (default, the
+    paper's contour): only the body's footprint and the line of sight decide; the visit then
+    finds out, after the walk. Why one might: on train, a third of local-search gaze point visits
+    take no view, most for want of arm room, at ~10 s of walking each (README, "Gaze points the
+    arm cannot look from")."""
 
     def __post_init__(self) -> None:
         require(bool(self.standoffs) and all(0 < s <= 5.0 for s in self.standoffs),
@@ -83,8 +91,12 @@ def contour_points(footprint_xy: np.ndarray, standoff: float, spacing: float, mi
 
 def gaze_points(footprint_xy: np.ndarray, top_z: float, geometry: GridGeometry, obstacle: np.ndarray,
                 max_height: np.ndarray, checker: FootprintChecker, config: GazeConfig = GazeConfig(),
-                centre_xy=None) -> list[GazePoint]:
-    """Free gaze points with a clear line of sight to the instance (ring by ring, nearest ring first)."""
+                centre_xy=None, can_look: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+                ) -> list[GazePoint]:
+    """Free gaze points with a clear line of sight to the instance (ring by ring, nearest ring first).
+    With ``config.arm_room``, ``can_look(poses, look_at)`` ((N, 3) poses, the look-at point; (N,)
+    bool) must also pass, or the point counts as blocked (required then)."""
+    require(not config.arm_room or can_look is not None, "GazeConfig.arm_room needs a can_look test")
     pts = np.asarray(footprint_xy, dtype=float).reshape(-1, 2)
     if not len(pts):
         return []
@@ -114,11 +126,14 @@ def gaze_points(footprint_xy: np.ndarray, top_z: float, geometry: GridGeometry, 
         yaw = np.arctan2(centre[1] - ring[:, 1], centre[0] - ring[:, 0])
         poses = np.column_stack([ring, yaw])
         free = checker.poses_free(poses)
+        keep = [k for k, p in enumerate(poses) if wanted[k] and free[k] and window.line_clear(p[:2], centre, blocking)]
+        if config.arm_room and keep:
+            keep = [k for k, ok in zip(keep, can_look(poses[keep], look)) if ok]
         found = np.zeros(len(ring), dtype=bool)
-        for k, (p, ok) in enumerate(zip(poses, free)):
-            if wanted[k] and ok and window.line_clear(p[:2], centre, blocking):
-                found[k] = True
-                out.append(GazePoint(SE2Pose(float(p[0]), float(p[1]), float(p[2])), look.copy()))
+        for k in keep:
+            p = poses[k]
+            found[k] = True
+            out.append(GazePoint(SE2Pose(float(p[0]), float(p[1]), float(p[2])), look.copy()))
         covered[sector[found]] = True
     return out
 
