@@ -254,3 +254,68 @@ def test_a_local_search_visits_the_nearest_gaze_point_first_then_the_nearest_to_
     order = visiting_order(pts, (0.0, 0.0))
     assert [(g.pose.x, g.pose.y) for g in order] == [(1.0, 0.0), (2.0, 0.1), (3.0, 0.0), (0.0, 2.5)]
     assert len(pts) == 4 and visiting_order([], (0.0, 0.0)) == []      # the caller's list is left alone
+
+
+# ------------------------------------------------------------------------------------ arm room
+def test_arm_room_treats_a_point_the_arm_cannot_look_from_as_blocked():
+    """``GazeConfig.arm_room``: a free, visible point that ``can_look`` rejects falls back to the
+    outer ring exactly as a point blocked by the footprint test does; off (the default), the test
+    is never asked and the points are those of the paper's contour."""
+    g, fp = table_grid()
+    cfg = GazeConfig(arm_room=True)
+    inner = contour_points(fp, cfg.standoffs[0], cfg.spacing, cfg.min_points)
+    x, y = inner[0]
+    asked = []
+
+    def can_look(poses, look_at):
+        asked.append(np.array(poses))
+        np.testing.assert_allclose(look_at, [0.0, 0.0, TOP], atol=1e-12)
+        return np.hypot(poses[:, 0] - x, poses[:, 1] - y) > 1e-6      # no room at the +x point only
+
+    got = gaze_points(fp, TOP, GEO, g.obstacle, g.max_height, g.checker(), cfg, None, can_look)
+    blocked = Grid().box(*TABLE, TOP).box(0.85, 1.0, -0.1, 0.1, 0.3).gaze(fp)   # the same point blocked by a box
+    assert [p.pose.as_tuple() for p in got] == [p.pose.as_tuple() for p in blocked]
+    assert len(asked) == 2 and len(asked[0]) == len(inner)       # inner ring, then the +x outer points only
+    assert not any(np.hypot(p.pose.x - x, p.pose.y - y) < 1e-6 for p in got)
+
+    def never(poses, look_at):
+        raise AssertionError("asked although arm_room is off")
+
+    off = gaze_points(fp, TOP, GEO, g.obstacle, g.max_height, g.checker(), GazeConfig(), None, never)
+    assert [p.pose.as_tuple() for p in off] == [p.pose.as_tuple() for p in g.gaze(fp)]
+    with pytest.raises(ValueError, match="can_look"):
+        gaze_points(fp, TOP, GEO, g.obstacle, g.max_height, g.checker(), cfg)
+
+
+def test_can_look_from_predicts_what_a_visit_finds():
+    """``Body.can_look_from`` on a pose says what ``view_from`` would find on arrival there: room
+    for the elbow (or a step ``make_room`` takes to get it) and a clear sweep towards the look
+    point. Checked pose by pose against the visit's own calls near a tall wall and a shelf."""
+    from collections import Counter
+    from types import SimpleNamespace
+
+    from helios.agents.body import Body
+    from helios.agents.config import AgentConfig
+    from robots.hal import NavigateResult, Reason
+
+    g = Grid().box(-2.0, 2.0, 1.0, 1.1, 2.5).box(0.6, 1.0, -0.4, 0.4, 1.8).box(-0.5, 0.5, -0.3, 0.3, 0.75)
+    occupancy = SimpleNamespace(obstacle=g.obstacle, max_height=g.max_height, explored=np.ones(GEO.shape, bool))
+    observer = SimpleNamespace(map=SimpleNamespace(occupancy=occupancy, geometry=GEO))
+    body = Body(AgentConfig(), None, observer, [], Counter())
+
+    class Robot:           # make_room's step always arrives
+        def navigate_to(self, goal, via=()):
+            return NavigateResult(True, Reason.OK, final_pose=goal)
+
+    rng = np.random.default_rng(3)
+    look_at = np.array([0.0, 0.0, TOP])
+    poses = np.column_stack([rng.uniform(-1.6, 1.6, 300), rng.uniform(-1.2, 0.9, 300), rng.uniform(-np.pi, np.pi, 300)])
+    predicted = body.can_look_from(poses, look_at)
+    actual = []
+    for x, y, yaw in poses:
+        body.pose, body.arm_stowed, body.arm_direction = SE2Pose(x, y, yaw), True, None
+        direction = math.atan2(look_at[1] - y, look_at[0] - x)
+        actual.append(body.make_room(Robot()) and body.arm_clear(direction))
+    assert predicted.tolist() == actual
+    assert 30 < int(predicted.sum()) < 270            # both answers occur
+    assert body.can_look_from(np.zeros((0, 3)), look_at).shape == (0,)

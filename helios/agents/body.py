@@ -417,7 +417,7 @@ class Body:
                           if checker.segment_free(x, y, float(nx[j]), float(ny[j]), yaw)), None)
             if k is None:
                 continue
-            direction = math.atan2(look_at[1] - ny[k], look_at[0] - nx[k])
+            direction = math.atan2(look_at[1] - y, look_at[0] - x)     # as view_from: aimed on arrival
             out[i] = self._sweep_clear(float(nx[k]), float(ny[k]), yaw, yaw, direction)
         return out
 

@@ -57,9 +57,9 @@ class GazeConfig:
     a short step away, or a tall obstacle on the hand's sweep; the agent's own test, passed in as
     ``can_look``) counts as blocked, so the outer ring stands in for it. False (default, the
     paper's contour): only the body's footprint and the line of sight decide; the visit then
-    finds out, after the walk. Why one might: on train, a third of local-search gaze point visits
-    take no view, most for want of arm room, at ~10 s of walking each (README, "Gaze points the
-    arm cannot look from")."""
+    finds out, after the walk. Why one might: in 30 train timeouts, 219 of 702 local-search steps
+    took no view, 64 of them for want of arm room after ~10 s of walking each (README, "Gaze
+    point visits that take no view")."""
 
     def __post_init__(self) -> None:
         require(bool(self.standoffs) and all(0 < s <= 5.0 for s in self.standoffs),
