@@ -22,8 +22,9 @@ and the scripted demo do not, and their runs read "n/a"):
 ``extra["start_receptacle"]`` (the runner's ground-truth check, ``EpisodeJudge.start_receptacle_truth``)
     Of the global decisions with open candidates (``decisions``), in how many the start receptacle
     that really holds the object was among the candidates (``offered``), how many chose it
-    (``chosen``), the first decision that offered it (``first_offered``, 1-based; None: never) and
-    when it first covered a little of a frame the agent took (``in_view``, simulated s; None: never).
+    (``chosen``), of those how many got at least one view from their local search (``viewed``),
+    the first decision that offered it (``first_offered``, 1-based; None: never) and when it first
+    covered a little of a frame the agent took (``in_view``, simulated s; None: never).
 ``extra["activity_time"]``
     Simulated seconds per activity (``ACTIVITIES``: start scan, exploration, local search, pick,
     carry, place); they sum to the episode's ``sim_time``.
@@ -37,7 +38,9 @@ Large local searches and a large local-search share of the time point at timeout
 points rather than on exploration. The start-receptacle check says why an object was never found:
 never offered (never in view: coverage; in view: not recognised as a candidate),
 offered and passed over until the end (the objective preferred frontiers or other candidates),
-or searched without finding the object (the local search or the detector missed it).
+or searched without finding the object: without a single view (every gaze point failed: no
+path, a body that could not face the receptacle, no room for the arm) or with views that missed
+it (the views or the detector).
 """
 
 from __future__ import annotations
@@ -115,7 +118,9 @@ def summarize_start_receptacle(records: Iterable[dict]) -> dict | None:
     offered) and ``not_found``: the checked episodes that never reached FindObj, split into
     ``never_offered``, ``offered_not_searched`` and ``searched``, and the never-offered ones into
     ``never_in_view`` and ``in_view`` (both None when no such record says, e.g. made before the
-    check kept ``in_view``).
+    check kept ``in_view``), and the searched ones into ``searched_no_view`` (no decision that
+    chose it got a view from its local search: every gaze point failed) and ``searched_viewed``
+    (both None when no such record says: made before the check kept ``viewed``).
     """
     records = list(records)
     checked = [(r, t) for r in records if (t := _extra(r, "start_receptacle")) is not None]
@@ -130,6 +135,9 @@ def summarize_start_receptacle(records: Iterable[dict]) -> dict | None:
     unoffered = [t for t, k in missed if k == "never_offered" and "in_view" in t]
     not_found["never_in_view"] = sum(1 for t in unoffered if t["in_view"] is None) if unoffered else None
     not_found["in_view"] = sum(1 for t in unoffered if t["in_view"] is not None) if unoffered else None
+    looked = [t for t, k in missed if k == "searched" and t.get("viewed") is not None]
+    not_found["searched_no_view"] = sum(1 for t in looked if not t["viewed"]) if looked else None
+    not_found["searched_viewed"] = sum(1 for t in looked if t["viewed"]) if looked else None
     searched = kinds.count("searched")
     return {"episodes": len(checked), "of": len(records), "offered": len(offered), "searched": searched,
             "never_searched": len(offered) - searched,

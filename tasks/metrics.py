@@ -258,13 +258,16 @@ class EpisodeJudge:
         receptacle when its centre lies within ``CANDIDATE_MARGIN`` of the footprint of a start
         receptacle holding a valid target. Returns ``decisions``, ``offered`` (decisions in which
         it was among the open candidates), ``chosen`` (decisions that chose it) and
-        ``first_offered`` (1-based index of the first decision that offered it; None: never).
+        ``first_offered`` (1-based index of the first decision that offered it; None: never);
+        ``viewed``, of the decisions that chose it, those whose local search took at least one view
+        (each choice's ``views``; None when the choices do not say: a search whose every gaze
+        point failed, unreachable or without room to look, never looked at the receptacle).
         ``in_view`` is when that receptacle first covered ``min_coverage`` of a frame the agent
         took (simulated s; None: never). Offered but never chosen means the policy passed over the
         right receptacle until the end; never offered and never in view means the search never
         looked its way (coverage); in view but never offered, that the detector and the candidate
         test did not take it for one (recognition)."""
-        offered = chosen = 0
+        offered = chosen = viewed = 0
         first = None
         for i, choice in enumerate(choices, start=1):
             true_ids = {int(c[0]) for c in choice["candidates"]
@@ -274,9 +277,13 @@ class EpisodeJudge:
                 continue
             offered += 1
             first = i if first is None else first
-            chosen += int(choice["chosen"] is not None and int(choice["chosen"]) in true_ids)
+            hit = choice["chosen"] is not None and int(choice["chosen"]) in true_ids
+            chosen += int(hit)
+            viewed += int(hit and bool(choice.get("views")))
+        views_known = all("views" in c for c in choices if c["chosen"] is not None)
         return {"decisions": len(choices), "offered": offered, "chosen": chosen, "first_offered": first,
-                "in_view": None if self.support_seen_time is None else float(self.support_seen_time)}
+                "in_view": None if self.support_seen_time is None else float(self.support_seen_time),
+                "viewed": viewed if views_known else None}
 
     # ------------------------------------------------------------------ geometry
     def _on_goal(self, body: int) -> bool:

@@ -138,6 +138,7 @@ def test_helios_records_carry_activity_time_and_decisions(real_runs):
     assert truth["decisions"] == decisions["global_with_candidates"]
     assert truth["in_view"] is None or 0.0 <= truth["in_view"] <= record["sim_time"]
     assert 0 <= truth["chosen"] <= truth["offered"] <= truth["decisions"]
+    assert truth["viewed"] is not None and 0 <= truth["viewed"] <= truth["chosen"]
     other = read_results(oracle / "episodes.jsonl")["smoke-00000"]
     assert "activity_time" not in other["extra"] and "decisions" not in other["extra"]
 
@@ -308,32 +309,42 @@ def test_the_start_receptacle_check_is_summed_and_split_by_why_the_object_was_mi
     assert (s["episodes"], s["of"], s["offered"], s["searched"], s["never_searched"]) == (5, 6, 3, 2, 1)
     assert s["passed_over_per_offered"] == (2 + 5 + 1) / 3
     assert s["not_found"] == {"episodes": 4, "never_offered": 2, "offered_not_searched": 1, "searched": 1,
-                              "never_in_view": None, "in_view": None}
+                              "never_in_view": None, "in_view": None, "searched_no_view": None,
+                              "searched_viewed": None}
     assert summarize_start_receptacle([OLD]) is None
     nothing = summarize_start_receptacle([_checked(25, False, 0, 0)])
     assert nothing["passed_over_per_offered"] is None and nothing["not_found"]["never_offered"] == 1
     assert nothing["not_found"]["never_in_view"] is None          # records that do not say
     viewed = summarize_start_receptacle(VIEWED)
     assert viewed["not_found"] == {"episodes": 4, "never_offered": 3, "offered_not_searched": 1, "searched": 0,
-                                   "never_in_view": 1, "in_view": 2}
+                                   "never_in_view": 1, "in_view": 2, "searched_no_view": None, "searched_viewed": None}
+    looked = summarize_start_receptacle(LOOKED)["not_found"]
+    assert (looked["searched"], looked["searched_no_view"], looked["searched_viewed"]) == (3, 2, 1)
 
 
 VIEWED = [_checked(30, False, 0, 0, in_view=None), _checked(31, False, 0, 0, in_view=80.5),
           _checked(32, False, 0, 0, in_view=12.0), _checked(33, False, 4, 0, in_view=30.0),
           _checked(34, True, 0, 0, in_view=None)]
+# searched without FindObj: twice without a single view (every gaze point failed), once with views;
+# a found one with no view does not count, nor one made before views were kept
+LOOKED = [_checked(40, False, 2, 1, in_view=20.0, viewed=0), _checked(41, False, 3, 2, in_view=20.0, viewed=0),
+          _checked(42, False, 1, 1, in_view=20.0, viewed=1), _checked(43, True, 1, 1, in_view=20.0, viewed=0),
+          _checked(44, False, 0, 0, in_view=None, viewed=0)]
 
 
 def test_report_has_the_start_receptacle_table_only_when_a_run_has_the_check(tmp_path):
     runs = {}
-    for name, records in (("checked", CHECKED), ("viewed", VIEWED), ("old", [OLD])):
+    for name, records in (("checked", CHECKED), ("viewed", VIEWED), ("looked", LOOKED), ("old", [OLD])):
         runs[name] = tmp_path / name
         prepare_run_folder(runs[name], TrialConfig(agent="helios", split="val", episodes=len(records)))
         for r in records:
             append_result(runs[name] / "episodes.jsonl", r)
-    md = make_report([runs["checked"], runs["viewed"], runs["old"]], tmp_path / "rep", episode_pages=False)["markdown"]
+    md = make_report([runs["checked"], runs["viewed"], runs["looked"], runs["old"]], tmp_path / "rep",
+                     episode_pages=False)["markdown"]
     assert "**The start receptacle that holds the object" in md
     assert "| checked | 5/5 | 3 (60 %) | 2 (40 %) | 1 (20 %) | 2.7 | 4 | 2 | 1 | 1 |" in md
     assert "| viewed | 5/5 | 1 (20 %) | 0 (0 %) | 1 (20 %) | 4.0 | 4 | 3 (1 / 2) | 1 | 0 |" in md
+    assert "| looked | 5/5 | 4 (80 %) | 4 (80 %) | 0 (0 %) | 0.5 | 4 | 1 (1 / 0) | 0 | 3 (2 / 1) |" in md
     assert "| old | 0/1 | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a |" in md
     report = json.loads((tmp_path / "rep" / "report.json").read_text())
     assert report["checked"]["start_receptacle"]["offered"] == 3 and report["old"]["start_receptacle"] is None

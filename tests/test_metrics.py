@@ -217,9 +217,14 @@ def test_the_judge_checks_the_searchs_candidates_against_the_true_start_receptac
                    {"chosen": None, "candidates": [[7, float(cx), float(cy)]]},
                    {"chosen": 9, "candidates": [[9, *near]]}]
         assert sim.judge.start_receptacle_truth(choices) == {"decisions": 4, "offered": 3, "chosen": 1,
-                                                             "first_offered": 2, "in_view": None}
+                                                             "first_offered": 2, "in_view": None, "viewed": None}
         assert sim.judge.start_receptacle_truth(choices[:1]) == {"decisions": 1, "offered": 0, "chosen": 0,
-                                                                 "first_offered": None, "in_view": None}
+                                                                 "first_offered": None, "in_view": None, "viewed": 0}
+        # viewed: of the decisions that chose the table, those whose local search took a view
+        blind = [dict(c, views=3) if c["chosen"] == 4 else dict(c, views=0) if c["chosen"] == 9 else c for c in choices]
+        assert sim.judge.start_receptacle_truth(blind)["viewed"] == 0       # the desk's 3 views do not count
+        seen = [dict(c, views=1) if c["chosen"] is not None else c for c in choices]
+        assert sim.judge.start_receptacle_truth(seen)["viewed"] == 1
         # in view: the first frame the agent took in which the table covers min_coverage of the pixels
         robot = sim.backend
         robot.gaze_at(np.array([float(cx), float(cy), 0.5]))

@@ -433,7 +433,8 @@ def start_receptacle_rows(runs: list[Run]) -> tuple[list[str], list[list]] | Non
     if all(s is None for s in summaries):
         return None
     headers = ["run", "episodes", "offered", "searched", "offered, never searched", "passed over",
-               "no FindObj", "never offered (not in view / in view)", "offered, not searched", "searched, not found"]
+               "no FindObj", "never offered (not in view / in view)", "offered, not searched",
+               "searched, not found (no view / viewed)"]
     rows = []
     for r, s in zip(runs, summaries):
         if s is None:
@@ -447,7 +448,9 @@ def start_receptacle_rows(runs: list[Run]) -> tuple[list[str], list[list]] | Non
                     + [f"{passed:.1f}" if passed is not None else "-", str(miss["episodes"])]
                     + [str(miss["never_offered"]) + (f" ({miss['never_in_view']} / {miss['in_view']})"
                                                      if miss["never_in_view"] is not None else "")]
-                    + [str(miss[k]) for k in ("offered_not_searched", "searched")])
+                    + [str(miss["offered_not_searched"])]
+                    + [str(miss["searched"]) + (f" ({miss['searched_no_view']} / {miss['searched_viewed']})"
+                                                if miss["searched_no_view"] is not None else "")])
     return headers, rows
 
 

@@ -76,6 +76,7 @@ class Phase(Enum):
 class _LocalSearch:
     instance_id: int
     queue: list[GazePoint] = field(default_factory=list)
+    choice: dict | None = None     # the global decision that chose it (see decision_stats), views counted there
 
 
 class HeliosAgent:
@@ -128,6 +129,7 @@ class HeliosAgent:
         """What the latest ``act`` did, one of ``ACTIVITIES`` (the runner times each)."""
         self.stats: Counter = Counter()   # decision counts, see decision_stats()
         self.choices: list[dict] = []     # global decisions with open candidates, see decision_stats()
+        self._last_choice: dict | None = None   # the latest of them, if the latest decision was one
         self.local_search_sizes: list[int] = []
 
     def act(self, robot: RobotBackend) -> bool:
@@ -181,9 +183,11 @@ class HeliosAgent:
         """What the agent decided this episode, for the trial report: global decisions made with
         open candidates and how many chose a candidate or a frontier before / after F0 was
         calibrated on a chosen frontier, extra views the Psi' rule asked for, the gaze points of
-        each local search (planned) and visited, and ``global_choices``: per decision with open
-        candidates, those offered (``[id, x, y]``, centres in world metres) and the one chosen
-        (None: a frontier), which the runner checks against the true scene and then drops."""
+        each local search (planned), visited and those that took their view, and
+        ``global_choices``: per decision with open candidates, those offered (``[id, x, y]``,
+        centres in world metres), the one chosen (None: a frontier) and, when it chose a
+        candidate, the views its local search took (``views``), which the runner checks against
+        the true scene and then drops."""
         out = {k: int(self.stats.get(k, 0)) for k in DECISION_COUNTS}
         out["local_search_sizes"] = list(self.local_search_sizes)
         if self.config.flags.object_map:      # agents without candidates (trusting) have nothing to check
@@ -222,7 +226,7 @@ class HeliosAgent:
                 self._finish("nothing left to search for the object")
         elif choice.kind == "candidate":
             self.activity = "local_search"
-            self._start_local_search(choice.index)
+            self._start_local_search(choice.index, self._last_choice)
             self._continue_local_search(robot)
         else:
             self.activity = "exploration"
@@ -328,11 +332,13 @@ class HeliosAgent:
         frontiers = self._frontier_options(self.start_class)
         calibrated = self.pick_objective.calibrated
         choice = self.pick_objective.choose(self.body.xy(), cands, frontiers)
+        self._last_choice = None
         if cands and choice is not None:
             self.stats["global_with_candidates"] += 1
             self.stats[f"chose_{choice.kind}_{'after' if calibrated else 'before'}_f0"] += 1
-            self.choices.append({"chosen": choice.index if choice.kind == "candidate" else None,
-                                 "candidates": [[c.instance_id, float(c.centre[0]), float(c.centre[1])] for c in cands]})
+            self._last_choice = {"chosen": choice.index if choice.kind == "candidate" else None,
+                                 "candidates": [[c.instance_id, float(c.centre[0]), float(c.centre[1])] for c in cands]}
+            self.choices.append(self._last_choice)
         return choice, frontiers
 
     def _frontier_options(self, layer: str) -> list[FrontierOption]:
@@ -419,7 +425,7 @@ class HeliosAgent:
         return True
 
     # ------------------------------------------------------------------ local search and views
-    def _start_local_search(self, instance_id: int) -> None:
+    def _start_local_search(self, instance_id: int, choice: dict | None = None) -> None:
         views = list(self._gaze_points_of(instance_id))
         if self.config.local_search_views == "informative" and len(views) > 1:
             cams = gaze_cameras(views, self.body.body_height, self.config.view)
@@ -427,7 +433,9 @@ class HeliosAgent:
                                      cams, self.config.local_search_min_gain, self.method.search.information_gain)
             views = [views[i] for i in sorted(keep)]
         order = visiting_order(views, self.body.xy())
-        self.local = _LocalSearch(instance_id, order)
+        if choice is not None:
+            choice["views"] = 0
+        self.local = _LocalSearch(instance_id, order, choice)
         self.local_search_sizes.append(len(order))
         self.log.append(f"local search of instance {instance_id}: {len(order)} gaze points")
 
@@ -440,6 +448,8 @@ class HeliosAgent:
             self.stats["gaze_point_visits"] += 1
             if self.body.view_from(robot, self.local.queue.pop(0)):
                 self.stats["gaze_point_views"] += 1
+                if self.local.choice is not None:
+                    self.local.choice["views"] += 1
         if not self.local.queue:
             self.visited.add(self.local.instance_id)
             self.local = None
