@@ -300,6 +300,21 @@ class Body:
             return False
         return self.execute(robot, plan)
 
+    def start_scan(self, robot: RobotBackend) -> None:
+        """Look around the start: front half with the arm, turn round, other half. The turn relies on the start
+        clearance that episode generation guarantees (``PlannerConfig.start_clearance``); skipped if not free."""
+        self.observe(robot)
+        # the start clearance is free by construction: keep it as seen floor, or the strip beside
+        # the start that no view covers can cut the start off from the rest once the robot leaves
+        self.map.occupancy.mark_seen(self.xy()[None], self.config.planner.start_clearance)
+        self.look_all_around(robot)
+        if not self.config.view.start_turn_around:
+            return
+        if self.turn_to(robot, float(wrap_angle(self.pose.yaw + math.pi))):
+            self.look_all_around(robot)
+        else:
+            self.log.append("start: could not turn round")
+
     def look_all_around(self, robot: RobotBackend) -> None:
         """The start's look pattern: wide far views plus the near floor on three sides."""
         view = self.config.view

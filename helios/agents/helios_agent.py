@@ -60,7 +60,6 @@ from helios.search.gaze_points import GazePoint, gaze_points, visiting_order
 from helios.search.information import best_view_prediction, informative_views, views_information_gain
 from helios.search.objective import CandidateLocation, FrontierOption, GlobalObjective
 from robots.hal import RobotBackend, SE2Pose
-from robots.transforms import wrap_angle
 
 
 class Phase(Enum):
@@ -136,7 +135,7 @@ class HeliosAgent:
         self.decisions += 1
         if self.phase is Phase.START:
             self.activity = "start_scan"
-            self._initial_scan(robot)
+            self.body.start_scan(robot)
             self.phase = Phase.PICK
             return False
         if self.phase is Phase.PICK:
@@ -144,22 +143,6 @@ class HeliosAgent:
         elif self.phase is Phase.PLACE:
             self._place_step(robot)
         return self.phase is Phase.DONE
-
-    def _initial_scan(self, robot: RobotBackend) -> None:
-        """Look around the start: front half with the arm, turn round, other half. The turn relies on the start
-        clearance that episode generation guarantees (``PlannerConfig.start_clearance``); skipped if not free."""
-        body = self.body
-        body.observe(robot)
-        # the start clearance is free by construction: keep it as seen floor, or the strip beside
-        # the start that no view covers can cut the start off from the rest once the robot leaves
-        self.map.occupancy.mark_seen(body.xy()[None], self.config.planner.start_clearance)
-        body.look_all_around(robot)
-        if not self.config.view.start_turn_around:
-            return
-        if body.turn_to(robot, float(wrap_angle(body.pose.yaw + math.pi))):
-            body.look_all_around(robot)
-        else:
-            self.log.append("start: could not turn round")
 
     # ================================================================== hooks for trial batches
     def memory_bytes(self) -> dict[str, int]:
@@ -183,11 +166,9 @@ class HeliosAgent:
         """What the agent decided this episode, for the trial report: global decisions made with
         open candidates and how many chose a candidate or a frontier before / after F0 was
         calibrated on a chosen frontier, extra views the Psi' rule asked for, the gaze points of
-        each local search (planned), visited and those that took their view, and
-        ``global_choices``: per decision with open candidates, those offered (``[id, x, y]``,
-        centres in world metres), the one chosen (None: a frontier) and, when it chose a
-        candidate, the views its local search took (``views``), which the runner checks against
-        the true scene and then drops."""
+        each local search (planned), visited and those that took their view, and ``global_choices``:
+        per decision with open candidates, those offered (``[id, x, y]``, world metres), the one chosen
+        (None: a frontier) and its search's ``views``, which the runner checks and then drops."""
         out = {k: int(self.stats.get(k, 0)) for k in DECISION_COUNTS}
         out["local_search_sizes"] = list(self.local_search_sizes)
         if self.config.flags.object_map:      # agents without candidates (trusting) have nothing to check
