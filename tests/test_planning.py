@@ -654,3 +654,25 @@ def test_a_blocked_plan_that_gets_no_nearer_the_goal_can_fail_as_blocked():
     assert kept.success and kept.blocked_ahead and kept.waypoints
     assert np.min(np.linalg.norm(goals - [kept.waypoints[-1].x, kept.waypoints[-1].y], axis=1)) < \
         np.min(np.linalg.norm(goals - [back.x, back.y], axis=1)) - 0.5
+
+
+def test_a_robot_facing_a_dead_end_backs_out_when_stepping_without_turning():
+    """``step_without_turning``: in a corridor too narrow to turn round in, facing its dead end,
+    the paper's rotate-then-forward planner is ``blocked`` (the agent then gives up on every goal
+    in zero robot time); with the option the robot walks backwards, heading kept, until it can
+    turn, every executed pose free, and reaches the goal behind it. Off by default."""
+    s = Scene()
+    s.box(-1.5, 1.1, 0.45, 0.55).box(-1.5, 1.1, -0.55, -0.45).box(1.0, 1.1, -0.55, 0.55)    # dead end at x = 1
+    start, goal = SE2Pose(0.3, 0.0, 0.0), (-3.0, 0.0)
+    assert PlannerConfig().step_without_turning is False
+    stuck = s.plan(start, goal, horizon=100.0)
+    assert not stuck.success and stuck.reason == "blocked"
+    out = s.plan(start, goal, planner=FMMPlanner(dataclasses.replace(CFG, step_without_turning=True)), horizon=100.0)
+    assert out.success and out.reaches_goal
+    first = out.waypoints[0]
+    assert first.yaw == start.yaw and first.x < start.x - 0.1          # backwards, heading kept
+    assert out.actions[0].kind == "backward"
+    assert all(abs(w.yaw - start.yaw) < 1e-12 for w in out.waypoints if w.x > -1.0)   # no turn inside the corridor
+    checker = s.checker(REPLAY_TOL).clear_under(start)
+    assert checker.poses_free(_walked_as_executed(start, out.waypoints)).all()
+    assert math.hypot(out.waypoints[-1].x - goal[0], out.waypoints[-1].y - goal[1]) <= 0.3 + 1e-6   # plan's goal_radius
