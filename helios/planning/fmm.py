@@ -69,8 +69,9 @@ class PlannerConfig:
     until a turn is free. False (default, the paper's rotate-then-forward planner): the plan is
     ``blocked``. Why one might: a robot that walked forward into a niche cannot turn round to
     leave it, every plan is then blocked at its first move and the agent gives up in zero robot
-    time; in 4 probed train wedges a 0.1 m step back or sideways was free in every one (README,
-    "Where the misses are")."""
+    time; in 4 probed train wedges a 0.1 m step without turning was free in every one (README,
+    "Where the misses are"). Measured on 200 train episodes: "not found" 15 against 38, FindObj
+    59.5 against 55.5, but timeouts 86 against 61 and SR 12.5 against 11.5, so it stays off."""
     max_plan_cells: int = 400_000
     """Largest FMM grid (coarse cells). When the known region (plus start, goal and margin) would
     need more, the plan cell grows by whole multiples until it fits: a fully explored 50 m grid
