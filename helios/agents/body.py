@@ -344,14 +344,20 @@ class Body:
     def elbow_clear(self, x: float, y: float, yaw: float) -> bool:
         """No tall obstacle within ``elbow_radius`` of the shoulder: moving the arm at all swings
         its links up to 0.34 m round the shoulder, on any side (measured along gaze moves in sim)."""
+        return bool(self._elbows_clear(np.array([x]), np.array([y]), yaw)[0])
+
+    def _elbows_clear(self, xs: np.ndarray, ys: np.ndarray, yaw: float) -> np.ndarray:
+        """``elbow_clear`` for several body positions at one heading, on the same samples."""
         view = self.config.view
-        sx, sy = self._shoulder(x, y, yaw)
+        sx, sy = self._shoulder(xs, ys, yaw)
         ring = np.linspace(0.0, 2 * math.pi, 32, endpoint=False)
         rr = np.linspace(0.1, view.elbow_radius, 4)
-        disc = np.stack([sx + np.outer(rr, np.cos(ring)), sy + np.outer(rr, np.sin(ring))], axis=-1).reshape(-1, 2)
+        disc = np.stack([sx[:, None, None] + np.outer(rr, np.cos(ring)),
+                         sy[:, None, None] + np.outer(rr, np.sin(ring))], axis=-1).reshape(-1, 2)
         rows, cols = self.map.geometry.world_to_cell(disc)
         occ = self.map.occupancy
-        return not bool((occ.obstacle[rows, cols] & (occ.max_height[rows, cols] > view.arm_swing_height)).any())
+        tall = occ.obstacle[rows, cols] & (occ.max_height[rows, cols] > view.arm_swing_height)
+        return ~tall.reshape(len(xs), -1).any(axis=1)
 
     def arm_clear(self, direction: float) -> bool:
         """The arm can point the camera in ``direction`` (world yaw): the elbow has room, and no
@@ -384,20 +390,33 @@ class Body:
         """Before looking around: if a wall or a tall piece of furniture is too close for the arm,
         step straight away from it (at the current heading) to the nearest pose where the elbow
         has room. False if there is none within ``make_room_distance``."""
-        if self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw):
+        yaw = self.pose.yaw
+        room = self._room_at(self.pose.x, self.pose.y, yaw)
+        if room is None:
+            self.log.append("no room for the arm to look around here")
+            return False
+        nx, ny, dx, dy = room
+        if dx == 0.0 and dy == 0.0:
             return True
-        x, y, yaw = self.pose.x, self.pose.y, self.pose.yaw
-        checker = self.checker().clear_under(self.pose)
-        c, s = math.cos(yaw), math.sin(yaw)
-        for dx, dy in _offsets_nearest_first(self.config.view.make_room_distance):
-            nx, ny = x + dx * c - dy * s, y + dx * s + dy * c
-            if self.elbow_clear(nx, ny, yaw) and checker.segment_free(x, y, nx, ny, yaw):
-                ok = self._step_to(robot, SE2Pose(nx, ny, yaw))
-                self.log.append(f"made room for the arm: stepped ({dx:+.1f}, {dy:+.1f}) m")
-                return ok and self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw)
-        self.log.append("no room for the arm to look around here")
-        return False
+        ok = self._step_to(robot, SE2Pose(nx, ny, yaw))
+        self.log.append(f"made room for the arm: stepped ({dx:+.1f}, {dy:+.1f}) m")
+        return ok and self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw)
 
+    def _room_at(self, x: float, y: float, yaw: float) -> tuple[float, float, float, float] | None:
+        """Where ``make_room`` would look from, standing at (x, y, yaw): here if the elbow has room,
+        else the nearest pose within ``make_room_distance`` (body-frame step dx, dy at the same
+        heading) where it has and the straight step there is free; (x', y', dx, dy), None if none."""
+        if self.elbow_clear(x, y, yaw):
+            return x, y, 0.0, 0.0
+        offsets = np.array(_offsets_nearest_first(self.config.view.make_room_distance))
+        c, s = math.cos(yaw), math.sin(yaw)
+        nx = x + offsets[:, 0] * c - offsets[:, 1] * s
+        ny = y + offsets[:, 0] * s + offsets[:, 1] * c
+        checker = self.checker().clear_under((x, y, yaw))
+        for j in np.flatnonzero(self._elbows_clear(nx, ny, yaw)):
+            if checker.segment_free(x, y, float(nx[j]), float(ny[j]), yaw):
+                return float(nx[j]), float(ny[j]), float(offsets[j, 0]), float(offsets[j, 1])
+        return None
 
     def can_look_from(self, poses, look_at) -> np.ndarray:
         """(N,) bool: a visit to each (x, y, yaw) pose could aim the camera at ``look_at`` by
@@ -407,33 +426,11 @@ class Body:
         (``GazeConfig.arm_room``): a point that fails would cost the walk there and take no view."""
         poses = np.atleast_2d(np.asarray(poses, dtype=float))
         out = np.zeros(len(poses), dtype=bool)
-        if not len(poses):
-            return out
-        view = self.config.view
-        occ, geo = self.map.occupancy, self.map.geometry
-        offsets = np.array([(0.0, 0.0), *_offsets_nearest_first(view.make_room_distance)])
-        ring = np.linspace(0.0, 2 * math.pi, 32, endpoint=False)
-        rr = np.linspace(0.1, view.elbow_radius, 4)
-        disc = np.stack([np.outer(rr, np.cos(ring)), np.outer(rr, np.sin(ring))], axis=-1).reshape(-1, 2)
-        base = self.checker()
         for i, (x, y, yaw) in enumerate(poses):
-            c, s = math.cos(yaw), math.sin(yaw)
-            nx = x + offsets[:, 0] * c - offsets[:, 1] * s
-            ny = y + offsets[:, 0] * s + offsets[:, 1] * c
-            sx, sy = nx + view.shoulder_ahead * c, ny + view.shoulder_ahead * s
-            pts = np.stack([sx[:, None] + disc[None, :, 0], sy[:, None] + disc[None, :, 1]], axis=-1)
-            rows, cols = geo.world_to_cell(pts.reshape(-1, 2))
-            tall = occ.obstacle[rows, cols] & (occ.max_height[rows, cols] > view.arm_swing_height)
-            elbow = ~tall.reshape(len(offsets), -1).any(axis=1)
-            k = 0 if elbow[0] else None
-            if k is None:
-                checker = base.clear_under((x, y, yaw))
-                k = next((j for j in np.flatnonzero(elbow[1:]) + 1
-                          if checker.segment_free(x, y, float(nx[j]), float(ny[j]), yaw)), None)
-            if k is None:
-                continue
-            direction = math.atan2(look_at[1] - y, look_at[0] - x)     # as view_from: aimed on arrival
-            out[i] = self._sweep_clear(float(nx[k]), float(ny[k]), yaw, yaw, direction)
+            room = self._room_at(float(x), float(y), float(yaw))
+            if room is not None:
+                direction = math.atan2(look_at[1] - y, look_at[0] - x)     # as view_from: aimed on arrival
+                out[i] = self._sweep_clear(room[0], room[1], float(yaw), float(yaw), direction)
         return out
 
 

@@ -447,12 +447,7 @@ class FMMPlanner:
         its forward/backward and strafe parts (one straight move, one waypoint). Returns the
         distance (0: not even ``forward_min`` is free, nothing emitted)."""
         direction = math.atan2(ty - y, tx - x)
-        n = max(2, int(math.ceil(dist / (checker.geometry.cell_size / 2))) + 1)
-        t = np.linspace(0.0, dist, n)
-        free = checker.poses_free(np.stack([x + t * math.cos(direction), y + t * math.sin(direction),
-                                            np.full(n, yaw)], axis=1))
-        first_bad = len(t) if free.all() else int(np.argmin(free))
-        step = dist if first_bad == len(t) else (float(t[first_bad - 1]) if first_bad > 0 else 0.0)
+        step = self._free_distance(checker, x, y, direction, dist, yaw)
         if step < self.config.forward_min - 1e-9:
             return 0.0
         rel = direction - yaw
@@ -479,12 +474,14 @@ class FMMPlanner:
         return yaw
 
     @staticmethod
-    def _free_distance(checker: FootprintChecker, x, y, heading, dist) -> float:
-        """Longest prefix of the straight move (to at most ``dist``) whose footprint stays free,
-        sampled every half cell so no cell can slip between two checked poses."""
+    def _free_distance(checker: FootprintChecker, x, y, heading, dist, yaw: float | None = None) -> float:
+        """Longest prefix of the straight move along ``heading`` (to at most ``dist``) whose
+        footprint stays free, the body facing ``yaw`` (None: the way it walks), sampled every half
+        cell so no cell can slip between two checked poses."""
         n = max(2, int(math.ceil(dist / (checker.geometry.cell_size / 2))) + 1)
         t = np.linspace(0.0, dist, n)
-        poses = np.stack([x + t * math.cos(heading), y + t * math.sin(heading), np.full(n, heading)], axis=1)
+        poses = np.stack([x + t * math.cos(heading), y + t * math.sin(heading),
+                          np.full(n, heading if yaw is None else yaw)], axis=1)
         free = checker.poses_free(poses)
         if free.all():
             return dist
