@@ -121,6 +121,14 @@ class Outcome:
     value: Any                 # the result, the traceback text, or why the worker died
 
 
+def cpu_pin_environment() -> dict[str, str]:
+    """The variables of the CPU pin this process runs under (``helios.runtime``), for workers
+    whose environment is not inherited from it (Ray)."""
+    from helios.runtime import CPU_ENV_VAR, PIN_VARS
+
+    return {k: os.environ[k] for k in (CPU_ENV_VAR, *PIN_VARS) if k in os.environ}
+
+
 def worker_setup() -> None:
     """Per-process setup of every trial worker (local process or Ray task)."""
     from helios.runtime import configure_threads
@@ -387,7 +395,9 @@ class RayExecutor:
         self._owned = False
         if ray.is_initialized():
             return
-        kwargs: dict = {"log_to_driver": False, "configure_logging": True, "logging_level": "ERROR"}
+        kwargs: dict = {"log_to_driver": False, "configure_logging": True, "logging_level": "ERROR",
+                        # the driver's CPU code paths (helios.runtime.pin_cpu_dispatch) for the workers too
+                        "runtime_env": {"env_vars": cpu_pin_environment()}}
         try:
             if address == "local":
                 ray.init(address="local", num_cpus=workers, include_dashboard=False,

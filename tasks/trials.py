@@ -39,6 +39,7 @@ import numpy as np
 
 from helios.agents.config import AgentConfig
 from helios.config import HeliosConfig
+from helios.runtime import cpu_dispatch
 from helios.schema import (ConfigError, dump_yaml, from_dict, load_config, read_config_file, read_text, require,
                            require_range, shorten, to_dict, yaml_load_text)
 from robots.spot.sim_backend import SimBackendConfig
@@ -825,7 +826,7 @@ def _log_invocation(out: Path, workers: int, executor: str, address: str, todo: 
     entry = {"time": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "host": socket.gethostname(), "pid": os.getpid(),
              "argv": sys.argv, "workers": workers, "executor": executor,
              "address": address if executor == "ray" else None, "episodes_to_run": todo,
-             "helios_version": package_version(), "git_commit": commit}
+             "helios_version": package_version(), "git_commit": commit, "cpu": cpu_dispatch()}
     append_result(out / "invocations.jsonl", entry)
 
 

@@ -1,11 +1,14 @@
-"""Shared pytest setup: one native thread per process (see helios.runtime) and sim fixtures."""
+"""Shared pytest setup: the CPU code paths and one native thread per process (see helios.runtime),
+and sim fixtures."""
 
 from __future__ import annotations
 
-import numpy as np
-import pytest
+from helios.runtime import configure_threads, pin_cpu_dispatch
 
-from helios.runtime import configure_threads
+pin_cpu_dispatch()   # before NumPy and torch load: the code paths `python -m tools` runs (helios.runtime)
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 configure_threads(1)
 

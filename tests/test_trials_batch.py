@@ -15,6 +15,7 @@ import numpy as np
 import psutil
 import pytest
 
+from helios.runtime import cpu_dispatch
 from helios.schema import with_overrides
 from tasks.episodes import load_split
 from tasks.trials import (NONDETERMINISTIC_FIELDS, TrialConfig, deterministic_view, read_results, run_batch,
@@ -125,6 +126,7 @@ def test_ray_local_instance_gives_the_same_records(reference, tmp_path):
     assert _views(read_results(out / "episodes.jsonl")) == _views(read_results(reference / "episodes.jsonl"))
     inv = [json.loads(l) for l in (out / "invocations.jsonl").read_text().splitlines()]
     assert inv[-1]["executor"] == "ray" and inv[-1]["workers"] == 2
+    assert inv[-1]["cpu"]["pin"] == cpu_dispatch()["pin"]      # the CPU code paths it ran under
 
 
 def _trials_cmd(out: Path, workers: int, n: int = N) -> list[str]:

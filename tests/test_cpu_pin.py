@@ -1,0 +1,120 @@
+"""One CPU code path everywhere (helios.runtime): the pin's settings per CPU, that `python -m
+tools` and its workers run under it, and that it never half-applies."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from helios.runtime import (CPU_ENV_VAR, PIN_VARS, PORTABLE_LEVEL, cpu_dispatch, cpu_flags, cpu_pin_settings)
+from tasks.executors import cpu_pin_environment
+
+ROOT = Path(__file__).resolve().parents[1]
+AVX512 = {"avx", "avx2", "fma", "avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"}
+AVX2 = {"avx", "avx2", "fma"}
+HERE = cpu_flags()
+X86_AVX2 = platform.machine().lower() in ("x86_64", "amd64") and {"avx2", "fma"} <= HERE
+
+
+def test_an_avx512_cpu_is_pinned_to_avx2_kernels_in_every_library():
+    env, what = cpu_pin_settings(AVX512, {}, "x86_64", numpy_2_4=True)
+    assert what == PORTABLE_LEVEL == "x86-64-v3"
+    assert env == {"OPENBLAS_CORETYPE": "Haswell", "ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "AVX2",
+                   "ONEDNN_MAX_CPU_ISA": "AVX2", "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",
+                   "OPENCV_CPU_DISABLE": "AVX512-SKX"}
+    assert set(env) <= set(PIN_VARS)
+    # NumPy before 2.4 names its AVX-512 targets differently; disabling one does not disable the others
+    old, _ = cpu_pin_settings(AVX512, {}, "x86_64", numpy_2_4=False)
+    assert old["NPY_DISABLE_CPU_FEATURES"] == "AVX512F AVX512_SKX AVX512_ICL AVX512_SPR"
+
+
+def test_exclusions_already_in_the_environment_are_kept():
+    env, _ = cpu_pin_settings(AVX512, {"NPY_DISABLE_CPU_FEATURES": "AVX512_SPR,X86_V3",
+                                       "OPENCV_CPU_DISABLE": "AVX2"}, "x86_64")
+    assert env["NPY_DISABLE_CPU_FEATURES"] == "AVX512_SPR X86_V3 X86_V4 AVX512_ICL"
+    assert env["OPENCV_CPU_DISABLE"] == "AVX2,AVX512-SKX"
+
+
+def test_an_avx2_cpu_needs_no_exclusions_and_older_or_other_cpus_are_left_alone():
+    env, what = cpu_pin_settings(AVX2, {}, "x86_64")
+    assert what == PORTABLE_LEVEL and "NPY_DISABLE_CPU_FEATURES" not in env and "OPENCV_CPU_DISABLE" not in env
+    assert env["ATEN_CPU_CAPABILITY"] == "avx2" and env["OPENBLAS_CORETYPE"] == "Haswell"
+    # the level's kernels would crash without AVX2/FMA: such CPUs keep their own paths, and say so
+    env, what = cpu_pin_settings({"avx", "sse4_2"}, {}, "x86_64")
+    assert env == {} and what.startswith("native") and "AVX2" in what
+    env, what = cpu_pin_settings(set(), {}, "aarch64")
+    assert env == {} and "aarch64" in what
+
+
+def test_opting_out_and_conflicts():
+    env, what = cpu_pin_settings(AVX512, {CPU_ENV_VAR: "native"}, "x86_64")
+    assert env == {} and what == f"native ({CPU_ENV_VAR}=native)"
+    env, what = cpu_pin_settings(AVX512, {"NPY_ENABLE_CPU_FEATURES": "X86_V4"}, "x86_64")
+    assert env == {} and "NPY_ENABLE_CPU_FEATURES" in what       # NumPy refuses enable and disable together
+    with pytest.raises(ValueError, match=f"{CPU_ENV_VAR} must be x86-64-v3 or native"):
+        cpu_pin_settings(AVX512, {CPU_ENV_VAR: "avx512"}, "x86_64")
+
+
+def test_cpu_flags_reads_the_flags_line():
+    text = "processor\t: 0\nvendor_id\t: GenuineIntel\nflags\t\t: fpu sse2 avx2 fma avx512f\nbugs\t: x\n"
+    assert cpu_flags(text) == {"fpu", "sse2", "avx2", "fma", "avx512f"}
+    assert cpu_flags("no flags here") == set()
+
+
+def _fresh_python(code: str, **extra) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k not in (*PIN_VARS, CPU_ENV_VAR)}
+    env.update(extra)
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT,
+                          env=env)
+
+
+PROBE = ("import json, tools, numpy, torch, cv2; from helios.runtime import cpu_dispatch; "
+         "print(json.dumps(cpu_dispatch()))")
+
+
+@pytest.mark.skipif(not X86_AVX2, reason="the pin applies to x86-64 CPUs with AVX2 and FMA only")
+def test_importing_tools_pins_numpy_torch_and_opencv_before_they_load():
+    proc = _fresh_python(PROBE)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert got["pin"] == PORTABLE_LEVEL
+    assert got["numpy"] in ("X86_V3", "baseline") and got["torch"] == "AVX2"
+    assert "AVX512-SKX" not in got["opencv"].replace("AVX512-SKX?", "")   # '?' marks a disabled feature
+    assert "OPENCV:" not in proc.stderr            # no warning about features the CPU lacks
+
+
+@pytest.mark.skipif(not {"avx512f", "avx512bw", "avx512dq", "avx512vl"} <= HERE,
+                    reason="needs an AVX-512 CPU to see the native paths differ from the pinned ones")
+def test_native_opt_out_takes_the_avx512_kernels():
+    proc = _fresh_python(PROBE, **{CPU_ENV_VAR: "native"})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert got["pin"] == f"native ({CPU_ENV_VAR}=native)"
+    assert got["torch"] == "AVX512" and got["numpy"] not in ("X86_V3", "baseline")
+
+
+@pytest.mark.skipif(not X86_AVX2, reason="the pin applies to x86-64 CPUs with AVX2 and FMA only")
+def test_a_pin_after_numpy_loaded_changes_nothing_and_says_so():
+    proc = _fresh_python("import os, numpy; from helios.runtime import pin_cpu_dispatch, PIN_VARS; "
+                         "print(pin_cpu_dispatch()); print(sorted(k for k in PIN_VARS if k in os.environ))")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    what, env = proc.stdout.strip().splitlines()[-2:]
+    assert what == "native (numpy imported before the pin)" and env == "[]"
+
+
+def test_this_test_process_and_ray_workers_share_the_pin(monkeypatch):
+    """conftest pins before NumPy loads; Ray workers, which do not inherit the driver's
+    environment, are given the same variables (tests/test_trials_batch.py runs them)."""
+    if X86_AVX2:
+        assert cpu_dispatch()["pin"] == PORTABLE_LEVEL
+    monkeypatch.setenv("ATEN_CPU_CAPABILITY", "avx2")
+    monkeypatch.setenv(CPU_ENV_VAR, "x86-64-v3")
+    monkeypatch.setenv("UNRELATED_VAR", "1")
+    got = cpu_pin_environment()
+    assert got["ATEN_CPU_CAPABILITY"] == "avx2" and got[CPU_ENV_VAR] == "x86-64-v3" and "UNRELATED_VAR" not in got
