@@ -716,6 +716,7 @@ class BatchReport:
     crashed: dict[str, str] = field(default_factory=dict)   # episode id -> why its worker died
     wall_seconds: float = 0.0
     commit_changed: str | None = None
+    cpu_changed: str | None = None   # the other CPU code paths earlier episodes of the folder ran on
     fingerprint: str = ""            # config_fingerprint stamped on the records this call writes
     saved_commit: str | None = None  # git commit in the folder's config.yaml before this call
     notes: list[str] = field(default_factory=list)   # what opening the folder repaired
@@ -762,6 +763,10 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
         jobs = [EpisodeJob(config, e, e.episode_id in recorded, pictures)
                 for e in episodes if e.episode_id not in done]
         if jobs:
+            if done:
+                now = invocation_cpu({"cpu": cpu_dispatch()})
+                other = [p for p in run_cpu_paths(out) if p != now]
+                report.cpu_changed = "; ".join(other) if other else None
             _log_invocation(out, workers, executor, address, len(jobs), commit)
             pool = make_executor(executor, min(workers, len(jobs)) if executor == "local" else workers, address,
                                  jobs=len(jobs), jobs_per_worker=worker_episodes)
@@ -820,6 +825,37 @@ def _write_bytes_atomic(path: Path, data: bytes) -> None:
         fh.flush()
         os.fsync(fh.fileno())
     tmp.replace(path)
+
+
+def invocation_cpu(entry: dict) -> str:
+    """The CPU code paths one line of ``invocations.jsonl`` ran under, as one short string:
+    the pin (``helios.runtime``) and NumPy's and torch's kernels where recorded; ``not recorded``
+    for lines written before 2026-12-03, when runs did not say (and nothing was pinned)."""
+    cpu = entry.get("cpu") if isinstance(entry, dict) else None
+    if not isinstance(cpu, dict):
+        return "not recorded"
+    return ", ".join([str(cpu.get("pin", "?"))] + [f"{k} {cpu[k]}" for k in ("numpy", "torch") if k in cpu])
+
+
+def run_cpu_paths(out: Path) -> list[str]:
+    """The distinct CPU code paths (:func:`invocation_cpu`) of the invocations that ran episodes
+    in a run folder, in the order first seen; empty when it has no ``invocations.jsonl``.
+    Episodes run on different code paths can differ in outcome (README, "One CPU code path")."""
+    path = Path(out) / "invocations.jsonl"
+    if not path.is_file():
+        return []
+    seen: list[str] = []
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        try:
+            entry = json.loads(line)
+        except ValueError:
+            continue      # a torn line: the invocation log is informative, never a reason to fail
+        if not isinstance(entry, dict) or not entry.get("episodes_to_run"):
+            continue
+        paths = invocation_cpu(entry)
+        if paths not in seen:
+            seen.append(paths)
+    return seen
 
 
 def _log_invocation(out: Path, workers: int, executor: str, address: str, todo: int, commit: str) -> None:

@@ -14,6 +14,7 @@ import pytest
 
 from helios.runtime import (CPU_ENV_VAR, PIN_VARS, PORTABLE_LEVEL, cpu_dispatch, cpu_flags, cpu_pin_settings)
 from tasks.executors import cpu_pin_environment
+from tasks.trials import TrialConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 AVX512 = {"avx", "avx2", "fma", "avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"}
@@ -118,3 +119,70 @@ def test_this_test_process_and_ray_workers_share_the_pin(monkeypatch):
     monkeypatch.setenv("UNRELATED_VAR", "1")
     got = cpu_pin_environment()
     assert got["ATEN_CPU_CAPABILITY"] == "avx2" and got[CPU_ENV_VAR] == "x86-64-v3" and "UNRELATED_VAR" not in got
+
+
+# ------------------------------------------------------------------------------------------------
+# Run folders say which code paths their episodes ran on
+# ------------------------------------------------------------------------------------------------
+PINNED = {"pin": "x86-64-v3", "numpy": "X86_V3", "opencv": "SSE *AVX2 *AVX512-SKX?"}
+NATIVE = {"pin": "native (HELIOS_CPU=native)", "numpy": "AVX512_ICL", "torch": "AVX512"}
+
+
+def _invocations(folder: Path, *cpus) -> None:
+    lines = []
+    for cpu in cpus:
+        entry = {"episodes_to_run": 3, "git_commit": "abc"}
+        if cpu is not None:
+            entry["cpu"] = cpu
+        lines.append(json.dumps(entry))
+    lines.append('{"episodes_to_run": 2, "cpu": {"pin": "torn')          # a torn last line is ignored
+    (folder / "invocations.jsonl").write_text("\n".join(lines) + "\n")
+
+
+def test_run_cpu_paths_lists_the_distinct_code_paths_in_order(tmp_path):
+    from tasks.trials import invocation_cpu, run_cpu_paths
+
+    assert run_cpu_paths(tmp_path) == []
+    _invocations(tmp_path, None, PINNED, PINNED, NATIVE)
+    assert run_cpu_paths(tmp_path) == ["not recorded", "x86-64-v3, numpy X86_V3",
+                                       "native (HELIOS_CPU=native), numpy AVX512_ICL, torch AVX512"]
+    assert invocation_cpu({"cpu": cpu_dispatch()}).startswith(cpu_dispatch()["pin"])
+
+
+def test_the_report_shows_each_runs_code_paths_and_warns_when_they_differ(tmp_path):
+    from tests.test_report import _make_run
+    from tools.report import make_report
+
+    a = _make_run(tmp_path / "a", [(5, None), (0, "not_found")])
+    b = _make_run(tmp_path / "b", [(0, "not_found"), (5, None)])
+    _invocations(a, PINNED)
+    _invocations(b, PINNED)
+    result = make_report([a, b], tmp_path / "rep", episode_pages=False)
+    assert "CPU code paths" in result["text"] and result["text"].count("x86-64-v3, numpy X86_V3") == 2
+    assert not [w for w in result["warnings"] if "CPU code paths" in w]
+    _invocations(b, NATIVE)                           # the same experiment on another machine's fast paths
+    result = make_report([a, b], tmp_path / "rep", episode_pages=False)
+    assert any("runs compared ran on different CPU code paths" in w and "b: native (HELIOS_CPU=native)" in w
+               for w in result["warnings"])
+    _invocations(a, PINNED, NATIVE)                   # one folder resumed on other paths
+    result = make_report([a], tmp_path / "rep", episode_pages=False)
+    assert any(f"{a}: its episodes ran on 2 different CPU code paths" in w for w in result["warnings"])
+    assert "x86-64-v3, numpy X86_V3 | native (HELIOS_CPU=native)" in result["text"]
+
+
+def test_a_resume_on_other_code_paths_is_reported(tmp_path):
+    from helios.schema import with_overrides
+    from tasks.episodes import load_split
+    from tasks.trials import BatchReport, run_batch
+
+    config = with_overrides(TrialConfig(episodes=2), ["runner.max_sim_time=5"])
+    run_batch(config, load_split("smoke")[:1], tmp_path)
+    entry = json.loads((tmp_path / "invocations.jsonl").read_text().splitlines()[-1])
+    assert entry["cpu"] == cpu_dispatch()
+    report = BatchReport([])
+    run_batch(config, load_split("smoke")[:2], tmp_path, report=report)
+    assert report.cpu_changed is None and report.ran == 1             # same machine, same paths
+    (tmp_path / "invocations.jsonl").write_text(json.dumps({"episodes_to_run": 1, "cpu": NATIVE}) + "\n")
+    report = BatchReport([])
+    run_batch(config, load_split("smoke")[:3], tmp_path, report=report)
+    assert report.cpu_changed == "native (HELIOS_CPU=native), numpy AVX512_ICL, torch AVX512"

@@ -72,6 +72,9 @@ def test_report_on_real_runs_from_the_cli(tmp_path, capsys):
     assert main(["report", str(run), str(run), "--names", "a,b", "--out", str(tmp_path / "rep")]) == 0
     out = capsys.readouterr().out
     assert "| a |" in out and "| b |" in out and f"report: {tmp_path / 'rep' / 'index.html'}" in out
+    from helios.runtime import cpu_dispatch
+
+    assert "CPU code paths" in out and cpu_dispatch()["pin"] in out     # the paths its invocation ran on
     assert all((tmp_path / "rep" / f).stat().st_size > 10_000 for f in FIGURES)
     with pytest.raises(Exception, match="--names has 1 name"):
         make_report([run, run], tmp_path / "rep2", names=["only"])

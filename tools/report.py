@@ -38,6 +38,7 @@ class Run:
     summary: dict
     config: dict
     legacy: int = 0             # records without a configuration fingerprint (written before they existed)
+    cpu: tuple[str, ...] = ()   # the CPU code paths its invocations ran on (tasks.trials.run_cpu_paths)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -58,7 +59,7 @@ def load_run(path: str | Path, name: str | None = None, warnings: list[str] | No
     empty. Damaged lines of episodes.jsonl are skipped, each named as FILE:LINE in ``warnings``;
     so are an unreadable config.yaml and records that disagree with it."""
     from helios.schema import read_text, short_repr, yaml_load_text
-    from tasks.trials import FINGERPRINT_FIELD, RunFolderError, config_fingerprint, scan_results, summarize
+    from tasks.trials import FINGERPRINT_FIELD, RunFolderError, config_fingerprint, run_cpu_paths, scan_results, summarize
     from tools.cli import CliError
 
     warnings = warnings if warnings is not None else []
@@ -105,7 +106,11 @@ def load_run(path: str | Path, name: str | None = None, warnings: list[str] | No
             warnings.append(f"{cfg_path} does not describe the records in {results} (they were made with "
                             f"configuration {next(iter(fps))}, config.yaml says {written}): it was edited or "
                             f"replaced; the table shows the records")
-    return Run(name or p.resolve().name, p, records, summarize(records), config, legacy=scan.legacy)
+    cpu = tuple(run_cpu_paths(p))
+    if len(cpu) > 1:
+        warnings.append(f"{p}: its episodes ran on {len(cpu)} different CPU code paths ({' | '.join(cpu)}); "
+                        f"they can differ in outcome (README, \"One CPU code path\")")
+    return Run(name or p.resolve().name, p, records, summarize(records), config, legacy=scan.legacy, cpu=cpu)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -120,7 +125,7 @@ def metrics_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
 
 def detail_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     headers = ["run", "agent", "episodes", "collisions/ep", "errors", "sim s/ep", "wall s/ep", "peak RSS MB",
-               "map MB", "GPU alloc MB", "GPU reserved MB"]
+               "map MB", "GPU alloc MB", "GPU reserved MB", "CPU code paths"]
     rows = []
     for r in runs:
         s, mem = r.summary, r.summary["memory"]
@@ -131,7 +136,8 @@ def detail_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
         rows.append([r.name, r.config.get("agent", r.records[0].get("agent", "?")), s["episodes"],
                      f"{s['collisions_per_episode']:.2f}", s["errors"], f"{s['sim_seconds_per_episode']:.0f}",
                      f"{s['wall_seconds_per_episode']:.1f}", peak("peak_rss_mb"), peak("map_mb_peak"),
-                     peak("gpu_allocated_mb_peak"), peak("gpu_reserved_mb_peak")])
+                     peak("gpu_allocated_mb_peak"), peak("gpu_reserved_mb_peak"),
+                     " | ".join(r.cpu) if r.cpu else "-"])
     return headers, rows
 
 
@@ -679,6 +685,10 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
         load_warnings.append("record(s) without a configuration fingerprint (written before fingerprints existed) "
                              "in " + ", ".join(f"{r.path} ({r.legacy})" for r in legacy)
                              + ": their configuration is taken as unknown")
+    if len({r.cpu for r in runs if len(r.cpu) == 1}) > 1:
+        load_warnings.append("the runs compared ran on different CPU code paths (" + "; ".join(
+            f"{r.name}: {r.cpu[0]}" for r in runs if len(r.cpu) == 1) + "): paired differences include the "
+            "bit-level differences those paths make (README, \"One CPU code path\")")
     counts = sorted({len(r.records) for r in runs})
     note = []
     if common:

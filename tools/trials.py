@@ -189,6 +189,10 @@ def run(args: argparse.Namespace) -> int:
     if report.commit_changed:
         print(f"warning: this run folder was started at commit {report.commit_changed[:10]}; episodes from "
               f"different code versions are mixed", file=sys.stderr)
+    if report.cpu_changed:
+        print(f"warning: earlier episodes of this run folder ran on other CPU code paths ({report.cpu_changed}); "
+              f"episodes from different code paths can differ in outcome (README, \"One CPU code path\")",
+              file=sys.stderr)
     summary = summarize(records)
     headers = ["run"] + list(METRIC_NAMES.values())
     rows = [metrics_table_rows(out.name, summary)]
