@@ -42,6 +42,19 @@ def test_report_puts_before_and_after_side_by_side_with_ratios_and_projection():
     assert "before" not in alone.split("\n", 2)[1] and "ratio" not in alone
 
 
+def test_the_report_names_the_cpu_code_paths_and_flags_a_baseline_on_other_ones():
+    after = {**_run("this checkout", [5.0], [600.0], [20.0]), "cpu": "x86-64-v3, numpy X86_V3"}
+    assert "CPU code paths: x86-64-v3, numpy X86_V3" in bench_agent.format_report(after, None, "helios")
+    same = {**_run("3f77267", [6.0], [600.0], [20.0]), "cpu": "x86-64-v3, numpy X86_V3"}
+    text = bench_agent.format_report(after, same, "helios")
+    assert "CPU code paths: x86-64-v3, numpy X86_V3" in text and "OTHER" not in text
+    other = {**same, "cpu": "native (HELIOS_CPU=native), numpy AVX512_ICL"}
+    assert ("the baseline ran on OTHER code paths (native (HELIOS_CPU=native), numpy AVX512_ICL)"
+            in bench_agent.format_report(after, other, "helios"))
+    unknown = _run("old.json", [6.0], [600.0], [20.0])        # saved before runs said
+    assert "the baseline does not say which it ran on" in bench_agent.format_report(after, unknown, "helios")
+
+
 def test_saved_results_are_a_baseline_and_foreign_files_are_refused(tmp_path):
     after = _run("x", [5.0], [600.0], [20.0])
     saved = tmp_path / "bench.json"

@@ -227,15 +227,36 @@ def run(args: argparse.Namespace) -> str:
         finally:
             for w in workers.values():
                 w.close()
-    after = {"label": "this checkout", **results["after"], **_summary(**results["after"])}
+    from helios.runtime import cpu_dispatch
+    from tasks.trials import invocation_cpu
+
+    # both workers inherit this process's environment, so they ran on its CPU code paths
+    cpu = invocation_cpu({"cpu": cpu_dispatch()})
+    after = {"label": "this checkout", "cpu": cpu, **results["after"], **_summary(**results["after"])}
     before = None
     if "before" in results:
-        before = {"label": base_label, **results["before"], **_summary(**results["before"])}
+        before = {"label": base_label, "cpu": cpu, **results["before"], **_summary(**results["before"])}
     elif base_saved is not None:
         before = base_saved
     if args.agent_save:
         Path(args.agent_save).write_text(json.dumps({"format": SAVE_FORMAT, **after}, indent=1), encoding="utf-8")
     return format_report(after, before, args.agent_name)
+
+
+def cpu_lines(after: dict, before: dict | None) -> list[str]:
+    """Which CPU code paths the numbers come from (README, "One CPU code path"), and a warning
+    when a saved baseline ran on others: its ratios then include those paths' cost, and its
+    episodes may have behaved differently."""
+    now = after.get("cpu")
+    if now is None:
+        return []
+    if before is None or before.get("cpu") == now:
+        return [f"CPU code paths: {now}"]
+    if before.get("cpu") is None:
+        return [f"CPU code paths: {now}; the baseline does not say which it ran on (saved before 2026-12-03): "
+                "a ratio may include the difference"]
+    return [f"CPU code paths: {now}; the baseline ran on OTHER code paths ({before['cpu']}): the ratios include "
+            "their cost and its episodes may have behaved differently"]
 
 
 def _fmt(v, spec=".1f") -> str:
@@ -257,6 +278,7 @@ def format_report(after: dict, before: dict | None, agent: str) -> str:
     if before is not None:
         out.append(f"before: {before.get('label', '?')}    after: {after.get('label', 'this checkout')}"
                    "    (ratio = before / after: above 1 is faster)")
+    out += cpu_lines(after, before)
     repeats = max([e.get("repeats", 1) for c in (after, before) if c for e in c.get("episodes", [])] or [1])
     least = f" (the least of {repeats} runs of each episode)" if repeats > 1 else ""
     out += ["", f"val episodes, wall seconds{least}:", f"{'episode':44s}{head}"]
