@@ -129,15 +129,20 @@ def cpu_pin_settings(flags: set[str], environ: dict[str, str], machine: str,
     return out, PORTABLE_LEVEL
 
 
+def _settings_here() -> tuple[dict[str, str], str]:
+    """:func:`cpu_pin_settings` for this machine and this process's environment."""
+    import platform
+
+    return cpu_pin_settings(cpu_flags(), dict(os.environ), platform.machine(), _numpy_at_least_2_4())
+
+
 def pin_cpu_dispatch() -> str:
     """Pin NumPy, OpenBLAS, torch and OpenCV to ``PORTABLE_LEVEL`` in this process and its
     children (see :func:`cpu_pin_settings`); returns the description. It must run before any of
     them is imported, since they read the environment when they load: where one already is
     (and the pin is not already in the environment, as in a worker started by a pinned parent),
     nothing is changed and the description says so, so the process never runs half pinned."""
-    import platform
-
-    settings, what = cpu_pin_settings(cpu_flags(), dict(os.environ), platform.machine(), _numpy_at_least_2_4())
+    settings, what = _settings_here()
     missing = {k: v for k, v in settings.items() if os.environ.get(k) != v}
     loaded = [m for m in _PINNED_MODULES if m in sys.modules]
     if missing and loaded:
@@ -147,11 +152,9 @@ def pin_cpu_dispatch() -> str:
 
 
 def cpu_dispatch() -> dict:
-    """Which code paths this process runs (for run provenance): the pin's description, NumPy's
-    highest active dispatch target, torch's capability and OpenBLAS's core, where loaded."""
-    import platform
-
-    settings, what = cpu_pin_settings(cpu_flags(), dict(os.environ), platform.machine(), _numpy_at_least_2_4())
+    """Which code paths this process runs (for run provenance): the pin's description, and where
+    loaded NumPy's highest active dispatch target, torch's capability and OpenCV's feature line."""
+    settings, what = _settings_here()
     if any(os.environ.get(k) != v for k, v in settings.items()):
         what = "native (not pinned in this process)"
     out: dict = {"pin": what}

@@ -764,7 +764,7 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
                 for e in episodes if e.episode_id not in done]
         if jobs:
             if done:
-                now = invocation_cpu({"cpu": cpu_dispatch()})
+                now = cpu_paths_now()
                 other = [p for p in run_cpu_paths(out) if p != now]
                 report.cpu_changed = "; ".join(other) if other else None
             _log_invocation(out, workers, executor, address, len(jobs), commit)
@@ -835,6 +835,11 @@ def invocation_cpu(entry: dict) -> str:
     if not isinstance(cpu, dict):
         return "not recorded"
     return ", ".join([str(cpu.get("pin", "?"))] + [f"{k} {cpu[k]}" for k in ("numpy", "torch") if k in cpu])
+
+
+def cpu_paths_now() -> str:
+    """:func:`invocation_cpu` of this process (and of the workers, which inherit its environment)."""
+    return invocation_cpu({"cpu": cpu_dispatch()})
 
 
 def run_cpu_paths(out: Path) -> list[str]:

@@ -227,11 +227,9 @@ def run(args: argparse.Namespace) -> str:
         finally:
             for w in workers.values():
                 w.close()
-    from helios.runtime import cpu_dispatch
-    from tasks.trials import invocation_cpu
+    from tasks.trials import cpu_paths_now
 
-    # both workers inherit this process's environment, so they ran on its CPU code paths
-    cpu = invocation_cpu({"cpu": cpu_dispatch()})
+    cpu = cpu_paths_now()     # both workers inherit this process's environment, hence its code paths
     after = {"label": "this checkout", "cpu": cpu, **results["after"], **_summary(**results["after"])}
     before = None
     if "before" in results:
