@@ -97,7 +97,8 @@ class _Tty(io.StringIO):
         return True
 
 
-def test_progress_bar_on_a_terminal_redraws_one_line_with_eta():
+def test_progress_bar_on_a_terminal_redraws_one_line_with_eta(monkeypatch):
+    monkeypatch.setenv("COLUMNS", "200")     # the bar cuts its line to the terminal's width
     stream = _Tty()
     p = Progress(10, workers=2, stream=stream)
     assert p.mode == "bar"
@@ -110,6 +111,18 @@ def test_progress_bar_on_a_terminal_redraws_one_line_with_eta():
     assert "[trials] val-00001: error: RuntimeError: boom\n" in text
     assert text.endswith("\n")
     assert format_duration(3725) == "1:02:05" and format_duration(None) == "--:--"
+
+
+def test_progress_bar_fits_a_narrow_terminal(monkeypatch):
+    monkeypatch.setenv("COLUMNS", "60")
+    stream = _Tty()
+    p = Progress(10, workers=2, stream=stream)
+    p.update(_record(0))
+    p.tick()
+    p.close()
+    redraws = [seg.rstrip("\n") for seg in stream.getvalue().split("\r\033[K") if seg]
+    assert redraws and all(len(seg) <= 59 for seg in redraws)      # never wraps onto a second line
+    assert all(seg.startswith("[trials] ") for seg in redraws)
 
 
 # ------------------------------------------------------------------ memory
