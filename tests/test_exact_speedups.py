@@ -289,6 +289,29 @@ def test_footprint_tiles_give_the_exhaustive_answer(seed):
         assert 0 < checker._hits(line, pts, grid).sum() < len(line)     # both answers occur
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_segments_free_is_segment_free_for_each_end(seed):
+    """The planner's shuffle tests a batch of short straight moves from one pose at once."""
+    rng = np.random.default_rng(seed)
+    geometry = GridGeometry(0.025, 400, -5.0, -5.0)
+    obstacle = np.zeros(geometry.shape, dtype=bool)
+    for _ in range(80):
+        r, c = rng.integers(0, 390, size=2)
+        obstacle[r:r + rng.integers(1, 12), c:c + rng.integers(1, 12)] = True
+    checker = FootprintChecker(FootprintConfig(), geometry, obstacle)
+    answers = []
+    for _ in range(40):
+        x0, y0, yaw = rng.uniform(-3, 3), rng.uniform(-3, 3), rng.uniform(-np.pi, np.pi)
+        ends = np.stack([x0 + rng.uniform(-0.6, 0.6, 12), y0 + rng.uniform(-0.6, 0.6, 12)], axis=1)
+        ends[0] = (x0, y0)                                     # a zero-length move too
+        batch = checker.segments_free(x0, y0, ends, yaw)
+        one_by_one = [checker.segment_free(x0, y0, x1, y1, yaw) for x1, y1 in ends]
+        assert batch.tolist() == one_by_one
+        answers += one_by_one
+    assert 0 < sum(answers) < len(answers)                     # both answers occur
+    assert checker.segments_free(0.0, 0.0, np.zeros((0, 2)), 0.0).shape == (0,)
+
+
 # ----------------------------------------------------------------------------- planner
 def _random_obstacles(rng, shape, boxes):
     obstacle = np.zeros(shape, dtype=bool)
