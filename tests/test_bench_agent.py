@@ -89,6 +89,34 @@ def test_profiled_phases_add_up_the_planner_pieces():
     assert top and all(isinstance(t, float) and ":" in name for t, name in top)
 
 
+def test_profiled_map_phases_split_the_update_into_its_layers():
+    """The whole map update is one phase and its occupancy, value and Gaussian layers three more
+    (an earlier version booked the whole update as "occupancy and value layers")."""
+    from helios.config import HeliosConfig
+    from helios.maps.hierarchical import HierarchicalMap
+    from helios.perception.detection import Detection
+    from helios.schema import with_overrides
+    from robots.hal import Observation
+    from robots.transforms import look_at_camera
+    from sim.synthetic_boxes import Box, pinhole, render_boxes
+
+    cam, pose = pinhole(160, 120), look_at_camera([0.0, 0.0, 1.0], [3.0, 0.0, 0.6])
+    rgb, depth, hit = render_boxes([Box((-1.0, -3.0, -0.02), (6.0, 3.0, 0.0), "floor"),
+                                    Box((2.9, -0.1, 0.5), (3.1, 0.1, 0.7), "cup")], cam, pose)
+    obs = Observation(rgb=rgb, depth=depth, intrinsics=cam, T_world_cam=pose, T_world_body=np.eye(4), stamp=0.0)
+    hmap = HierarchicalMap(with_overrides(HeliosConfig(), ["occupancy.grid_size=400"]), ["cup", "table"], ["table"])
+    profiler = cProfile.Profile()
+    profiler.enable()
+    for _ in range(3):
+        hmap.update(obs, [Detection(hit == 1, "cup", 0.9)], {"table": 0.3})
+    profiler.disable()
+    phases, _ = _profile_phases(profiler)
+    layers = [phases["map: occupancy layer"], phases["map: value layers"], phases["map: Gaussian update (all)"]]
+    assert all(t > 0 for t in layers)
+    assert phases["map: update (all layers)"] >= sum(layers)
+    assert "map: occupancy and value layers" not in phases
+
+
 def test_a_worker_answers_in_turn_and_a_silent_one_is_one_error(tmp_path, monkeypatch):
     worker = bench_agent._WorkerProcess(bench_agent.ROOT, "helios", False, "this checkout")
     try:
