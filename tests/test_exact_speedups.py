@@ -270,15 +270,20 @@ def test_clip_index_is_np_clip_for_cell_indices():
 
 
 # ----------------------------------------------------------------------------- footprint
+def _boxes_checker(rng, boxes: int) -> FootprintChecker:
+    """A footprint checker on a 10 m map strewn with ``boxes`` small random obstacles."""
+    geometry = GridGeometry(0.025, 400, -5.0, -5.0)
+    obstacle = np.zeros(geometry.shape, dtype=bool)
+    for _ in range(boxes):
+        r, c = rng.integers(0, 390, size=2)
+        obstacle[r:r + rng.integers(1, 12), c:c + rng.integers(1, 12)] = True
+    return FootprintChecker(FootprintConfig(), geometry, obstacle)
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_footprint_tiles_give_the_exhaustive_answer(seed):
     rng = np.random.default_rng(seed)
-    geometry = GridGeometry(0.025, 400, -5.0, -5.0)
-    obstacle = np.zeros(geometry.shape, dtype=bool)
-    for _ in range(60):
-        r, c = rng.integers(0, 390, size=2)
-        obstacle[r:r + rng.integers(1, 12), c:c + rng.integers(1, 12)] = True
-    checker = FootprintChecker(FootprintConfig(), geometry, obstacle)
+    checker = _boxes_checker(rng, 60)
     for grid, pts in ((checker.obstacle, checker._body), (checker.tall, checker._arm)):
         # a walk across the map (one window), scattered poses, and poses hanging off the grid
         line = np.stack([np.linspace(-3, 3, 400), np.linspace(-2, 2.5, 400), rng.uniform(-np.pi, np.pi, 400)], axis=1)
@@ -293,12 +298,7 @@ def test_footprint_tiles_give_the_exhaustive_answer(seed):
 def test_segments_free_is_segment_free_for_each_end(seed):
     """The planner's shuffle tests a batch of short straight moves from one pose at once."""
     rng = np.random.default_rng(seed)
-    geometry = GridGeometry(0.025, 400, -5.0, -5.0)
-    obstacle = np.zeros(geometry.shape, dtype=bool)
-    for _ in range(80):
-        r, c = rng.integers(0, 390, size=2)
-        obstacle[r:r + rng.integers(1, 12), c:c + rng.integers(1, 12)] = True
-    checker = FootprintChecker(FootprintConfig(), geometry, obstacle)
+    checker = _boxes_checker(rng, 80)
     answers = []
     for _ in range(40):
         x0, y0, yaw = rng.uniform(-3, 3), rng.uniform(-3, 3), rng.uniform(-np.pi, np.pi)
