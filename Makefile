@@ -37,9 +37,9 @@ compare: setup
 	$(PY) -m tools report $(addprefix runs/val/,$(COMPARE)) --common --out runs/val/report
 
 # Fast test suite (what CI runs): headless, deterministic, under 5 minutes on 2 cores. Tests run
-# in TEST_WORKERS pytest-xdist processes (auto: one per core, at most 4: a worker's memory peaks
-# near 3 GB; each test single-threaded; about 2.5 min on the 2-core machine against 4 min in one
-# process); TEST_WORKERS=0 runs them in this process (a debugger, `-s`).
+# in TEST_WORKERS pytest-xdist processes (auto: one per core, at most 4: a test process's memory
+# peaks near 2 GB; each test single-threaded; about 2.5 min on the 2-core machine against 4 min in
+# one process); TEST_WORKERS=0 runs them in this process (a debugger, `-s`).
 TEST_WORKERS ?= auto
 XDIST = -n $(TEST_WORKERS) --maxprocesses 4 --dist load
 test: setup

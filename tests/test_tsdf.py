@@ -28,10 +28,12 @@ def test_tsdf_reconstructs_a_known_box_top(world):
     half = (0.3, 0.2, 0.25)
     assets.add_static(world, "crate", "box", [assets.Part("box", half, (0.0, 0.0, half[2]))], (0.0, 0.0, 0.0))
     intr = CameraIntrinsics(320, 240, 276.0, 276.0, 160.0, 120.0)
-    tsdf = TsdfIntegrator(TsdfConfig(voxel_size=0.01))
+    tsdf = TsdfIntegrator(TsdfConfig(voxel_size=0.01, block_count=1000))
     for angle in np.linspace(0, 2 * np.pi, 6, endpoint=False):
         eye = [1.0 * np.cos(angle), 1.0 * np.sin(angle), 1.1]
         tsdf.integrate(_observe(world, intr, _optical(eye, [0.0, 0.0, 0.4])))
+    # the box needs ~2900 blocks of 16^3 cm: the hash map grew past its initial capacity
+    assert tsdf.vbg.hashmap().size() > 1000 and tsdf.vbg.hashmap().capacity() >= tsdf.vbg.hashmap().size()
     top = rectangle_samples((0.0, 0.0, 2 * half[2]), half[:2], 0.0, 0.02, inset=0.01)
     assert coverage(tsdf.points(), top, 0.02) >= 0.95
     # a surface it never saw is not "covered"
