@@ -151,11 +151,7 @@ class FootprintChecker:
     def segment_free(self, x0: float, y0: float, x1: float, y1: float, yaw: float, step: float | None = None) -> bool:
         """Every intermediate pose of a straight move at a fixed heading is free (sampled every
         half cell by default)."""
-        step = self.geometry.cell_size / 2 if step is None else step
-        n = max(2, int(math.ceil(math.hypot(x1 - x0, y1 - y0) / step)) + 1)
-        t = np.linspace(0.0, 1.0, n)
-        poses = np.stack([x0 + t * (x1 - x0), y0 + t * (y1 - y0), np.full(n, yaw)], axis=1)
-        return bool(np.all(self.poses_free(poses)))
+        return bool(np.all(self.poses_free(self._segment_poses(x0, y0, x1, y1, yaw, step))))
 
     def segments_free(self, x0: float, y0: float, ends: np.ndarray, yaw: float) -> np.ndarray:
         """(K,) bool: ``segment_free(x0, y0, *ends[k], yaw)`` for every end point at once. The same
@@ -163,19 +159,19 @@ class FootprintChecker:
         the same; one batch instead of K calls, which the planner's shuffle (dozens of short steps
         from one pose, all tested when the robot is boxed in) spends most of a blocked plan on."""
         ends = np.asarray(ends, dtype=float).reshape(-1, 2)
-        step = self.geometry.cell_size / 2
-        batches, sizes = [], []
-        for x1, y1 in ends:
-            x1, y1 = float(x1), float(y1)
-            n = max(2, int(math.ceil(math.hypot(x1 - x0, y1 - y0) / step)) + 1)
-            t = np.linspace(0.0, 1.0, n)
-            batches.append(np.stack([x0 + t * (x1 - x0), y0 + t * (y1 - y0), np.full(n, yaw)], axis=1))
-            sizes.append(n)
-        if not batches:
+        if not len(ends):
             return np.zeros(0, dtype=bool)
-        free = self.poses_free(np.concatenate(batches))
-        bounds = np.cumsum([0] + sizes)
-        return np.array([bool(free[a:b].all()) for a, b in zip(bounds[:-1], bounds[1:])])
+        batches = [self._segment_poses(x0, y0, float(x1), float(y1), yaw) for x1, y1 in ends]
+        starts = np.cumsum([0] + [len(b) for b in batches[:-1]])
+        return np.logical_and.reduceat(self.poses_free(np.concatenate(batches)), starts)
+
+    def _segment_poses(self, x0: float, y0: float, x1: float, y1: float, yaw: float,
+                       step: float | None = None) -> np.ndarray:
+        """The poses a straight move is checked at: at least two, at most ``step`` apart (half a cell)."""
+        step = self.geometry.cell_size / 2 if step is None else step
+        n = max(2, int(math.ceil(math.hypot(x1 - x0, y1 - y0) / step)) + 1)
+        t = np.linspace(0.0, 1.0, n)
+        return np.stack([x0 + t * (x1 - x0), y0 + t * (y1 - y0), np.full(n, yaw)], axis=1)
 
     def straight_move_free(self, x0: float, y0: float, yaw0: float, x1: float, y1: float, turn: float) -> bool:
         """Every pose of one move that walks straight from (x0, y0) to (x1, y1) while turning by
