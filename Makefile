@@ -30,11 +30,13 @@ demo: setup
 # About 20-30 min per run for N=200 on the 2-core machine.
 COMPARE ?= helios helios-no-global trusting helios-5050 helios-gt trusting-gt helios-earlier
 N ?= 200
+# The paper's "1 pick" and "5 picks" rows besides the unlimited one (tools report --pick-limits).
+PICK_LIMITS ?= 1,5
 compare: setup
 	for a in $(COMPARE); do \
 	  $(PY) -m tools trials --config configs/val_$$a.yaml --episodes $(N) --workers 2 --out runs/val/$$a --progress lines || exit 1; \
 	done
-	$(PY) -m tools report $(addprefix runs/val/,$(COMPARE)) --common --out runs/val/report
+	$(PY) -m tools report $(addprefix runs/val/,$(COMPARE)) --common --pick-limits "$(PICK_LIMITS)" --out runs/val/report
 
 # Fast test suite (what CI runs): headless, deterministic, under 5 minutes on 2 cores. Tests run
 # in TEST_WORKERS pytest-xdist processes (auto: one per core, at most 4: a test process's memory

@@ -913,6 +913,28 @@ def _memory_summary(records: list[dict]) -> dict:
     return out
 
 
+MAX_PICK_LIMIT = 1000
+
+
+def limit_pick_attempts(records: Iterable[dict], limit: int) -> list[dict]:
+    """The records scored as the paper's "N picks" rows: "With limited attempts, if the agent
+    exceeds the limit, we set all metrics for that episode to 0" (paper, Pick Attempts). An
+    episode with more than ``limit`` grasp attempts keeps its record (failure reason, times,
+    decisions) but fails every phase (FindObj, Pick, FindRec, Place, SR); the others are
+    unchanged. The agent ran without a limit, which is what the paper's wording describes: the
+    limit scores a run, it does not stop the agent (``agent_config.max_pick_attempts`` does that).
+    Records are copied, never changed in place; unscored records (no metrics) stay unscored."""
+    if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_PICK_LIMIT:
+        raise ValueError(f"a pick-attempt limit must be an integer in [1, {MAX_PICK_LIMIT}], got {limit!r}")
+    out = []
+    for r in records:
+        m = r.get("metrics")
+        if m and int(m.get("pick_attempts", 0)) > limit:
+            r = {**r, "metrics": {**m, **{k: False for k in METRIC_KEYS}}}
+        out.append(r)
+    return out
+
+
 def metrics_table_rows(name: str, summary: dict) -> list:
     return [name] + [f"{summary[METRIC_NAMES[k]]['percent']:.1f} ± {summary[METRIC_NAMES[k]]['se']:.1f}"
                      for k in METRIC_KEYS]

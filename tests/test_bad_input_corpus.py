@@ -358,6 +358,9 @@ CASES: list[tuple[str, list[str], str]] = [
     ("report-names-empty", [*REPORT, R + "other", "--names", "a,", "--out", "{ws}/new_rep"], "empty name"),
     ("report-common-disjoint", [*REPORT, R + "other", "--common", "--out", "{ws}/new_rep"], "share no finished"),
     ("report-no-runs", ["report"], "the following arguments are required"),
+    ("report-pick-limit-zero", [*REPORT, "--pick-limits", "0", "--out", "{ws}/new_rep"], "0 is outside [1, 1000]"),
+    ("report-pick-limit-word", [*REPORT, "--pick-limits", "1,five", "--out", "{ws}/new_rep"], "'five' is not a whole"),
+    ("report-pick-limit-twice", [*REPORT, "--pick-limits", "5,1,5", "--out", "{ws}/new_rep"], "5 is given twice"),
     # --- tsdf ---
     ("tsdf-hz-nan", ["tsdf", "smoke-00001", "--stream-hz", "nan", "--out", "{ws}/new_tsdf"], "finite"),
     ("tsdf-hz-inf", ["tsdf", "smoke-00001", "--stream-hz", "inf", "--out", "{ws}/new_tsdf"], "finite"),

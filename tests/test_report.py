@@ -228,3 +228,69 @@ def test_plot_titles_and_labels_lie_inside_the_figure(tmp_path, n_runs):
             assert bb.x0 >= -0.5 and bb.y0 >= -0.5 and bb.x1 <= W + 0.5 and bb.y1 <= H + 0.5, \
                 (fn.__name__, t.get_text(), bb, W, H)
         plt.close(fig)
+
+
+def _with_attempts(path, attempts):
+    """Rewrite a run's records with these grasp-attempt counts (one per episode, in order)."""
+    results = path / "episodes.jsonl"
+    records = [json.loads(line) for line in results.read_text().splitlines()]
+    for r, n in zip(records, attempts):
+        r["metrics"]["pick_attempts"] = n
+    results.write_text("".join(json.dumps(r) + "\n" for r in records))
+    return path
+
+
+def test_limit_pick_attempts_zeroes_every_phase_of_episodes_over_the_limit():
+    from tasks.trials import limit_pick_attempts
+
+    records = [_record(i, 5, None, False) for i in range(3)]
+    for r, n in zip(records, (1, 2, 6)):
+        r["metrics"]["pick_attempts"] = n
+    one = limit_pick_attempts(records, 1)
+    assert [r["metrics"]["success"] for r in one] == [True, False, False]
+    assert not any(one[1]["metrics"][k] for k in ("find_obj", "pick", "find_rec", "place", "success"))
+    assert one[1]["metrics"]["pick_attempts"] == 2 and one[1]["episode_id"] == "val-00001"   # the rest is kept
+    assert [r["metrics"]["find_obj"] for r in limit_pick_attempts(records, 5)] == [True, True, False]
+    assert [r["metrics"]["find_obj"] for r in limit_pick_attempts(records, 6)] == [True, True, True]  # == limit: kept
+    assert all(r["metrics"]["success"] for r in records)                                              # not in place
+    unscored = {**records[0], "metrics": None}
+    assert limit_pick_attempts([unscored], 1) == [unscored]
+    for bad in (0, -1, 1001, 1.5, True, "2"):
+        with pytest.raises(ValueError, match="pick-attempt limit"):
+            limit_pick_attempts(records, bad)
+
+
+def test_report_scores_the_papers_pick_limited_rows(tmp_path):
+    # a: 4 successes with 1, 1, 2, 6 grasp attempts, 6 failures; b: 2 successes with 1 attempt each
+    a = _with_attempts(_make_run(tmp_path / "a", [(5, None)] * 4 + [(0, "not_found")] * 6), [1, 1, 2, 6])
+    b = _with_attempts(_make_run(tmp_path / "b", [(5, None)] * 2 + [(0, "not_found")] * 8), [1, 1])
+    result = make_report([a, b], tmp_path / "rep", pick_limits=(1, 5), episode_pages=False)
+    md, text = result["markdown"], result["text"]
+    assert "Percent of episodes ± standard error (unlimited pick attempts)" in text
+    assert "| a | 40.0 ± 15.5 | 40.0 ± 15.5 | 40.0 ± 15.5 | 40.0 ± 15.5 | 40.0 ± 15.5 |" in md     # unlimited
+    one = md.split("**1 pick (")[1].split("**5 picks (")[0]
+    assert "such episodes: a 2, b 0" in one
+    assert "| a | 20.0 ± 12.6 |" in one and "| b | 20.0 ± 12.6 |" in one                         # 2 of 10 each
+    assert "| b | a | 10 | +0 -0 (p=1.00) |" in one             # same two successes on episodes 0 and 1
+    five = md.split("**5 picks (")[1]
+    assert "such episodes: a 1, b 0" in five and "| a | 30.0 ± 14.5 |" in five
+    assert "| b | a | 10 | +0 -1 (p=1.00) |" in five
+    assert md.index("**1 pick (") < md.index("**5 picks (") < md.index("**Runs**")
+    saved = json.loads((tmp_path / "rep" / "report.json").read_text())
+    assert saved["a"]["pick_limits"]["1"]["SR"]["count"] == 2 and saved["a"]["pick_limits"]["5"]["SR"]["count"] == 3
+    assert saved["a"]["summary"]["SR"]["count"] == 4
+    plain = make_report([a, b], tmp_path / "plain", episode_pages=False)
+    assert "picks" not in plain["text"] and "1 pick" not in plain["text"] and "unlimited" not in plain["text"]
+    assert json.loads((tmp_path / "plain" / "report.json").read_text())["a"]["pick_limits"] == {}
+    with pytest.raises(Exception, match="distinct integers"):
+        make_report([a], tmp_path / "bad", pick_limits=(0,))
+
+
+def test_report_pick_limits_from_the_cli(tmp_path, capsys):
+    from tools.cli import main
+
+    a = _with_attempts(_make_run(tmp_path / "a", [(5, None)] * 2 + [(0, "not_found")] * 2), [1, 3])
+    assert main(["report", str(a), "--pick-limits", "2", "--no-episode-pages", "--out", str(tmp_path / "rep")]) == 0
+    out = capsys.readouterr().out
+    assert "2 picks (the paper's protocol: an episode with more than 2 grasp attempts scores 0" in out
+    assert "| a | 25.0 ± 21.7 |" in out and "| a | 50.0 ± 25.0 |" in out

@@ -49,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="compare on the episodes every run has finished (runs of different lengths)")
     parser.add_argument("--no-episode-pages", action="store_true",
                         help="skip the per-episode pages and the failure gallery (pictures of every episode)")
+    parser.add_argument("--pick-limits", default="", metavar="N[,N...]",
+                        help="also score the runs as the paper's 'N picks' rows (e.g. 1,5): an episode with more "
+                             "than N grasp attempts fails every phase; a table and paired tests per limit")
 
 
 MAX_LISTED_DAMAGE = 10     # damaged lines named one by one (FILE:LINE) per run folder; the rest are counted
@@ -656,15 +659,80 @@ def restrict_to_common(runs: list[Run]) -> int:
     return len(common)
 
 
+def parse_pick_limits(text: str) -> tuple[int, ...]:
+    """``--pick-limits`` "1,5" -> (1, 5); CliError for anything but distinct integers in range."""
+    from tasks.trials import MAX_PICK_LIMIT
+    from tools.cli import CliError
+
+    if not text.strip():
+        return ()
+    limits = []
+    for part in text.split(","):
+        part = part.strip()
+        try:
+            n = int(part)
+        except ValueError:
+            raise CliError(f"--pick-limits: {part!r} is not a whole number (expected e.g. 1,5)") from None
+        if not 1 <= n <= MAX_PICK_LIMIT:
+            raise CliError(f"--pick-limits: {n} is outside [1, {MAX_PICK_LIMIT}] grasp attempts")
+        if n in limits:
+            raise CliError(f"--pick-limits: {n} is given twice")
+        limits.append(n)
+    return tuple(sorted(limits))
+
+
+def pick_limited_runs(runs: list[Run], limit: int) -> list[Run]:
+    """Copies of ``runs`` scored with at most ``limit`` grasp attempts per episode
+    (:func:`tasks.trials.limit_pick_attempts`, the paper's "N picks" rows)."""
+    import dataclasses
+
+    from tasks.trials import limit_pick_attempts, summarize
+
+    out = []
+    for r in runs:
+        records = limit_pick_attempts(r.records, limit)
+        out.append(dataclasses.replace(r, records=records, summary=summarize(records)))
+    return out
+
+
+def pick_limit_tables(runs: list[Run], limits: tuple[int, ...]) -> list[tuple[str, list, list]]:
+    """Per limit: the percent table and (several runs) the paired sign tests against the first run."""
+    tables = []
+    for n in limits:
+        limited = pick_limited_runs(runs, n)
+        over = ", ".join(f"{r.name} {sum(int(x['metrics'].get('pick_attempts', 0)) > n for x in r.records if x.get('metrics'))}"
+                         for r in runs)
+        noun = "attempt" if n == 1 else "attempts"
+        tables.append((f"{n} pick{'s' if n > 1 else ''} (the paper's protocol: an episode with more than {n} grasp "
+                       f"{noun} scores 0 in every phase; such episodes: {over}): percent ± standard error",
+                       *metrics_rows(limited)))
+        if len(runs) > 1:
+            p_headers, p_rows = paired_rows(limited)
+            tables.append((f"{n} pick{'s' if n > 1 else ''}, paired with {runs[0].name}: episodes only this run "
+                           f"passed (+) / only {runs[0].name} passed (-), exact sign test", p_headers, p_rows))
+    return tables
+
+
+def _paired_table(runs: list[Run], qualifier: str = "") -> tuple[str, list, list]:
+    return (f"Paired with {runs[0].name}{qualifier}: episodes only this run passed (+) / only "
+            f"{runs[0].name} passed (-), exact sign test", *paired_rows(runs))
+
+
 def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] | None = None,
-                common: bool = False, episode_pages: bool = True) -> dict:
+                common: bool = False, episode_pages: bool = True, pick_limits: tuple[int, ...] = ()) -> dict:
     """Load the runs, write table.txt, table.md, the PNGs, index.html and (``episode_pages``) one
     page per episode under ``out/episodes/`` (``tools.episode_pages``); return what was written
     (``text``, ``markdown``, ``figures``, ``html``, ``warnings``, ``pages``: run name -> its
-    ``EpisodePage`` list). ``common``: compare on the episodes all runs have finished."""
+    ``EpisodePage`` list). ``common``: compare on the episodes all runs have finished.
+    ``pick_limits``: also the paper's "N picks" tables (:func:`pick_limit_tables`)."""
+    from tasks.trials import MAX_PICK_LIMIT
     from tools.cli import CliError, check_output_dir, check_output_file
     from tools.tables import format_markdown, format_table
 
+    pick_limits = tuple(pick_limits)
+    if any(isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_PICK_LIMIT for n in pick_limits) \
+            or len(set(pick_limits)) != len(pick_limits):
+        raise CliError(f"pick limits must be distinct integers in [1, {MAX_PICK_LIMIT}], got {pick_limits}")
     if names and len(names) != len(run_paths):
         raise CliError(f"--names has {len(names)} name(s) for {len(run_paths)} run(s)")
     if names and any(not n for n in names):
@@ -706,12 +774,15 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     headers, rows = metrics_rows(runs)
     d_headers, d_rows = detail_rows(runs)
     f_headers, f_rows = failure_rows(runs)
-    tables = [("Percent of episodes ± standard error", headers, rows), ("Runs", d_headers, d_rows),
-              ("How episodes ended (counts)", f_headers, f_rows)]
+    unlimited = " (unlimited pick attempts)" if pick_limits else ""
+    tables = [(f"Percent of episodes ± standard error{unlimited}", headers, rows)]
+    if len(runs) > 1 and pick_limits:       # the unlimited comparison next to its table, then the limits
+        tables.append(_paired_table(runs, unlimited))
+    tables += pick_limit_tables(runs, pick_limits)
+    tables += [("Runs", d_headers, d_rows), ("How episodes ended (counts)", f_headers, f_rows)]
     if len(runs) > 1:
-        p_headers, p_rows = paired_rows(runs)
-        tables.append((f"Paired with {runs[0].name}: episodes only this run passed (+) / only "
-                       f"{runs[0].name} passed (-), exact sign test", p_headers, p_rows))
+        if not pick_limits:
+            tables.append(_paired_table(runs, unlimited))
         tables.append((POWER_TITLE, *power_rows(runs)))
     tables.append((SPEED_TITLE, *speed_rows(runs)))
     tables.append((DECISIONS_TITLE, *decision_rows(runs)))
@@ -749,7 +820,9 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
                                                           "decisions": summarize_decisions(r.records),
                                                           "activity_time": summarize_activity_time(r.records),
                                                           "timeouts": summarize_timeouts(r.records),
-                                                          "start_receptacle": summarize_start_receptacle(r.records)}
+                                                          "start_receptacle": summarize_start_receptacle(r.records),
+                                                          "pick_limits": {str(n): lr.summary for n in pick_limits
+                                                                          for lr in pick_limited_runs([r], n)}}
                                                  for r in runs}, indent=2, sort_keys=True))
     return {"text": text, "markdown": markdown, "figures": figures, "html": out / "index.html", "warnings": warnings,
             "pages": {r.name: pages for r, pages in episodes}}
@@ -759,7 +832,9 @@ def run(args: argparse.Namespace) -> int:
     import sys
 
     names = [n.strip() for n in args.names.split(",")] if args.names else None
-    result = make_report(args.runs, args.out, names, common=args.common, episode_pages=not args.no_episode_pages)
+    limits = parse_pick_limits(args.pick_limits)
+    result = make_report(args.runs, args.out, names, common=args.common, episode_pages=not args.no_episode_pages,
+                         pick_limits=limits)
     print(result["text"])
     print()
     print(result["markdown"])
