@@ -69,10 +69,13 @@ class RenderedImages:
     semantic_std: np.ndarray
     """(H, W, C) sum kappa sqrt(Var[theta]) (uncertainty image)."""
 
-VIEW_EVIDENCE_CACHE_BYTES = 2 << 20
+VIEW_EVIDENCE_CACHE_BYTES = 32 << 20
 """Bytes of hypothetical-view evidences (index set, camera) a map keeps for reuse, oldest use
 dropped first: a pure speed knob, results are identical at any size. An entry is 8 bytes per
-Gaussian of the instance (~13 kB for a typical one); an episode asks for ~60 different ones."""
+Gaussian of the instance (~13 kB for a typical one; an episode asks for ~60 different ones), but
+a large goal receptacle judged again and again is another matter: in val-00005 a bed of 23,000
+Gaussians (190 kB an entry, ~30 ms a render) needed 13.6 MB, and the earlier 2 MB cap re-rendered
+14 of its 116 views (0.5 s of a 15 s episode)."""
 
 
 def _square(k: int) -> np.ndarray:
