@@ -528,3 +528,22 @@ def test_touching_from_collider_boxes_finds_what_the_whole_robot_box_finds():
     finally:
         world.close()
 
+
+
+def test_gaze_point_own_footprint_growth_is_scipys_binary_dilation():
+    """``_grown`` (OpenCV) marks the same cells as scipy's binary dilation by the same disc with a
+    zero border: random masks, cells on every edge and corner, windows smaller than the disc."""
+    from helios.search.gaze_points import _grown
+
+    rng = np.random.default_rng(7)
+    masks = [rng.random((h, w)) < p for h, w, p in ((40, 55, 0.02), (13, 9, 0.1), (3, 4, 0.5), (1, 1, 1.0), (64, 64, 0.0))]
+    edges = np.zeros((20, 30), dtype=bool)
+    edges[0, 0] = edges[-1, -1] = edges[0, -1] = edges[-1, 0] = edges[10, 0] = edges[0, 15] = True
+    masks.append(edges)
+    for k in (0, 1, 3, 6, 12):
+        yy, xx = np.mgrid[-k:k + 1, -k:k + 1]
+        disc = (yy ** 2 + xx ** 2) <= k * k
+        for m in masks:
+            want = ndimage.binary_dilation(m, structure=disc) if k else m
+            got = _grown(m.astype(np.uint8), k).astype(bool)
+            assert got.shape == m.shape and np.array_equal(got, want), (k, m.shape)
