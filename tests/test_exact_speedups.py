@@ -547,3 +547,44 @@ def test_gaze_point_own_footprint_growth_is_scipys_binary_dilation():
             want = ndimage.binary_dilation(m, structure=disc) if k else m
             got = _grown(m.astype(np.uint8), k).astype(bool)
             assert got.shape == m.shape and np.array_equal(got, want), (k, m.shape)
+
+
+def test_the_body_reuses_its_footprint_checker_until_the_occupancy_grids_change():
+    """``Body.checker`` hands back the same checker while ``OccupancyGrid.revision`` stands, and a
+    new one after each kind of change (a depth frame, ``mark_seen``, ``mark_obstacle``), which
+    answers as one built from scratch on the changed grids."""
+    from helios.agents.body import Body
+    from helios.agents.config import AgentConfig
+    from helios.config import OccupancyConfig
+    from helios.maps.occupancy import OccupancyGrid
+
+    occ = OccupancyGrid(OccupancyConfig(grid_size=240, origin_xy=(-3.0, -3.0)))
+    body = Body.__new__(Body)
+    body.config, body._checkers = AgentConfig(), None
+    body.observer = type("O", (), {"map": type("M", (), {"occupancy": occ, "geometry": occ.geometry})()})()
+    rng = np.random.default_rng(3)
+    poses = np.column_stack([rng.uniform(-2.5, 2.5, 300), rng.uniform(-2.5, 2.5, 300), rng.uniform(-3, 3, 300)])
+
+    def fresh(margin=0.0):
+        fp = body.config.planner.footprint
+        fp = FootprintConfig(fp.body, fp.arm, fp.arm_clearance_height, fp.margin + margin)
+        unknown = ~occ.explored if body.config.planner.unknown_is_obstacle else None
+        return FootprintChecker(fp, occ.geometry, occ.obstacle, occ.max_height, unknown)
+
+    occ.mark_seen(np.array([[0.0, 0.0]]), 2.5)
+    first = body.checker()
+    assert body.checker() is first and body.checker(0.1) is not first and body.checker(0.1) is body.checker(0.1)
+    intr = CameraIntrinsics(64, 48, 40.0, 40.0, 31.5, 23.5)
+    depth = np.full((48, 64), 1.5, dtype=np.float32)
+    T = look_at_camera(np.array([0.0, 0.0, 1.2]), np.array([1.0, 0.0, 0.3]))
+    for change in (lambda: occ.mark_obstacle((0.8, 0.3), 0.2, height=1.0),
+                   lambda: occ.integrate_depth(depth, intr, T),
+                   lambda: occ.mark_seen(np.array([[-1.0, -1.0]]), 0.5)):
+        before, revision = body.checker(), occ.revision
+        change()
+        assert occ.revision > revision
+        now = body.checker()
+        assert now is not before and body.checker() is now
+        assert np.array_equal(now.poses_free(poses), fresh().poses_free(poses))
+        assert np.array_equal(body.checker(0.1).poses_free(poses), fresh(0.1).poses_free(poses))
+    assert not body.checker().poses_free(np.array([[0.8, 0.3, 0.0]]))[0]       # the marked obstacle

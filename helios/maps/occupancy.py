@@ -33,6 +33,10 @@ class OccupancyGrid:
         self.max_height = np.zeros(shape, dtype=np.float32)
         self.explored = np.zeros(shape, dtype=bool)
         self._bounds: tuple[int, int, int, int] | None = None  # explored bbox, half-open
+        self.revision = 0
+        """Counts the changes to the grids (every ``integrate``, ``mark_seen``, ``mark_obstacle``):
+        what is derived from them stays valid while it is unchanged (the agent's footprint
+        checker, rebuilt from the full grids, is reused on that basis)."""
 
     @property
     def free(self) -> np.ndarray:
@@ -55,6 +59,7 @@ class OccupancyGrid:
         """Add one ground-projected frame: obstacle hits in the height band, seen cells explored."""
         if view.is_empty:
             return
+        self.revision += 1
         r0, r1, c0, c1 = view.window
         geo, cfg = self.geometry, self.cfg
         z = view.points[:, 2]
@@ -86,6 +91,7 @@ class OccupancyGrid:
     def mark_seen(self, xy, radius: float) -> None:
         """Declare discs of cells around points (N, 2) explored, e.g. where the robot's body has
         been: the hand camera never sees right under it, but nothing can stand where it stood."""
+        self.revision += 1
         geo = self.geometry
         pts = np.asarray(xy, dtype=float).reshape(-1, 2)
         k = int(np.ceil(radius / geo.cell_size))
@@ -103,6 +109,7 @@ class OccupancyGrid:
     def mark_obstacle(self, xy, radius: float, height: float = 1.0) -> None:
         """Declare a disc of cells occupied (e.g. where the robot bumped into something it never
         saw); it counts as seen and as an obstacle ``height`` metres tall from now on."""
+        self.revision += 1
         geo = self.geometry
         r, c = geo.world_to_cell(np.asarray(xy, dtype=float)[:2])
         k = int(np.ceil(radius / geo.cell_size))
