@@ -141,19 +141,18 @@ class EpisodeJudge:
                     m.find_obj_time = self._now()
                     break
         if m.pick and not m.find_rec:
-            if self.backend.held_body is not None:
+            # Distance first: the check view (a whole extra render) only where it can decide.
+            near = [rid for rid in self.goal_ids if self._footprint_distance(rid, body_xy) <= self.config.rec_radius]
+            if near and self.backend.held_body is not None:
                 from dataclasses import replace
 
                 from sim.camera import render
 
                 cfg = replace(self.backend.config.camera, near=self.config.held_clip)
                 ids = decode_body_ids(render(self.world, obs.intrinsics, obs.T_world_cam, cfg).segmentation)
-            for rid in self.goal_ids:
-                if np.count_nonzero(ids == rid) >= self.config.min_coverage * n and \
-                        self._footprint_distance(rid, body_xy) <= self.config.rec_radius:
-                    m.find_rec = True
-                    m.find_rec_time = self._now()
-                    break
+            if any(np.count_nonzero(ids == rid) >= self.config.min_coverage * n for rid in near):
+                m.find_rec = True
+                m.find_rec_time = self._now()
 
     def after_command(self, name: str, result=None) -> None:
         m = self.metrics

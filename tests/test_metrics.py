@@ -239,3 +239,39 @@ def test_the_judge_checks_the_searchs_candidates_against_the_true_start_receptac
         assert sim.judge.start_receptacle_truth([])["in_view"] == sim.judge.support_seen_time
     finally:
         sim.close()
+
+
+def test_the_findrec_check_view_is_rendered_only_near_a_goal_receptacle(monkeypatch):
+    """The judge's check view (a second render of a frame, near plane past the held object) only
+    where FindRec can be decided: some goal receptacle within ``rec_radius``. FindRec is still
+    judged as before (the oracle's episode succeeds with every phase in order)."""
+    import sim.camera
+
+    checks, frames = [], []
+    real_render = sim.camera.render
+
+    def counting_render(world, intr, T_world_cam, config):
+        if config.near > 0.2:                   # the check view (held_clip); agent frames use the camera's
+            checks.append(np.asarray(T_world_cam)[:2, 3].copy())
+        return real_render(world, intr, T_world_cam, config)
+
+    monkeypatch.setattr(sim.camera, "render", counting_render)
+
+    def factory(sim_episode):
+        judge, observe = sim_episode.judge, sim_episode.judge.on_observation
+
+        def watched(obs):
+            if judge.metrics.pick and not judge.metrics.find_rec:
+                frames.append(min(judge._footprint_distance(rid, obs.T_world_body[:2, 3]) for rid in judge.goal_ids))
+            observe(obs)
+
+        judge.on_observation = watched
+        return OracleAgent(sim_episode)
+
+    result, judge, agent = _run(factory)
+    m = result.metrics
+    assert (m.find_obj, m.pick, m.find_rec, m.place, m.success) == (True, True, True, True, True), agent.log
+    rec_radius = MetricsConfig().rec_radius
+    near = [d for d in frames if d <= rec_radius]
+    assert frames and len(checks) == len(near) >= 1          # one check view per frame near the desk, none elsewhere
+    assert len(near) < len(frames)                            # the carry had frames far from it (skipped)
