@@ -553,14 +553,14 @@ def test_the_body_reuses_its_footprint_checker_until_the_occupancy_grids_change(
     """``Body.checker`` hands back the same checker while ``OccupancyGrid.revision`` stands, and a
     new one after each kind of change (a depth frame, ``mark_seen``, ``mark_obstacle``), which
     answers as one built from scratch on the changed grids."""
-    from helios.agents.body import Body
+    from helios.agents.body import Body, CheckerCache
     from helios.agents.config import AgentConfig
     from helios.config import OccupancyConfig
     from helios.maps.occupancy import OccupancyGrid
 
     occ = OccupancyGrid(OccupancyConfig(grid_size=240, origin_xy=(-3.0, -3.0)))
     body = Body.__new__(Body)
-    body.config, body._checkers = AgentConfig(), None
+    body.config, body._checkers = AgentConfig(), CheckerCache()
     body.observer = type("O", (), {"map": type("M", (), {"occupancy": occ, "geometry": occ.geometry})()})()
     rng = np.random.default_rng(3)
     poses = np.column_stack([rng.uniform(-2.5, 2.5, 300), rng.uniform(-2.5, 2.5, 300), rng.uniform(-3, 3, 300)])

@@ -299,7 +299,8 @@ def test_can_look_from_predicts_what_a_visit_finds():
     from robots.hal import NavigateResult, Reason
 
     g = Grid().box(-2.0, 2.0, 1.0, 1.1, 2.5).box(0.6, 1.0, -0.4, 0.4, 1.8).box(-0.5, 0.5, -0.3, 0.3, 0.75)
-    occupancy = SimpleNamespace(obstacle=g.obstacle, max_height=g.max_height, explored=np.ones(GEO.shape, bool))
+    occupancy = SimpleNamespace(obstacle=g.obstacle, max_height=g.max_height, explored=np.ones(GEO.shape, bool),
+                                revision=0)
     observer = SimpleNamespace(map=SimpleNamespace(occupancy=occupancy, geometry=GEO))
     body = Body(AgentConfig(), None, observer, [], Counter())
 

@@ -13,7 +13,7 @@ import math
 import time
 from collections import Counter
 from dataclasses import replace
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -38,6 +38,24 @@ HOP_EXTRA_MARGIN = 0.05
 to the middle of free space (FMM^2), a hop only to its own sweep, so it asks for more room."""
 
 
+class CheckerCache:
+    """The body's footprint checkers on one occupancy grid, reused while ``OccupancyGrid.revision``
+    stands: building one takes full-map passes (~2 ms on the 2000 x 2000 grid), and a global
+    decision asks once per candidate (its gaze points) and again for every walk. Callers never
+    modify a checker (``clear_under`` returns a new one), so a reused one answers as a new one
+    would (``tests/test_exact_speedups.py``)."""
+
+    def __init__(self) -> None:
+        self._grid, self._revision, self._by_margin = None, -1, {}
+
+    def get(self, occupancy, extra_margin: float, build: Callable[[], FootprintChecker]) -> FootprintChecker:
+        if self._grid is not occupancy or self._revision != occupancy.revision:
+            self._grid, self._revision, self._by_margin = occupancy, occupancy.revision, {}
+        if extra_margin not in self._by_margin:
+            self._by_margin[extra_margin] = build()
+        return self._by_margin[extra_margin]
+
+
 class Body:
     """Pose and arm state of one episode, and the motions built from HAL commands.
 
@@ -56,7 +74,7 @@ class Body:
         self.arm_direction: float | None = None     # world yaw the hand camera points along
         self.last_plan: PlanResult | None = None
         self.unstuck_from: list[np.ndarray] = []     # where unstick() has stepped away from
-        self._checkers: tuple[object, int, dict[float, FootprintChecker]] | None = None
+        self._checkers = CheckerCache()
 
     @property
     def map(self):
@@ -78,23 +96,18 @@ class Body:
 
     # ================================================================== walking
     def checker(self, extra_margin: float = 0.0) -> FootprintChecker:
-        """Footprint checks on the current map (its footprint margin grown by ``extra_margin`` m).
-
-        Reused until the occupancy grids change (``OccupancyGrid.revision``): building one takes
-        full-map passes (~2 ms on the 2000 x 2000 grid), and a global decision asks once per
-        candidate (its gaze points) and again for every walk. Callers never modify a checker
-        (``clear_under`` returns a new one), so a reused one answers as a new one would."""
+        """Footprint checks on the current map (its footprint margin grown by ``extra_margin`` m),
+        reused until the grids change (:class:`CheckerCache`)."""
         occ = self.map.occupancy
-        if self._checkers is None or self._checkers[0] is not occ or self._checkers[1] != occ.revision:
-            self._checkers = (occ, occ.revision, {})
-        cached = self._checkers[2]
-        if extra_margin not in cached:
+
+        def build() -> FootprintChecker:
             unknown = ~occ.explored if self.config.planner.unknown_is_obstacle else None
             footprint = self.config.planner.footprint
             if extra_margin:
                 footprint = replace(footprint, margin=footprint.margin + extra_margin)
-            cached[extra_margin] = FootprintChecker(footprint, self.map.geometry, occ.obstacle, occ.max_height, unknown)
-        return cached[extra_margin]
+            return FootprintChecker(footprint, self.map.geometry, occ.obstacle, occ.max_height, unknown)
+
+        return self._checkers.get(occ, extra_margin, build)
 
     def plan(self, goals, radius: float, yaws=None, horizon: float | None = None) -> PlanResult:
         occ = self.map.occupancy
