@@ -924,15 +924,21 @@ def limit_pick_attempts(records: Iterable[dict], limit: int) -> list[dict]:
     unchanged. The agent ran without a limit, which is what the paper's wording describes: the
     limit scores a run, it does not stop the agent (``agent_config.max_pick_attempts`` does that).
     Records are copied, never changed in place; unscored records (no metrics) stay unscored."""
-    if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_PICK_LIMIT:
+    if not is_pick_limit(limit):
         raise ValueError(f"a pick-attempt limit must be an integer in [1, {MAX_PICK_LIMIT}], got {limit!r}")
-    out = []
-    for r in records:
-        m = r.get("metrics")
-        if m and int(m.get("pick_attempts", 0)) > limit:
-            r = {**r, "metrics": {**m, **{k: False for k in METRIC_KEYS}}}
-        out.append(r)
-    return out
+    return [{**r, "metrics": {**r["metrics"], **{k: False for k in METRIC_KEYS}}} if exceeds_pick_limit(r, limit)
+            else r for r in records]
+
+
+def is_pick_limit(limit) -> bool:
+    """Whether ``limit`` is a whole number of grasp attempts in [1, MAX_PICK_LIMIT]."""
+    return isinstance(limit, int) and not isinstance(limit, bool) and 1 <= limit <= MAX_PICK_LIMIT
+
+
+def exceeds_pick_limit(record: dict, limit: int) -> bool:
+    """A scored record that made more than ``limit`` grasp attempts (its phases score 0 under it)."""
+    m = record.get("metrics")
+    return bool(m) and int(m.get("pick_attempts", 0)) > limit
 
 
 def metrics_table_rows(name: str, summary: dict) -> list:

@@ -529,7 +529,6 @@ def test_touching_from_collider_boxes_finds_what_the_whole_robot_box_finds():
         world.close()
 
 
-
 def test_gaze_point_own_footprint_growth_is_scipys_binary_dilation():
     """``_grown`` (OpenCV) marks the same cells as scipy's binary dilation by the same disc with a
     zero border: random masks, cells on every edge and corner, windows smaller than the disc."""
@@ -553,21 +552,24 @@ def test_the_body_reuses_its_footprint_checker_until_the_occupancy_grids_change(
     """``Body.checker`` hands back the same checker while ``OccupancyGrid.revision`` stands, and a
     new one after each kind of change (a depth frame, ``mark_seen``, ``mark_obstacle``), which
     answers as one built from scratch on the changed grids."""
-    from helios.agents.body import Body, CheckerCache
+    from collections import Counter
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from helios.agents.body import Body
     from helios.agents.config import AgentConfig
     from helios.config import OccupancyConfig
     from helios.maps.occupancy import OccupancyGrid
 
     occ = OccupancyGrid(OccupancyConfig(grid_size=240, origin_xy=(-3.0, -3.0)))
-    body = Body.__new__(Body)
-    body.config, body._checkers = AgentConfig(), CheckerCache()
-    body.observer = type("O", (), {"map": type("M", (), {"occupancy": occ, "geometry": occ.geometry})()})()
+    body = Body(AgentConfig(), None, SimpleNamespace(map=SimpleNamespace(occupancy=occ, geometry=occ.geometry)),
+                [], Counter())
     rng = np.random.default_rng(3)
     poses = np.column_stack([rng.uniform(-2.5, 2.5, 300), rng.uniform(-2.5, 2.5, 300), rng.uniform(-3, 3, 300)])
 
     def fresh(margin=0.0):
         fp = body.config.planner.footprint
-        fp = FootprintConfig(fp.body, fp.arm, fp.arm_clearance_height, fp.margin + margin)
+        fp = replace(fp, margin=fp.margin + margin)
         unknown = ~occ.explored if body.config.planner.unknown_is_obstacle else None
         return FootprintChecker(fp, occ.geometry, occ.obstacle, occ.max_height, unknown)
 

@@ -697,11 +697,12 @@ def pick_limited_runs(runs: list[Run], limit: int) -> list[Run]:
 
 def pick_limit_tables(runs: list[Run], limits: tuple[int, ...]) -> list[tuple[str, list, list]]:
     """Per limit: the percent table and (several runs) the paired sign tests against the first run."""
+    from tasks.trials import exceeds_pick_limit
+
     tables = []
     for n in limits:
         limited = pick_limited_runs(runs, n)
-        over = ", ".join(f"{r.name} {sum(int(x['metrics'].get('pick_attempts', 0)) > n for x in r.records if x.get('metrics'))}"
-                         for r in runs)
+        over = ", ".join(f"{r.name} {sum(exceeds_pick_limit(x, n) for x in r.records)}" for r in runs)
         noun = "attempt" if n == 1 else "attempts"
         tables.append((f"{n} pick{'s' if n > 1 else ''} (the paper's protocol: an episode with more than {n} grasp "
                        f"{noun} scores 0 in every phase; such episodes: {over}): percent ± standard error",
@@ -725,13 +726,12 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     (``text``, ``markdown``, ``figures``, ``html``, ``warnings``, ``pages``: run name -> its
     ``EpisodePage`` list). ``common``: compare on the episodes all runs have finished.
     ``pick_limits``: also the paper's "N picks" tables (:func:`pick_limit_tables`)."""
-    from tasks.trials import MAX_PICK_LIMIT
+    from tasks.trials import MAX_PICK_LIMIT, is_pick_limit
     from tools.cli import CliError, check_output_dir, check_output_file
     from tools.tables import format_markdown, format_table
 
     pick_limits = tuple(pick_limits)
-    if any(isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_PICK_LIMIT for n in pick_limits) \
-            or len(set(pick_limits)) != len(pick_limits):
+    if not all(map(is_pick_limit, pick_limits)) or len(set(pick_limits)) != len(pick_limits):
         raise CliError(f"pick limits must be distinct integers in [1, {MAX_PICK_LIMIT}], got {pick_limits}")
     if names and len(names) != len(run_paths):
         raise CliError(f"--names has {len(names)} name(s) for {len(run_paths)} run(s)")
