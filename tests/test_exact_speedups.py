@@ -573,6 +573,12 @@ def test_the_body_reuses_its_footprint_checker_until_the_occupancy_grids_change(
         unknown = ~occ.explored if body.config.planner.unknown_is_obstacle else None
         return FootprintChecker(fp, occ.geometry, occ.obstacle, occ.max_height, unknown)
 
+    def same_as_fresh(margin=0.0):
+        got, want = body.checker(margin), fresh(margin)
+        return all(np.array_equal(getattr(got, a), getattr(want, a)) for a in ("obstacle", "tall")) and \
+            got.blocks_unknown == want.blocks_unknown
+
+    assert occ.explored_bounds is None and same_as_fresh()            # nothing seen yet: all unknown
     occ.mark_seen(np.array([[0.0, 0.0]]), 2.5)
     first = body.checker()
     assert body.checker() is first and body.checker(0.1) is not first and body.checker(0.1) is body.checker(0.1)
@@ -589,4 +595,58 @@ def test_the_body_reuses_its_footprint_checker_until_the_occupancy_grids_change(
         assert now is not before and body.checker() is now
         assert np.array_equal(now.poses_free(poses), fresh().poses_free(poses))
         assert np.array_equal(body.checker(0.1).poses_free(poses), fresh(0.1).poses_free(poses))
+        assert same_as_fresh() and same_as_fresh(0.1)     # built on the explored window only, the same grids
+        r0, r1, c0, c1 = occ.explored_bounds
+        outside = np.ones(occ.obstacle.shape, dtype=bool)
+        outside[r0:r1, c0:c1] = False
+        assert not (occ.obstacle & outside).any() and not (occ.explored & outside).any()
     assert not body.checker().poses_free(np.array([[0.8, 0.3, 0.0]]))[0]       # the marked obstacle
+
+
+def _plan_fields(plan):
+    return (plan.success, plan.reason, plan.path.tolist(), repr(plan.actions),
+            [(w.x, w.y, w.yaw) for w in plan.waypoints], plan.reaches_goal, plan.length, plan.goal_index,
+            plan.final_turn_blocked, plan.blocked_ahead)
+
+
+def test_a_plan_from_the_bodys_checker_is_the_plan_from_a_fresh_one():
+    """``FMMPlanner.plan(..., footprints=)`` derives the plan's footprint checker from one built on
+    the same grids (never-seen cells near the start counted as seen with ``seen_within``) instead
+    of rebuilding it: the same poses answer the same, and the plans are identical, on the map of a
+    recorded val episode (the shuffle loop) from many starts and goals, near unseen cells included."""
+    from pathlib import Path
+
+    from helios.planning.fmm import PlannerConfig
+    from robots.hal import SE2Pose
+
+    d = np.load(Path(__file__).parent / "data" / "planner_shuffle_loop.npz")
+    geo = GridGeometry(float(d["cell"]), int(d["size"]), float(d["origin"][0]), float(d["origin"][1]))
+    obstacle, explored, max_height = d["obstacle"], d["explored"], d["max_height"]
+    cfg = PlannerConfig()
+    planner = FMMPlanner(cfg)
+    base = FootprintChecker(cfg.footprint, geo, obstacle, max_height, ~explored)
+    rng = np.random.default_rng(7)
+    seen = np.argwhere(explored)
+    starts = [SE2Pose(*d["start"])] + [SE2Pose(*geo.cell_to_world(*seen[i]), float(rng.uniform(-np.pi, np.pi)))
+                                       for i in rng.integers(len(seen), size=24)]
+    base_before = base.obstacle.copy()
+    probe = np.column_stack([rng.normal(0, 0.8, 400), rng.normal(0, 0.8, 400), rng.uniform(-3, 3, 400)])
+    patched = 0
+    for i, start in enumerate(starts):
+        reference = planner._checker(geo, obstacle, explored, max_height, start, None)
+        derived = planner._checker(geo, obstacle, explored, max_height, start, base)
+        patched += derived is not base
+        assert np.array_equal(derived.obstacle, reference.obstacle) and np.array_equal(derived.tall, reference.tall)
+        poses = probe + [start.x, start.y, 0.0]
+        assert np.array_equal(derived.poses_free(poses), reference.poses_free(poses))
+        goals = d["goals"] if i == 0 else geo.cell_to_world(*seen[rng.integers(len(seen), size=3)].T)
+        fresh = planner.plan(geo, obstacle, explored, start, goals, 0.8, max_height=max_height)
+        reused = planner.plan(geo, obstacle, explored, start, goals, 0.8, max_height=max_height, footprints=base)
+        assert _plan_fields(reused) == _plan_fields(fresh)
+    assert patched > 5                                   # unseen cells near the start did occur
+    assert np.array_equal(base.obstacle, base_before)    # the body's checker itself is never changed
+    # a checker for another footprint, or one blind to unknown cells, is not used
+    other = FootprintChecker(FootprintConfig(margin=0.2), geo, obstacle, max_height, ~explored)
+    assert planner._checker(geo, obstacle, explored, max_height, starts[0], other).config == cfg.footprint
+    blind = FootprintChecker(cfg.footprint, geo, obstacle, max_height)
+    assert planner._checker(geo, obstacle, explored, max_height, starts[0], blind).blocks_unknown

@@ -300,7 +300,7 @@ def test_can_look_from_predicts_what_a_visit_finds():
 
     g = Grid().box(-2.0, 2.0, 1.0, 1.1, 2.5).box(0.6, 1.0, -0.4, 0.4, 1.8).box(-0.5, 0.5, -0.3, 0.3, 0.75)
     occupancy = SimpleNamespace(obstacle=g.obstacle, max_height=g.max_height, explored=np.ones(GEO.shape, bool),
-                                revision=0)
+                                revision=0, geometry=GEO, explored_bounds=(0, GEO.size, 0, GEO.size))
     observer = SimpleNamespace(map=SimpleNamespace(occupancy=occupancy, geometry=GEO))
     body = Body(AgentConfig(), None, observer, [], Counter())
 

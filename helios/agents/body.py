@@ -13,7 +13,7 @@ import math
 import time
 from collections import Counter
 from dataclasses import replace
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -21,7 +21,7 @@ from helios.agents.config import AgentConfig
 from helios.agents.frontier_goals import unseen_bearing
 from helios.agents.geometry import approach_poses
 from helios.agents.observer import Observer
-from helios.planning.fmm import FMMPlanner, PlanResult
+from helios.planning.fmm import FMMPlanner, PlannerConfig, PlanResult
 from helios.planning.footprint import FootprintChecker
 from helios.search.gaze_points import GazePoint
 from robots.hal import CommandResult, Observation, Reason, RobotBackend, SE2Pose
@@ -48,11 +48,19 @@ class CheckerCache:
     def __init__(self) -> None:
         self._grid, self._revision, self._by_margin = None, -1, {}
 
-    def get(self, occupancy, extra_margin: float, build: Callable[[], FootprintChecker]) -> FootprintChecker:
+    def get(self, occupancy, planner: PlannerConfig, extra_margin: float) -> FootprintChecker:
+        """The checker of ``planner``'s footprint grown by ``extra_margin`` m; never-seen cells block
+        when ``planner.unknown_is_obstacle``."""
         if self._grid is not occupancy or self._revision != occupancy.revision:
             self._grid, self._revision, self._by_margin = occupancy, occupancy.revision, {}
         if extra_margin not in self._by_margin:
-            self._by_margin[extra_margin] = build()
+            footprint = planner.footprint
+            if extra_margin:
+                footprint = replace(footprint, margin=footprint.margin + extra_margin)
+            explored = occupancy.explored if planner.unknown_is_obstacle else None
+            self._by_margin[extra_margin] = FootprintChecker.of_known_region(
+                footprint, occupancy.geometry, occupancy.obstacle, occupancy.max_height, explored,
+                occupancy.explored_bounds)
         return self._by_margin[extra_margin]
 
 
@@ -98,22 +106,13 @@ class Body:
     def checker(self, extra_margin: float = 0.0) -> FootprintChecker:
         """Footprint checks on the current map (its footprint margin grown by ``extra_margin`` m),
         reused until the grids change (:class:`CheckerCache`)."""
-        occ = self.map.occupancy
-
-        def build() -> FootprintChecker:
-            unknown = ~occ.explored if self.config.planner.unknown_is_obstacle else None
-            footprint = self.config.planner.footprint
-            if extra_margin:
-                footprint = replace(footprint, margin=footprint.margin + extra_margin)
-            return FootprintChecker(footprint, self.map.geometry, occ.obstacle, occ.max_height, unknown)
-
-        return self._checkers.get(occ, extra_margin, build)
+        return self._checkers.get(self.map.occupancy, self.config.planner, extra_margin)
 
     def plan(self, goals, radius: float, yaws=None, horizon: float | None = None) -> PlanResult:
         occ = self.map.occupancy
         t0 = time.perf_counter()
         plan = self.planner.plan(self.map.geometry, occ.obstacle, occ.explored, self.pose, goals, radius, yaws,
-                                 occ.max_height, horizon, occ.explored_bounds)
+                                 occ.max_height, horizon, occ.explored_bounds, footprints=self.checker())
         self.timings["planning"] += time.perf_counter() - t0
         self.timings["plans"] += 1
         self.last_plan = plan

@@ -45,7 +45,10 @@ class OccupancyGrid:
 
     @property
     def explored_bounds(self) -> tuple[int, int, int, int] | None:
-        """(row0, row1, col0, col1) half-open bounding box of explored cells, None if none."""
+        """(row0, row1, col0, col1) half-open bounding box of explored cells, None if none. Every
+        obstacle cell lies inside it too: a cell becomes an obstacle only where a return landed
+        (which counts as seen) or in a disc ``mark_obstacle`` declares seen.
+        ``FootprintChecker.of_known_region`` relies on that."""
         return self._bounds
 
     def integrate_depth(self, depth: np.ndarray, intrinsics: CameraIntrinsics,

@@ -148,11 +148,15 @@ class FMMPlanner:
 
     def plan(self, geometry: GridGeometry, obstacle: np.ndarray, explored: np.ndarray, start: SE2Pose,
              goal_xy, goal_radius: float = 0.3, goal_yaw=None, max_height: np.ndarray | None = None,
-             horizon: float | None = None, explored_bounds: tuple[int, int, int, int] | None = None) -> PlanResult:
+             horizon: float | None = None, explored_bounds: tuple[int, int, int, int] | None = None,
+             footprints: FootprintChecker | None = None) -> PlanResult:
         """Plan from ``start`` to within ``goal_radius`` of ``goal_xy``: one point (2,) or several
         (K, 2), any of which will do (``goal_index`` says which one the path ends at); ``goal_yaw``
         (a float, or one per goal) adds a final turn. ``horizon`` overrides the config's;
-        ``explored_bounds`` (row0, row1, col0, col1), when the caller tracks it, saves a full-grid scan."""
+        ``explored_bounds`` (row0, row1, col0, col1), when the caller tracks it, saves a full-grid scan;
+        ``footprints``, a checker the caller built on these very grids (``obstacle``, ``max_height``
+        and, when ``unknown_is_obstacle``, ``~explored``) with this planner's footprint, saves
+        rebuilding one (full-map passes) for every plan."""
         cfg = self.config
         goals = np.asarray(goal_xy, dtype=float)
         goals = goals.reshape(1, -1)[:, :2] if goals.ndim == 1 else goals[:, :2]
@@ -220,15 +224,7 @@ class FMMPlanner:
                 traversable[to_cell(goal)]:
             path = np.concatenate([path, goal[None]])      # finish exactly on the goal when it is free
         length = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1))) if len(path) > 1 else 0.0
-        unknown = None
-        if cfg.unknown_is_obstacle:
-            unknown = ~explored
-            k = int(math.ceil(cfg.start_clearance / geometry.cell_size))
-            sr0, sc0 = (int(v) for v in geometry.world_to_cell(np.array([start.x, start.y])))
-            a0, a1, b0, b1 = max(sr0 - k, 0), min(sr0 + k + 1, geometry.size), max(sc0 - k, 0), min(sc0 + k + 1, geometry.size)
-            rr, cc = np.ogrid[a0:a1, b0:b1]
-            unknown[a0:a1, b0:b1] &= (rr - sr0) ** 2 + (cc - sc0) ** 2 > k * k
-        checker = FootprintChecker(cfg.footprint, geometry, obstacle, max_height, unknown).clear_under(start)
+        checker = self._checker(geometry, obstacle, explored, max_height, start, footprints).clear_under(start)
         final_yaw = None if yaws is None else float(yaws[goal_index])
         horizon = cfg.horizon if horizon is None else horizon
         actions, waypoints, complete, blocked, turn_blocked = self._actions(path, start, final_yaw, checker,
@@ -245,6 +241,27 @@ class FMMPlanner:
         return PlanResult(True, "ok", path, actions, waypoints, complete, length, goal_index, turn_blocked, blocked)
 
     # ------------------------------------------------------------------ pieces
+    def _checker(self, geometry: GridGeometry, obstacle: np.ndarray, explored: np.ndarray,
+                 max_height: np.ndarray | None, start: SE2Pose, given: FootprintChecker | None) -> FootprintChecker:
+        """Footprint checks for this plan: never-seen cells block the body (``unknown_is_obstacle``)
+        except within ``start_clearance`` of the start, which the camera cannot see around the body.
+        Built from ``given`` (the caller's checker on these grids) when it fits, else from scratch."""
+        cfg = self.config
+        if not cfg.unknown_is_obstacle:
+            if given is not None and given.config == cfg.footprint and not given.blocks_unknown:
+                return given
+            return FootprintChecker(cfg.footprint, geometry, obstacle, max_height)
+        k = int(math.ceil(cfg.start_clearance / geometry.cell_size))
+        sr0, sc0 = (int(v) for v in geometry.world_to_cell(np.array([start.x, start.y])))
+        a0, a1, b0, b1 = max(sr0 - k, 0), min(sr0 + k + 1, geometry.size), max(sc0 - k, 0), min(sc0 + k + 1, geometry.size)
+        rr, cc = np.ogrid[a0:a1, b0:b1]
+        near = (rr - sr0) ** 2 + (cc - sc0) ** 2 <= k * k
+        if given is not None and given.config == cfg.footprint and given.blocks_unknown:
+            return given.seen_within(slice(a0, a1), slice(b0, b1), near, obstacle)
+        unknown = ~explored
+        unknown[a0:a1, b0:b1] &= ~near
+        return FootprintChecker(cfg.footprint, geometry, obstacle, max_height, unknown)
+
     def _window(self, geometry: GridGeometry, explored: np.ndarray, start: SE2Pose, goals: np.ndarray, f: int,
                 bounds=None):
         if bounds is not None:

@@ -49,16 +49,42 @@ class FootprintChecker:
 
     def __init__(self, config: FootprintConfig, geometry: GridGeometry, obstacle: np.ndarray,
                  max_height: np.ndarray | None = None, unknown: np.ndarray | None = None):
-        self.config = config
-        self.geometry = geometry
+        self._shape(config, geometry)
         self.tall = obstacle if max_height is None else obstacle & (max_height > config.arm_clearance_height)
         # Body and legs may only sweep cells the camera has seen: something low (a stool's base,
         # a box) may hide in any unseen cell, and the hand camera never sees right under the body.
         self.obstacle = obstacle if unknown is None else obstacle | unknown
+        self.blocks_unknown = unknown is not None
+
+    def _shape(self, config: FootprintConfig, geometry: GridGeometry) -> None:
+        self.config = config
+        self.geometry = geometry
         step = geometry.cell_size / 2
         self._body, body_tiles = _footprint(tuple(config.body), config.margin, step, geometry.cell_size)
         self._arm, arm_tiles = _footprint(tuple(config.arm), config.margin, step, geometry.cell_size)
         self._tiles: list[tuple[np.ndarray, _Tiles]] = [(self._body, body_tiles), (self._arm, arm_tiles)]
+
+    @classmethod
+    def of_known_region(cls, config: FootprintConfig, geometry: GridGeometry, obstacle: np.ndarray,
+                        max_height: np.ndarray, explored: np.ndarray | None,
+                        bounds: tuple[int, int, int, int] | None) -> "FootprintChecker":
+        """The checker ``FootprintChecker(config, geometry, obstacle, max_height, ~explored)`` (or
+        ``unknown=None`` when ``explored`` is None), for grids with nothing explored and no obstacle
+        outside ``bounds`` (row0, row1, col0, col1, half-open; None: nothing explored), as the
+        occupancy grid's ``explored_bounds`` promises. The full-map passes then shrink to that
+        window: a home is a tenth of the 50 m grid, and the agent builds a checker after every frame."""
+        out = cls.__new__(cls)
+        out._shape(config, geometry)
+        r0, r1, c0, c1 = bounds if bounds is not None else (0, 0, 0, 0)
+        window = (slice(r0, r1), slice(c0, c1))
+        out.tall = np.zeros(geometry.shape, dtype=bool)
+        out.tall[window] = obstacle[window] & (max_height[window] > config.arm_clearance_height)
+        if explored is None:
+            out.obstacle, out.blocks_unknown = obstacle, False
+        else:
+            out.obstacle, out.blocks_unknown = np.ones(geometry.shape, dtype=bool), True
+            np.logical_or(obstacle[window], ~explored[window], out=out.obstacle[window])
+        return out
 
     def clear_under(self, pose, grow: float = 0.05) -> "FootprintChecker":
         """A checker for moves *from* ``pose``: obstacle cells its footprint (grown by ``grow``)
@@ -80,11 +106,30 @@ class FootprintChecker:
             return self
         out = FootprintChecker.__new__(FootprintChecker)
         out.config, out.geometry, out._body, out._arm = self.config, self.geometry, self._body, self._arm
-        out._tiles = self._tiles
+        out._tiles, out.blocks_unknown = self._tiles, self.blocks_unknown
         out.obstacle = self.obstacle.copy()
         out.obstacle[rows, cols] = False
         out.tall = self.tall.copy() if self.tall is not self.obstacle else out.obstacle
         out.tall[rows, cols] = False
+        return out
+
+    def seen_within(self, rows: slice, cols: slice, seen: np.ndarray, obstacle: np.ndarray) -> "FootprintChecker":
+        """This checker with the cells ``seen`` marks (a mask over the window ``rows, cols``)
+        counted as seen: there a cell blocks the body only where ``obstacle`` (the grid this
+        checker was built from) has something. The same checker as one built with those cells
+        taken out of ``unknown``, from one window instead of full-map passes: the planner makes
+        one per plan (never-seen cells near the start count as seen) from the checker the body
+        keeps while the grids stand."""
+        window = self.obstacle[rows, cols]
+        patched = np.where(seen, obstacle[rows, cols], window)
+        if np.array_equal(patched, window):
+            return self
+        out = FootprintChecker.__new__(FootprintChecker)
+        out.__dict__.update(self.__dict__)
+        out.obstacle = self.obstacle.copy()
+        out.obstacle[rows, cols] = patched
+        if self.tall is self.obstacle:        # no heights and no unknown cells: one grid for both
+            out.tall = out.obstacle
         return out
 
     @property
