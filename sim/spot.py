@@ -279,14 +279,22 @@ class ContactGuard:
             return math.hypot(state.x - a.x, state.y - a.y) + self._reach * turn
         return self._arm_reach * float(np.abs(np.asarray(state, dtype=float) - a).sum())
 
+    def vouches(self, state) -> bool:
+        """True when the last clearance query alone shows that the robot at ``state`` touches
+        nothing (what :meth:`free` answers first, without a query): then the robot need not even
+        be put at ``state`` (the caller may skip the pose, see ``SimSpotBackend``). False:
+        put it there and ask :meth:`free`, which then asks the world."""
+        if self._anchor is not None and self._moved(state) <= self._distance - self.slack:
+            self.skipped += 1
+            return True
+        return False
+
     def free(self, state) -> bool:
         """True when the robot, now at ``state`` (the base's SE2Pose, or the six arm joint
         angles), certainly touches nothing; False: check it."""
-        if self._anchor is not None:
-            if self._moved(state) <= self._distance - self.slack:
-                self.skipped += 1
-                return True
-            self._anchor = None
+        if self.vouches(state):
+            return True
+        self._anchor = None
         if self._wait > 0:
             self._wait -= 1
             return False

@@ -33,11 +33,17 @@ ARM_TARGETS = [(0.0, -1.2, 1.4, 0.0, 0.4, 0.0), (0.0, -0.4, 0.9, 0.0, 0.8, 0.0),
                (1.0, 0.3, 0.5, 0.0, 0.3, 0.0), (0.0, -3.1, 3.1, 0.0, 0.0, 0.0)]
 
 
-def _walk_all(clearance_horizon: float):
+def _walk_all(clearance_horizon: float, listen: bool = False, paced: bool = False):
     world = World()
     _room(world)
     spot = SpotBody(world, SE2Pose(0.0, 0.0, 0.0))
-    backend = SimSpotBackend(world, spot, SimBackendConfig(clearance_horizon=clearance_horizon), owns_world=False)
+    backend = SimSpotBackend(world, spot, SimBackendConfig(clearance_horizon=clearance_horizon, stream_renderer="inline"),
+                             owns_world=False)
+    frames = []
+    if listen:
+        backend.add_frame_listener(lambda obs: frames.append(obs.T_world_body.tobytes()))
+    if paced:       # a real-time player (the fake Spot) reads the pose after every stretch of motion
+        backend.pacer = lambda dt: frames.append(spot.T_world_body().tobytes())
     queries = 0
     touching = spot.touching
 
@@ -47,6 +53,20 @@ def _walk_all(clearance_horizon: float):
         return touching(*args, **kwargs)
 
     spot.touching = counted
+    placed = 0
+    set_base_pose, set_arm_state = spot.set_base_pose, spot.set_arm_state
+
+    def counted_pose(*args, **kwargs):
+        nonlocal placed
+        placed += 1
+        return set_base_pose(*args, **kwargs)
+
+    def counted_arm(*args, **kwargs):
+        nonlocal placed
+        placed += 1
+        return set_arm_state(*args, **kwargs)
+
+    spot.set_base_pose, spot.set_arm_state = counted_pose, counted_arm
     results = []
     for goal in GOALS:
         r = backend.navigate_to(goal)
@@ -59,12 +79,14 @@ def _walk_all(clearance_horizon: float):
     poses = {b: world.pose(b).tobytes() for b in world.bodies}
     backend.close()
     world.close()
-    return results, events, poses, queries
+    return results, events, poses, queries, placed, frames
 
 
 def test_guarded_walks_end_and_collide_exactly_as_walks_checked_at_every_pose():
-    guarded, events_g, poses_g, queries_g = _walk_all(0.5)
-    checked, events_c, poses_c, queries_c = _walk_all(0.0)
+    """Poses the guard vouches for are not even set (no reset calls), and nothing tells."""
+    guarded, events_g, poses_g, queries_g, placed_g, _ = _walk_all(0.5)
+    checked, events_c, poses_c, queries_c, placed_c, _ = _walk_all(0.0)
+    assert placed_g < placed_c / 2, (placed_g, placed_c)      # most poses were never set
     assert guarded == checked                       # same outcome, message, time, distance, final pose
     assert events_g == events_c and len(events_c) >= 1   # the walk into the wall is recorded once alike
     assert poses_g == poses_c                       # every body where it was, bit for bit
@@ -72,6 +94,22 @@ def test_guarded_walks_end_and_collide_exactly_as_walks_checked_at_every_pose():
     assert any(not ok and collided for ok, _, _, collided, *_ in walks)
     assert any(not ok for ok, *_ in arm_moves) and any(ok for ok, *_ in arm_moves)
     assert queries_g < queries_c / 3, (queries_g, queries_c)    # most poses needed no contact query
+
+
+def test_a_streamed_move_sets_every_pose_its_frames_show():
+    """With a frame listener (rerun recording, a live view) every pose is set, so the frames
+    show the robot where it was at each moment, as without the guard."""
+    guarded, events_g, poses_g, _, placed_g, frames_g = _walk_all(0.5, listen=True)
+    checked, events_c, poses_c, _, placed_c, frames_c = _walk_all(0.0, listen=True)
+    assert guarded == checked and events_g == events_c and poses_g == poses_c
+    assert placed_g == placed_c and len(frames_c) > 20 and frames_g == frames_c
+
+
+def test_a_paced_move_sets_every_pose_the_pacer_reads():
+    guarded, _, poses_g, _, placed_g, read_g = _walk_all(0.5, paced=True)
+    checked, _, poses_c, _, placed_c, read_c = _walk_all(0.0, paced=True)
+    assert guarded == checked and poses_g == poses_c
+    assert placed_g == placed_c and len(read_c) > 100 and read_g == read_c
 
 
 def _guarded_random_walk(spot: SpotBody, guard: ContactGuard, start, propose, place, steps: int) -> tuple[int, int]:
