@@ -247,16 +247,15 @@ class FMMPlanner:
         except within ``start_clearance`` of the start, which the camera cannot see around the body.
         Built from ``given`` (the caller's checker on these grids) when it fits, else from scratch."""
         cfg = self.config
+        fits = given is not None and given.config == cfg.footprint and given.blocks_unknown == cfg.unknown_is_obstacle
         if not cfg.unknown_is_obstacle:
-            if given is not None and given.config == cfg.footprint and not given.blocks_unknown:
-                return given
-            return FootprintChecker(cfg.footprint, geometry, obstacle, max_height)
+            return given if fits else FootprintChecker(cfg.footprint, geometry, obstacle, max_height)
         k = int(math.ceil(cfg.start_clearance / geometry.cell_size))
         sr0, sc0 = (int(v) for v in geometry.world_to_cell(np.array([start.x, start.y])))
         a0, a1, b0, b1 = max(sr0 - k, 0), min(sr0 + k + 1, geometry.size), max(sc0 - k, 0), min(sc0 + k + 1, geometry.size)
         rr, cc = np.ogrid[a0:a1, b0:b1]
         near = (rr - sr0) ** 2 + (cc - sc0) ** 2 <= k * k
-        if given is not None and given.config == cfg.footprint and given.blocks_unknown:
+        if fits:
             return given.seen_within(slice(a0, a1), slice(b0, b1), near, obstacle)
         unknown = ~explored
         unknown[a0:a1, b0:b1] &= ~near

@@ -9,6 +9,7 @@ footprint count as free (see ``clear_under``): the hand camera cannot see under 
 
 from __future__ import annotations
 
+import copy
 import functools
 import math
 from dataclasses import dataclass
@@ -104,14 +105,11 @@ class FootprintChecker:
         rows, cols = rows[inside], cols[inside]
         if not (self.obstacle[rows, cols].any()):
             return self
-        out = FootprintChecker.__new__(FootprintChecker)
-        out.config, out.geometry, out._body, out._arm = self.config, self.geometry, self._body, self._arm
-        out._tiles, out.blocks_unknown = self._tiles, self.blocks_unknown
-        out.obstacle = self.obstacle.copy()
-        out.obstacle[rows, cols] = False
-        out.tall = self.tall.copy() if self.tall is not self.obstacle else out.obstacle
-        out.tall[rows, cols] = False
-        return out
+        obstacle = self.obstacle.copy()
+        obstacle[rows, cols] = False
+        tall = self.tall.copy() if self.tall is not self.obstacle else obstacle
+        tall[rows, cols] = False
+        return self._on(obstacle, tall)
 
     def seen_within(self, rows: slice, cols: slice, seen: np.ndarray, obstacle: np.ndarray) -> "FootprintChecker":
         """This checker with the cells ``seen`` marks (a mask over the window ``rows, cols``)
@@ -124,12 +122,14 @@ class FootprintChecker:
         patched = np.where(seen, obstacle[rows, cols], window)
         if np.array_equal(patched, window):
             return self
-        out = FootprintChecker.__new__(FootprintChecker)
-        out.__dict__.update(self.__dict__)
-        out.obstacle = self.obstacle.copy()
-        out.obstacle[rows, cols] = patched
-        if self.tall is self.obstacle:        # no heights and no unknown cells: one grid for both
-            out.tall = out.obstacle
+        out = self.obstacle.copy()
+        out[rows, cols] = patched
+        return self._on(out, out if self.tall is self.obstacle else self.tall)
+
+    def _on(self, obstacle: np.ndarray, tall: np.ndarray) -> "FootprintChecker":
+        """This checker (footprint, tiles) on other grids: the derived checkers' one copy."""
+        out = copy.copy(self)
+        out.obstacle, out.tall = obstacle, tall
         return out
 
     @property

@@ -259,31 +259,27 @@ class SimSpotBackend:
         placed = True           # the body stands at ``prev``
         for t_prev, t in zip(times[:-1], times[1:]):
             pose = path.pose_at(t)
-            if skip and guard.vouches(pose):
-                placed = False
+            placed = not (skip and guard.vouches(pose))
+            if not placed:
                 self._record_contacts([], "base")
-                travelled += prev.distance_to(pose)
-                prev = pose
-                self._advance(t - t_prev, dynamic)
-                continue
-            self.spot.set_base_pose(pose)
-            placed = True
-            if carry is not None:
-                carry.follow()
-            hits = self._new_base_hits("base", guard, pose)
-            if hits:
-                self.spot.set_base_pose(prev)
+            else:
+                self.spot.set_base_pose(pose)
                 if carry is not None:
                     carry.follow()
-                self._advance(t - t_prev, dynamic)
-                link, body = hits[0]
-                return NavigateResult(False, Reason.COLLISION,
-                                      f"{link} touched {self.world.bodies[body].name} at "
-                                      f"({pose.x:.2f}, {pose.y:.2f}); stopped at the last free pose",
-                                      duration=self.world.time - t0, final_pose=prev, collided=True,
-                                      distance=travelled)
-            if carry is not None and carry.touching():
-                carry, dynamic = None, True     # pressed against something: physics from here on
+                hits = self._new_base_hits("base", guard, pose)
+                if hits:
+                    self.spot.set_base_pose(prev)
+                    if carry is not None:
+                        carry.follow()
+                    self._advance(t - t_prev, dynamic)
+                    link, body = hits[0]
+                    return NavigateResult(False, Reason.COLLISION,
+                                          f"{link} touched {self.world.bodies[body].name} at "
+                                          f"({pose.x:.2f}, {pose.y:.2f}); stopped at the last free pose",
+                                          duration=self.world.time - t0, final_pose=prev, collided=True,
+                                          distance=travelled)
+                if carry is not None and carry.touching():
+                    carry, dynamic = None, True     # pressed against something: physics from here on
             travelled += prev.distance_to(pose)
             prev = pose
             self._advance(t - t_prev, dynamic)
