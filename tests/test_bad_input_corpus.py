@@ -361,6 +361,11 @@ CASES: list[tuple[str, list[str], str]] = [
     ("report-pick-limit-zero", [*REPORT, "--pick-limits", "0", "--out", "{ws}/new_rep"], "0 is outside [1, 1000]"),
     ("report-pick-limit-word", [*REPORT, "--pick-limits", "1,five", "--out", "{ws}/new_rep"], "'five' is not a whole"),
     ("report-pick-limit-twice", [*REPORT, "--pick-limits", "5,1,5", "--out", "{ws}/new_rep"], "5 is given twice"),
+    ("report-budget-word", [*REPORT, "--budgets", "60,soon", "--out", "{ws}/new_rep"], "'soon' is not a number of seconds"),
+    ("report-budget-negative", [*REPORT, "--budgets=-5", "--out", "{ws}/new_rep"], "-5 is not a positive number"),
+    ("report-budget-nan", [*REPORT, "--budgets", "nan", "--out", "{ws}/new_rep"], "nan is not a positive number"),
+    ("report-budget-twice", [*REPORT, "--budgets", "60,120,60", "--out", "{ws}/new_rep"], "60 is given twice"),
+    ("report-budget-beyond-cap", [*REPORT, "--budgets", "1e6", "--out", "{ws}/new_rep"], "is beyond run 'valid''s cap"),
     # --- tsdf ---
     ("tsdf-hz-nan", ["tsdf", "smoke-00001", "--stream-hz", "nan", "--out", "{ws}/new_tsdf"], "finite"),
     ("tsdf-hz-inf", ["tsdf", "smoke-00001", "--stream-hz", "inf", "--out", "{ws}/new_tsdf"], "finite"),

@@ -56,7 +56,7 @@ def test_report_on_two_runs_writes_the_table_pngs_and_html(tmp_path):
         img = imread(png)
         assert img.shape[0] > 200 and img.shape[1] > 400 and img[..., :3].std() > 0.05, name   # not blank
     html = result["html"].read_text()
-    assert html.count("data:image/png;base64,") == 3 and "<td>helios</td>" in html and "<td>trusting</td>" in html
+    assert html.count("data:image/png;base64,") == len(FIGURES) == 4 and "<td>helios</td>" in html and "<td>trusting</td>" in html
     assert "GPU alloc MB" in text and "2000.0" in text
 
 
@@ -186,6 +186,81 @@ def test_report_says_which_run_reached_each_phase_first(tmp_path):
     assert "| old | n/a | n/a | n/a | n/a | n/a |" in md
 
 
+def test_time_budgets_score_each_run_as_if_stopped_there(tmp_path):
+    """The time-budget table: a phase counts within T when it was reached strictly before T (the
+    runner takes no observation or command that would start at the cap); paired sign tests at each
+    budget; the curve behind the plot; report.json; budgets beyond a run's cap are refused."""
+    from tools.cli import CliError
+    from tools.report import BUDGET_PHASES, _phase_times, budget_curve, load_run, parse_budgets
+
+    a = _with_times(tmp_path / "a", [100, 200, 300, 400, 500, 50, 80, None])
+    b = _with_times(tmp_path / "b", [90, 150, 250, 350, 450, 60, None, None])
+    old = _make_run(tmp_path / "old", [(2, "receptacle_not_found")] * 8)
+    result = make_report([a, b, old], tmp_path / "rep", budgets=(100, 300, 600), episode_pages=False)
+    md = result["markdown"]
+    assert "| run | phase | within 100 s | within 300 s | within 600 s |" in md
+    # a: FindObj at 50, 80 before 100 s (100 itself is not "before"); 50, 80, 100, 200 before 300 s
+    assert "| a | FindObj | 25.0 | 50.0 | 87.5 |" in md
+    assert "| a | Pick | 25.0 | 50.0 | 87.5 |" in md                       # 10 s after FindObj
+    assert "| a | FindRec | 0.0 | 0.0 | 0.0 |" in md
+    # b before 100 s: 90, 60 (a has 50, 80 there): +1 (episode 0) -1 (episode 6)
+    assert "| b | FindObj | 25.0 +1 -1 (p=1.00) | 50.0 +1 -1 (p=1.00) | 75.0 +0 -1 (p=1.00) |" in md
+    assert "| old | FindObj | n/a | n/a | n/a |" in md
+    saved = json.loads((tmp_path / "rep" / "report.json").read_text())
+    assert saved["a"]["time_budgets"]["300"] == {"FindObj": 50.0, "Pick": 50.0, "FindRec": 0.0}
+    assert saved["old"]["time_budgets"]["300"] == {}
+    times = _phase_times(load_run(a), BUDGET_PHASES[0][0])
+    assert budget_curve(times, np.array([0.0, 50.0, 50.1, 100.0, 100.1, 600.0])).tolist() == \
+        [0.0, 0.0, 12.5, 25.0, 37.5, 87.5]
+    # the default: fifths of the cap (600 s here)
+    md = make_report([a, b], tmp_path / "rep2", episode_pages=False)["markdown"]
+    assert "| run | phase | within 120 s | within 240 s | within 360 s | within 480 s | within 600 s |" in md
+    with pytest.raises(CliError, match="700 s is beyond run 'a''s cap of 600 s"):
+        make_report([a, b], tmp_path / "rep3", budgets=(300, 700), episode_pages=False)
+    assert parse_budgets(" 300, 60.5 ") == (60.5, 300.0) and parse_budgets("") == ()
+    for text, message in (("60,x", "'x' is not a number"), ("0", "not a positive"), ("inf", "not a positive"),
+                          ("5,5", "given twice"), (",".join(map(str, range(1, 14))), "at most 12")):
+        with pytest.raises(CliError, match=message):
+            parse_budgets(text)
+
+
+def test_the_budget_plot_draws_each_runs_curve(tmp_path):
+    """Content, not only a file: one step line per run and panel whose heights are the run's
+    percent reached by each second, and a dotted line at each budget of the table."""
+    from tools.report import BUDGET_PHASES, _phase_times, _pyplot, budget_curve, load_run, plot_budgets
+
+    plt = _pyplot()
+    runs = [load_run(_with_times(tmp_path / "a", [100, 200, None, None])),
+            load_run(_with_times(tmp_path / "b", [50, None, None, None]))]
+
+    class Keep:
+        figure = None
+
+        def __getattr__(self, name):
+            return getattr(plt, name)
+
+        def close(self, fig):
+            Keep.figure = fig
+
+    plot_budgets(runs, tmp_path / "b.png", Keep(), budgets=(150.0, 300.0))
+    fig = Keep.figure
+    assert (tmp_path / "b.png").stat().st_size > 10_000
+    for ax, (key, name) in zip(fig.axes, BUDGET_PHASES):
+        assert name in ax.get_title()
+        solid = [ln for ln in ax.get_lines() if ln.get_linestyle() == "-"]
+        dotted = sorted(float(ln.get_xdata()[0]) for ln in ax.get_lines() if ln.get_linestyle() == ":")
+        assert dotted == [150.0, 300.0]
+        assert len(solid) == 2
+        for line, run in zip(solid, runs):
+            x, y = np.asarray(line.get_xdata()), np.asarray(line.get_ydata())
+            assert x[0] == 0.0 and x[-1] == 600.0
+            assert np.array_equal(y, budget_curve(_phase_times(run, key), x))
+    # a's FindObj reaches 25 % after 100 s and 50 % after 200 s; b's 25 % after 50 s
+    y_a = np.asarray(fig.axes[0].get_lines()[0].get_ydata())
+    assert y_a[0] == 0.0 and y_a.max() == 50.0
+    plt.close(fig)
+
+
 @pytest.mark.parametrize("n_runs", [1, 3])
 def test_plot_titles_and_labels_lie_inside_the_figure(tmp_path, n_runs):
     """Issue 20 item 3: the subtask plot's title was cut off at the left edge (an axes title
@@ -193,7 +268,7 @@ def test_plot_titles_and_labels_lie_inside_the_figure(tmp_path, n_runs):
     plot must lie inside its figure."""
     import matplotlib.text
 
-    from tools.report import _pyplot, load_run, plot_failures, plot_memory, plot_subtasks
+    from tools.report import _pyplot, load_run, plot_budgets, plot_failures, plot_memory, plot_subtasks
 
     plt = _pyplot()
     runs = [load_run(_make_run(tmp_path / f"run{i}", [(5, None)] * 3 + [(2, "receptacle_not_found"), (0, "not_found")]))
@@ -208,7 +283,7 @@ def test_plot_titles_and_labels_lie_inside_the_figure(tmp_path, n_runs):
         def close(self, fig):
             Keep.figure = fig
 
-    for fn in (plot_subtasks, plot_failures, plot_memory):
+    for fn in (plot_subtasks, plot_failures, plot_memory, plot_budgets):
         fn(runs, tmp_path / "x.png", Keep())
         fig = Keep.figure
         fig.canvas.draw()

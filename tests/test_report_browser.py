@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from browser import Browser, find_or_install_browser
+from tools.report import FIGURES
 
 
 @pytest.fixture(scope="session")          # session, like picture_runs, so that a skip comes first
@@ -55,6 +56,6 @@ def test_the_report_loads_in_a_browser_with_every_image_and_no_errors(browser_ex
                 shot = browser.screenshot(tmp_path / "report.png")
         index_images = browser.load(report / "index.html").images
     failed = sum(not r["success"] for r in picture_runs["records"].values())
-    assert failed and len(index_images) == 3 + failed      # the three plots and a thumbnail per failed episode
+    assert failed and len(index_images) == len(FIGURES) + failed      # the plots and a thumbnail per failed episode
     pixels = np.asarray(Image.open(shot).convert("RGB"))
     assert pixels.shape[0] > 1000 and pixels.shape[1] >= 800 and pixels.std() > 20      # the page, not a blank

@@ -1,8 +1,9 @@
 """Compare trial runs: the paper-style table (rows = runs; FindObj, Pick, FindRec, Place, SR in
 percent ± standard error) as text and Markdown, what the search policy decided and where its
 simulated time went (the "Decisions" and "Simulated time per phase" tables, see
-``tasks.decisions``), PNG plots (subtask success as the paper's stacked bars, failure modes,
-memory over episode time), one HTML page with all of it, and one page per episode (its top-down
+``tasks.decisions``), how each run would score with a shorter time budget, PNG plots (subtask
+success as the paper's stacked bars, failure modes, memory over episode time, phases reached by
+each budget), one HTML page with all of it, and one page per episode (its top-down
 picture, hand-camera frames and numbers; ``tools.episode_pages``) with a failure gallery.
 
     python -m tools report runs/helios runs/trusting --out runs/report
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import base64
+import functools
 import html
 import json
 import math
@@ -27,7 +29,7 @@ PHASES = ("FindObj", "Pick", "FindRec", "Place", "SR")
 PHASE_COLORS = ("#c6dbef", "#9ecae1", "#6baed6", "#3182bd", "#08519c")
 MEMORY_SERIES = (("rss_mb", "resident memory (RSS)"), ("map_mb", "agent map"),
                  ("gpu_allocated_mb", "GPU allocated"), ("gpu_reserved_mb", "GPU reserved"))
-FIGURES = ("subtasks.png", "failures.png", "memory.png")
+FIGURES = ("subtasks.png", "failures.png", "memory.png", "budgets.png")
 
 
 @dataclass
@@ -52,6 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pick-limits", default="", metavar="N[,N...]",
                         help="also score the runs as the paper's 'N picks' rows (e.g. 1,5): an episode with more "
                              "than N grasp attempts fails every phase; a table and paired tests per limit")
+    parser.add_argument("--budgets", default="", metavar="S[,S...]",
+                        help="simulated-second budgets for the 'search by time budget' table (default: fifths of "
+                             "the runs' cap, runner.max_sim_time): each run scored as if stopped there")
 
 
 MAX_LISTED_DAMAGE = 10     # damaged lines named one by one (FILE:LINE) per run folder; the rest are counted
@@ -320,6 +325,126 @@ def speed_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
             row.append(f"+{wins} -{losses} ({_p_text(sign_test_p(wins, losses))})")
         rows.append(row)
     return headers, rows
+
+
+BUDGET_PHASES = (("find_obj_time", "FindObj"), ("pick_time", "Pick"), ("find_rec_time", "FindRec"))
+BUDGET_TITLE = ("Search by time budget: % of episodes that reached the phase within T simulated seconds, what the "
+                "run would have scored had it been stopped at T (exact for FindObj and FindRec; a grasp that began "
+                "before T and ended after it counts for a run stopped at T, not here); against the first run, the "
+                "episodes only this run reached within T (+) / only the first run did (-), exact sign test; "
+                "n/a: records made before phase times were kept")
+BUDGET_FRACTIONS = (0.2, 0.4, 0.6, 0.8, 1.0)
+MAX_BUDGETS = 12
+
+
+def run_time_cap(run: Run) -> float:
+    """The simulated-time cap the run's episodes ran under (``runner.max_sim_time`` of its
+    config.yaml; the runner's default when the config does not say)."""
+    from tasks.runner import RunnerConfig
+
+    runner = run.config.get("runner") if isinstance(run.config, dict) else None
+    cap = runner.get("max_sim_time") if isinstance(runner, dict) else None
+    return float(cap) if isinstance(cap, (int, float)) and not isinstance(cap, bool) and cap > 0 \
+        else RunnerConfig().max_sim_time
+
+
+def default_budgets(runs: list[Run]) -> tuple[float, ...]:
+    """Fifths of the smallest cap among the runs (a run cannot be scored for more time than it had)."""
+    cap = min(run_time_cap(r) for r in runs)
+    return tuple(round(f * cap, 1) for f in BUDGET_FRACTIONS)
+
+
+def parse_budgets(text: str) -> tuple[float, ...]:
+    """``--budgets`` "120,300" -> (120.0, 300.0); CliError for anything but distinct positive seconds."""
+    from tools.cli import CliError
+
+    if not text.strip():
+        return ()
+    budgets: list[float] = []
+    for part in text.split(","):
+        part = part.strip()
+        try:
+            t = float(part)
+        except ValueError:
+            raise CliError(f"--budgets: {part!r} is not a number of seconds (expected e.g. 120,300,600)") from None
+        if not math.isfinite(t) or t <= 0:
+            raise CliError(f"--budgets: {part} is not a positive number of simulated seconds")
+        if t in budgets:
+            raise CliError(f"--budgets: {part} is given twice")
+        budgets.append(t)
+    if len(budgets) > MAX_BUDGETS:
+        raise CliError(f"--budgets: {len(budgets)} budgets given, at most {MAX_BUDGETS}")
+    return tuple(sorted(budgets))
+
+
+def check_budgets(runs: list[Run], budgets: tuple[float, ...]) -> None:
+    """CliError for a budget beyond a run's cap: beyond it the records say nothing about what the
+    agent would have done with more time."""
+    from tools.cli import CliError
+
+    for r in runs:
+        cap = run_time_cap(r)
+        over = [t for t in budgets if t > cap + 1e-9]
+        if over:
+            raise CliError(f"--budgets: {over[0]:g} s is beyond run {r.name!r}'s cap of {cap:g} s "
+                           f"(runner.max_sim_time): a run can only be scored for shorter budgets than it had")
+
+
+def reached_within(times: dict[str, float], budget: float) -> dict[str, bool]:
+    """Episode id -> the phase was reached strictly before ``budget`` s (the runner stops an episode
+    at the first observation or command that would start at or after its cap)."""
+    return {e: t < budget for e, t in times.items()}
+
+
+def budget_rows(runs: list[Run], budgets: tuple[float, ...]) -> tuple[list[str], list[list]]:
+    """Per run and phase (FindObj, Pick, FindRec): the percent of its episodes that reached the
+    phase within each budget, and against the first run the paired sign test at that budget. The
+    600 s cap is our choice (the paper's benchmark counts steps): an ordering that holds at one
+    budget and not another is a statement about the policies' speed, not their reach."""
+    headers = ["run", "phase"] + [f"within {t:g} s" for t in budgets]
+    rows = []
+    for i, run in enumerate(runs):
+        for key, name in BUDGET_PHASES:
+            times = _phase_times(run, key)
+            if not times:
+                rows.append([run.name, name] + ["n/a"] * len(budgets))
+                continue
+            ref = _phase_times(runs[0], key) if i else {}
+            row = [run.name, name]
+            for t in budgets:
+                mine = reached_within(times, t)
+                cell = f"{100.0 * sum(mine.values()) / len(mine):.1f}"
+                if i:
+                    theirs = reached_within(ref, t)
+                    both = set(mine) & set(theirs)
+                    if both:
+                        wins = sum(mine[e] and not theirs[e] for e in both)
+                        losses = sum(theirs[e] and not mine[e] for e in both)
+                        cell += f" +{wins} -{losses} ({_p_text(sign_test_p(wins, losses))})"
+                    else:
+                        cell += " (n/a)"
+                row.append(cell)
+            rows.append(row)
+    return headers, rows
+
+
+def budget_summary(run: Run, budgets: tuple[float, ...]) -> dict:
+    """{budget s: {phase: percent reached within it}} for report.json (phases without times left out)."""
+    out: dict = {}
+    for t in budgets:
+        cells = {}
+        for key, name in BUDGET_PHASES:
+            times = _phase_times(run, key)
+            if times:
+                cells[name] = 100.0 * sum(reached_within(times, t).values()) / len(times)
+        out[f"{t:g}"] = cells
+    return out
+
+
+def budget_curve(times: dict[str, float], grid: np.ndarray) -> np.ndarray:
+    """Percent of the episodes in ``times`` that reached the phase strictly before each ``grid`` time."""
+    t = np.sort(np.fromiter(times.values(), dtype=float, count=len(times)))
+    return 100.0 * np.searchsorted(t, grid, side="left") / max(len(t), 1)
 
 
 DECISIONS_TITLE = ("Decisions: totals over the episodes shown (per-episode mean in brackets); "
@@ -602,6 +727,40 @@ def plot_memory(runs: list[Run], path: Path, plt) -> None:
     plt.close(fig)
 
 
+def plot_budgets(runs: list[Run], path: Path, plt, budgets: tuple[float, ...] = ()) -> None:
+    """One panel per phase (FindObj, Pick, FindRec): the percent of each run's episodes that had
+    reached it by each simulated second, up to the smallest cap; dotted lines at the table's budgets."""
+    cap = min(run_time_cap(r) for r in runs)
+    grid = np.linspace(0.0, cap, 601)
+    fig, axes = plt.subplots(1, len(BUDGET_PHASES), figsize=(4.0 * len(BUDGET_PHASES) + 2.0, 3.6), squeeze=False)
+    cmap = plt.get_cmap("tab10")
+    handles: dict[str, object] = {}
+    for ax, (key, name) in zip(axes.flat, BUDGET_PHASES):
+        for i, r in enumerate(runs):
+            times = _phase_times(r, key)
+            if not times:
+                continue
+            handles[r.name], = ax.step(grid, budget_curve(times, grid), where="post", color=cmap(i % 10),
+                                        linewidth=1.4)
+        for t in budgets:
+            ax.axvline(t, color="0.6", linestyle=":", linewidth=0.8)
+        ax.set_xlim(0, cap)
+        ax.set_ylim(0, 100)
+        ax.set_title(f"{name} within the budget", fontsize=9)
+        ax.set_xlabel("budget (simulated s)", fontsize=8)
+        ax.set_ylabel("episodes (%)", fontsize=8)
+        ax.grid(alpha=0.3)
+    if handles:
+        fig.legend(list(handles.values()), list(handles), fontsize=7, loc="upper right", frameon=False)
+    else:
+        axes.flat[0].text(0.5, 0.5, "no phase times in these records", transform=axes.flat[0].transAxes,
+                          ha="center", va="center", fontsize=8)
+    fig.suptitle("Search by time budget (episodes that reached each phase by then)", fontsize=10, x=0.02, ha="left")
+    fig.tight_layout(rect=(0, 0, 1.0 - 1.8 / (4.0 * len(BUDGET_PHASES) + 2.0), 1))
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 # ------------------------------------------------------------------------------------------------
 # Output
 # ------------------------------------------------------------------------------------------------
@@ -720,12 +879,14 @@ def _paired_table(runs: list[Run], qualifier: str = "") -> tuple[str, list, list
 
 
 def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] | None = None,
-                common: bool = False, episode_pages: bool = True, pick_limits: tuple[int, ...] = ()) -> dict:
+                common: bool = False, episode_pages: bool = True, pick_limits: tuple[int, ...] = (),
+                budgets: tuple[float, ...] = ()) -> dict:
     """Load the runs, write table.txt, table.md, the PNGs, index.html and (``episode_pages``) one
     page per episode under ``out/episodes/`` (``tools.episode_pages``); return what was written
     (``text``, ``markdown``, ``figures``, ``html``, ``warnings``, ``pages``: run name -> its
     ``EpisodePage`` list). ``common``: compare on the episodes all runs have finished.
-    ``pick_limits``: also the paper's "N picks" tables (:func:`pick_limit_tables`)."""
+    ``pick_limits``: also the paper's "N picks" tables (:func:`pick_limit_tables`). ``budgets``:
+    the simulated seconds of the time-budget table (:func:`budget_rows`; default fifths of the cap)."""
     from tasks.trials import MAX_PICK_LIMIT, is_pick_limit
     from tools.cli import CliError, check_output_dir, check_output_file
     from tools.tables import format_markdown, format_table
@@ -748,6 +909,10 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     check_output_dir(out / "episodes", "--out (its episodes folder)")
     load_warnings: list[str] = []
     runs = [load_run(p, names[i] if names else None, load_warnings) for i, p in enumerate(run_paths)]
+    budgets = tuple(sorted(budgets)) or default_budgets(runs)
+    if any(not (isinstance(t, (int, float)) and math.isfinite(t) and t > 0) for t in budgets):
+        raise CliError(f"budgets must be positive numbers of simulated seconds, got {budgets}")
+    check_budgets(runs, budgets)
     legacy = [r for r in runs if r.legacy]
     if legacy:
         load_warnings.append("record(s) without a configuration fingerprint (written before fingerprints existed) "
@@ -785,6 +950,7 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
             tables.append(_paired_table(runs, unlimited))
         tables.append((POWER_TITLE, *power_rows(runs)))
     tables.append((SPEED_TITLE, *speed_rows(runs)))
+    tables.append((BUDGET_TITLE, *budget_rows(runs, budgets)))
     tables.append((DECISIONS_TITLE, *decision_rows(runs)))
     tables.append((TIME_TITLE, *activity_rows(runs)))
     tables.append((TIMEOUTS_TITLE, *timeout_rows(runs)))
@@ -801,7 +967,8 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     if plt is None:
         warnings.append("plots need matplotlib (pip install -e '.[viz]'); wrote the tables only")
     else:
-        for fname, fn in zip(FIGURES, (plot_subtasks, plot_failures, plot_memory)):
+        for fname, fn in zip(FIGURES, (plot_subtasks, plot_failures, plot_memory,
+                                       functools.partial(plot_budgets, budgets=budgets))):
             fn(runs, out / fname, plt)
             figures.append(out / fname)
     episodes: list[tuple[Run, list]] = []
@@ -822,7 +989,8 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
                                                           "timeouts": summarize_timeouts(r.records),
                                                           "start_receptacle": summarize_start_receptacle(r.records),
                                                           "pick_limits": {str(n): lr.summary for n in pick_limits
-                                                                          for lr in pick_limited_runs([r], n)}}
+                                                                          for lr in pick_limited_runs([r], n)},
+                                                          "time_budgets": budget_summary(r, budgets)}
                                                  for r in runs}, indent=2, sort_keys=True))
     return {"text": text, "markdown": markdown, "figures": figures, "html": out / "index.html", "warnings": warnings,
             "pages": {r.name: pages for r, pages in episodes}}
@@ -833,8 +1001,9 @@ def run(args: argparse.Namespace) -> int:
 
     names = [n.strip() for n in args.names.split(",")] if args.names else None
     limits = parse_pick_limits(args.pick_limits)
+    budgets = parse_budgets(args.budgets)
     result = make_report(args.runs, args.out, names, common=args.common, episode_pages=not args.no_episode_pages,
-                         pick_limits=limits)
+                         pick_limits=limits, budgets=budgets)
     print(result["text"])
     print()
     print(result["markdown"])
