@@ -358,23 +358,19 @@ def parse_budgets(text: str) -> tuple[float, ...]:
     """``--budgets`` "120,300" -> (120.0, 300.0); CliError for anything but distinct positive seconds."""
     from tools.cli import CliError
 
-    if not text.strip():
-        return ()
-    budgets: list[float] = []
-    for part in text.split(","):
-        part = part.strip()
+    def one(part: str) -> float:
         try:
             t = float(part)
         except ValueError:
             raise CliError(f"--budgets: {part!r} is not a number of seconds (expected e.g. 120,300,600)") from None
         if not math.isfinite(t) or t <= 0:
             raise CliError(f"--budgets: {part} is not a positive number of simulated seconds")
-        if t in budgets:
-            raise CliError(f"--budgets: {part} is given twice")
-        budgets.append(t)
+        return t
+
+    budgets = _parse_list(text, "--budgets", one)
     if len(budgets) > MAX_BUDGETS:
         raise CliError(f"--budgets: {len(budgets)} budgets given, at most {MAX_BUDGETS}")
-    return tuple(sorted(budgets))
+    return budgets
 
 
 def check_budgets(runs: list[Run], budgets: tuple[float, ...]) -> None:
@@ -818,26 +814,38 @@ def restrict_to_common(runs: list[Run]) -> int:
     return len(common)
 
 
+def _parse_list(text: str, option: str, one) -> tuple:
+    """A comma-separated option value -> its sorted values, each read by ``one(part)`` (which raises
+    CliError for a bad one); empty text -> (); CliError for a value given twice."""
+    from tools.cli import CliError
+
+    if not text.strip():
+        return ()
+    values: list = []
+    for part in text.split(","):
+        part = part.strip()
+        value = one(part)
+        if value in values:
+            raise CliError(f"{option}: {part} is given twice")
+        values.append(value)
+    return tuple(sorted(values))
+
+
 def parse_pick_limits(text: str) -> tuple[int, ...]:
     """``--pick-limits`` "1,5" -> (1, 5); CliError for anything but distinct integers in range."""
     from tasks.trials import MAX_PICK_LIMIT
     from tools.cli import CliError
 
-    if not text.strip():
-        return ()
-    limits = []
-    for part in text.split(","):
-        part = part.strip()
+    def one(part: str) -> int:
         try:
             n = int(part)
         except ValueError:
             raise CliError(f"--pick-limits: {part!r} is not a whole number (expected e.g. 1,5)") from None
         if not 1 <= n <= MAX_PICK_LIMIT:
             raise CliError(f"--pick-limits: {n} is outside [1, {MAX_PICK_LIMIT}] grasp attempts")
-        if n in limits:
-            raise CliError(f"--pick-limits: {n} is given twice")
-        limits.append(n)
-    return tuple(sorted(limits))
+        return n
+
+    return _parse_list(text, "--pick-limits", one)
 
 
 def pick_limited_runs(runs: list[Run], limit: int) -> list[Run]:
