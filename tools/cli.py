@@ -21,6 +21,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "spot": ("tools.spot", "run an agent on a real Spot via the Spot SDK (--fake: dry run against a simulated Spot)"),
     "trials": ("tools.trials", "run an agent over episodes in simulation; resumable results and a metrics table"),
     "report": ("tools.report", "compare run folders: the paper-style table (text, Markdown) and PNG/HTML plots"),
+    "diff": ("tools.diff_runs", "which episodes' records differ between two run folders, field by field "
+                                "(exit 1 if any): did a change keep every result?"),
     "view": ("tools.view", "open a rerun recording (.rrd) in the viewer, or say how to view it elsewhere"),
     "episodes": ("tools.episodes", "generate an episode split from a seed, or check an episode file"),
     "tsdf": ("tools.tsdf", "TSDF-reconstruct what an episode saw; report true-surface coverage, write the mesh"),

@@ -1,0 +1,265 @@
+"""Which episodes' records differ between two run folders, field by field, with wall time, memory
+and recording paths aside: the check that a refactor or an exact speed-up changed no result, and
+that a run reproduces another one (the same configuration on another machine or commit).
+
+    python -m tools diff runs/val/helios runs/new --episodes 30
+
+Exit status 0 when every compared episode's record is identical, 1 when any differs, 2 for bad
+input. Fields in ``--ignore`` (dotted paths into a record, e.g. ``config_fingerprint`` when a
+config key was added, or ``extra.start_receptacle.viewed`` for a field one run does not record
+yet) are left out; a path that names nothing in either run is refused (a typo would otherwise
+hide every difference it was meant to let through). The two configurations are compared too
+(the number of episodes aside), and a difference in the CPU code paths the runs' episodes ran on
+is said: those alone can move outcomes (README, "One CPU code path").
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import dataclass, field
+
+MAX_EPISODES_LISTED = 20     # differing episodes named one by one; the rest are counted
+MAX_FIELDS_LISTED = 5        # differing fields shown per episode
+VALUE_CHARS = 60             # a value longer than this is shortened in the middle
+CONFIG_ASIDE = ("helios_version", "git_commit", "episodes")     # config keys that may differ freely
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run_a", metavar="RUN_A", help="run folder (from `python -m tools trials --out`)")
+    parser.add_argument("run_b", metavar="RUN_B", help="the run folder to compare it with")
+    parser.add_argument("--episodes", type=int, default=None, metavar="N",
+                        help="compare only the first N episodes (by id) that both runs have (default: all shared)")
+    parser.add_argument("--ignore", default="", metavar="FIELD[,FIELD...]",
+                        help="dotted record fields to leave out (and everything under them), e.g. "
+                             "config_fingerprint,extra.start_receptacle.viewed")
+    parser.add_argument("--show", type=int, default=MAX_EPISODES_LISTED, metavar="K",
+                        help=f"differing episodes to list one by one (default {MAX_EPISODES_LISTED})")
+
+
+# ------------------------------------------------------------------------------------------------
+# Field-by-field differences
+# ------------------------------------------------------------------------------------------------
+_MISSING = object()
+
+
+def _same_leaf(a, b) -> bool:
+    """Exact equality of two JSON leaves, with NaN equal to NaN and a bool never equal to a number
+    (JSON keeps the difference; Python's ``True == 1`` does not); 1 and 1.0 are the same number."""
+    if isinstance(a, bool) or isinstance(b, bool):
+        return type(a) is type(b) and a == b
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return a == b
+
+
+def differences(a, b, ignore: frozenset[str] = frozenset(), path: str = "") -> list[tuple[str, object, object]]:
+    """(dotted path, value in a, value in b) for every leaf where two JSON values differ; a key
+    present on one side only reads as missing on the other. Lists differ element by element when
+    they have the same length, else as a whole. Paths in ``ignore`` are skipped with all below."""
+    if path in ignore:
+        return []
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = []
+        for key in sorted(set(a) | set(b), key=str):
+            sub = f"{path}.{key}" if path else str(key)
+            out += differences(a.get(key, _MISSING), b.get(key, _MISSING), ignore, sub)
+        return out
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        out = []
+        for i, (x, y) in enumerate(zip(a, b)):
+            out += differences(x, y, ignore, f"{path}[{i}]")
+        return out
+    if a is _MISSING or b is _MISSING or isinstance(a, (dict, list)) or isinstance(b, (dict, list)):
+        return [] if a == b and a is not _MISSING else [(path, a, b)]
+    return [] if _same_leaf(a, b) else [(path, a, b)]
+
+
+def paths_of(value, path: str = "") -> set[str]:
+    """Every dotted path in a JSON value (dict keys; list elements as ``[i]``), inner nodes included."""
+    out = {path} if path else set()
+    if isinstance(value, dict):
+        for key, sub in value.items():
+            out |= paths_of(sub, f"{path}.{key}" if path else str(key))
+    elif isinstance(value, list):
+        for i, sub in enumerate(value):
+            out |= paths_of(sub, f"{path}[{i}]")
+    return out
+
+
+def show_value(value) -> str:
+    """A value as the report prints it: JSON-like, missing fields as ``(missing)``, shortened."""
+    import json
+
+    from helios.schema import shorten
+
+    if value is _MISSING:
+        return "(missing)"
+    try:
+        text = json.dumps(value, sort_keys=True)
+    except (TypeError, ValueError):
+        text = repr(value)
+    return shorten(text, VALUE_CHARS)
+
+
+# ------------------------------------------------------------------------------------------------
+# Two runs
+# ------------------------------------------------------------------------------------------------
+@dataclass
+class RunDiff:
+    compared: list[str]                                   # episode ids compared, sorted
+    differing: dict[str, list[tuple[str, object, object]]]
+    only_a: list[str]
+    only_b: list[str]
+    config: list[tuple[str, object, object]] = field(default_factory=list)
+    cpu: tuple[tuple[str, ...], tuple[str, ...]] = ((), ())
+    shared: int = 0                                       # episodes both runs have (compared or not)
+
+    @property
+    def identical(self) -> int:
+        return len(self.compared) - len(self.differing)
+
+
+def parse_ignore(text: str) -> frozenset[str]:
+    """``--ignore``'s comma-separated dotted paths; CliError for an empty one or stray spaces."""
+    from helios.schema import short_repr
+    from tools.cli import CliError
+
+    if not text.strip():
+        return frozenset()
+    paths = [p.strip() for p in text.split(",")]
+    for p in paths:
+        if not p:
+            raise CliError(f"--ignore {short_repr(text)} has an empty field name (two commas, or one at an end)")
+        if any(c.isspace() for c in p) or p.startswith(".") or p.endswith(".") or ".." in p:
+            raise CliError(f"--ignore: {short_repr(p)} is not a dotted field path such as extra.decisions")
+    return frozenset(paths)
+
+
+def diff_runs(a, b, episodes: int | None = None, ignore: frozenset[str] = frozenset()) -> RunDiff:
+    """Compare two loaded runs (``tools.report.Run``) on the episodes both have (the first
+    ``episodes`` of them by id). The records' nondeterministic fields (wall time, memory, recording
+    path: ``tasks.trials.NONDETERMINISTIC_FIELDS``) are always left out; CliError when the runs
+    share no episode or an ``ignore`` path names nothing in either run."""
+    from helios.schema import short_repr
+    from tasks.trials import NONDETERMINISTIC_FIELDS
+    from tools.cli import CliError
+
+    ra = {r["episode_id"]: r for r in a.records}
+    rb = {r["episode_id"]: r for r in b.records}
+    shared = sorted(set(ra) & set(rb))
+    if not shared:
+        raise CliError(f"runs {a.name!r} and {b.name!r} share no finished episode ({a.name}: {_span(sorted(ra))}; "
+                       f"{b.name}: {_span(sorted(rb))}): nothing to compare")
+    compared = shared if episodes is None else shared[:episodes]
+    known = set()
+    for eid in compared:
+        known |= paths_of(ra[eid]) | paths_of(rb[eid])
+    for p in sorted(ignore):
+        if p not in known:
+            raise CliError(f"--ignore {short_repr(p)} names no field of the compared records (fields look like "
+                           f"metrics.find_obj, extra.decisions, config_fingerprint)")
+    skip = frozenset(ignore) | frozenset(NONDETERMINISTIC_FIELDS)
+    differing = {}
+    for eid in compared:
+        d = differences(ra[eid], rb[eid], skip)
+        if d:
+            differing[eid] = sorted(d, key=lambda item: (_rank(item[0]), item[0]))
+    cfg_a = {k: v for k, v in a.config.items() if k not in CONFIG_ASIDE}
+    cfg_b = {k: v for k, v in b.config.items() if k not in CONFIG_ASIDE}
+    config = differences(cfg_a, cfg_b) if a.config and b.config else []
+    return RunDiff(compared, differing, sorted(set(ra) - set(rb)), sorted(set(rb) - set(ra)), config, (a.cpu, b.cpu),
+                   len(shared))
+
+
+def _rank(path: str) -> int:
+    """Outcomes first (metrics, success, simulated time), then the rest, bookkeeping last."""
+    if path.startswith("metrics.") or path in ("success", "sim_time", "error"):
+        return 0
+    if path.startswith("extra."):
+        return 2
+    return 3 if path == "config_fingerprint" else 1
+
+
+def _span(ids: list[str]) -> str:
+    if not ids:
+        return "none"
+    return f"{len(ids)} episode{'s' if len(ids) != 1 else ''}" + (f", {ids[0]}" if len(ids) == 1 else
+                                                                   f", {ids[0]} .. {ids[-1]}")
+
+
+def _fields(diffs: list[tuple[str, object, object]], limit: int = MAX_FIELDS_LISTED) -> str:
+    shown = "; ".join(f"{p}: {show_value(x)} / {show_value(y)}" for p, x, y in diffs[:limit])
+    more = f"; and {len(diffs) - limit} more" if len(diffs) > limit else ""
+    return shown + more
+
+
+def describe_run(run) -> str:
+    cfg = run.config or {}
+    commit = str(cfg.get("git_commit") or "unknown")[:10]
+    agent = cfg.get("agent") or (run.records[0].get("agent") if run.records else None) or "unknown"
+    cpu = " | ".join(run.cpu) if run.cpu else "not recorded"
+    return f"{run.path}: {len(run.records)} episodes, agent {agent}, commit {commit}, CPU code paths {cpu}"
+
+
+def report_lines(a, b, diff: RunDiff, show: int = MAX_EPISODES_LISTED) -> list[str]:
+    """The printed report: what was compared, what differs, where to look."""
+    lines = [f"A  {describe_run(a)}", f"B  {describe_run(b)}"]
+    if not (a.config and b.config):
+        lines.append("configurations: not compared (a run folder has no readable config.yaml)")
+    elif diff.config:
+        lines.append(f"configurations differ in {len(diff.config)} field(s) (A / B): {_fields(diff.config, 8)}")
+    else:
+        lines.append("configurations: the same (the number of episodes, version and commit aside)")
+    if diff.cpu[0] and diff.cpu[1] and diff.cpu[0] != diff.cpu[1]:
+        lines.append("CPU code paths differ between the runs: outcomes can differ for that reason alone "
+                     "(README, \"One CPU code path\")")
+    n, shared = len(diff.compared), diff.shared
+    which = f"the {n} episode{'s' if n != 1 else ''} both runs have" if n == shared else \
+        f"the first {n} of the {shared} episodes both runs have"
+    span = f" ({diff.compared[0]})" if n == 1 else f" ({diff.compared[0]} .. {diff.compared[-1]})"
+    lines.append(f"compared: {which}{span}, field by field (wall time, memory and recording paths aside)")
+    lines.append(f"identical: {diff.identical} of {len(diff.compared)}")
+    if diff.differing:
+        lines.append(f"different: {len(diff.differing)} (A / B)")
+        for eid in list(diff.differing)[:show]:
+            d = diff.differing[eid]
+            lines.append(f"  {eid}: {len(d)} field(s) differ: {_fields(d)}")
+        if len(diff.differing) > show:
+            lines.append(f"  ... and {len(diff.differing) - show} more episode(s) (--show to list them)")
+        counts: dict[str, int] = {}
+        for d in diff.differing.values():
+            for p in {_top(p) for p, _x, _y in d}:
+                counts[p] = counts.get(p, 0) + 1
+        lines.append("fields that differ, in how many episodes: "
+                     + ", ".join(f"{p} {n}" for p, n in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))))
+    lines.append(f"only in A: {_span(diff.only_a)}; only in B: {_span(diff.only_b)}")
+    return lines
+
+
+def _top(path: str) -> str:
+    """A field path cut to its first two levels (``extra.decisions.gaze_point_visits`` ->
+    ``extra.decisions``), so the summary counts groups of fields."""
+    parts = path.split("[")[0].split(".")
+    return ".".join(parts[:2])
+
+
+def run(args: argparse.Namespace) -> int:
+    import sys
+
+    from tools.cli import CliError
+    from tools.report import load_run
+
+    if args.episodes is not None and args.episodes <= 0:
+        raise CliError(f"--episodes must be a positive number of episodes, got {args.episodes}")
+    if args.show < 0:
+        raise CliError(f"--show must be 0 or more, got {args.show}")
+    ignore = parse_ignore(args.ignore)
+    warnings: list[str] = []
+    a = load_run(args.run_a, warnings=warnings)
+    b = load_run(args.run_b, warnings=warnings)
+    diff = diff_runs(a, b, args.episodes, ignore)
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    print("\n".join(report_lines(a, b, diff, args.show)))
+    return 1 if diff.differing else 0
