@@ -164,7 +164,7 @@ def diff_runs(a, b, episodes: int | None = None, ignore: frozenset[str] = frozen
     for eid in compared:
         d = differences(ra[eid], rb[eid], skip)
         if d:
-            differing[eid] = sorted(d, key=lambda item: (_rank(item[0]), item[0]))
+            differing[eid] = outcomes_first(d)
     cfg_a = {k: v for k, v in a.config.items() if k not in CONFIG_ASIDE}
     cfg_b = {k: v for k, v in b.config.items() if k not in CONFIG_ASIDE}
     config = differences(cfg_a, cfg_b) if a.config and b.config else []
@@ -172,8 +172,14 @@ def diff_runs(a, b, episodes: int | None = None, ignore: frozenset[str] = frozen
                    len(shared))
 
 
+def outcomes_first(diffs: list[tuple[str, object, object]]) -> list[tuple[str, object, object]]:
+    """``differences`` in the order a reader wants them: outcomes (metrics, success, simulated
+    time, error) first, then the rest of the record, then ``extra``, the configuration's
+    fingerprint last; by path within each."""
+    return sorted(diffs, key=lambda item: (_rank(item[0]), item[0]))
+
+
 def _rank(path: str) -> int:
-    """Outcomes first (metrics, success, simulated time), then the rest, bookkeeping last."""
     if path.startswith("metrics.") or path in ("success", "sim_time", "error"):
         return 0
     if path.startswith("extra."):
