@@ -371,6 +371,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("diff-episodes-word", ["diff", R + "valid", R + "valid", "--episodes", "ten"], "invalid int value"),
     ("diff-show-negative", ["diff", R + "valid", R + "valid", "--show", "-1"], "--show must be"),
     ("diff-one-run", ["diff", R + "valid"], "the following arguments are required"),
+    ("diff-tolerance-negative", ["diff", R + "valid", R + "valid", "--tolerance=-1e-9"], "--tolerance must be"),
+    ("diff-tolerance-nan", ["diff", R + "valid", R + "valid", "--tolerance", "nan"], "--tolerance must be"),
     ("report-pick-limit-zero", [*REPORT, "--pick-limits", "0", "--out", "{ws}/new_rep"], "0 is outside [1, 1000]"),
     ("report-pick-limit-word", [*REPORT, "--pick-limits", "1,five", "--out", "{ws}/new_rep"], "'five' is not a whole"),
     ("report-pick-limit-twice", [*REPORT, "--pick-limits", "5,1,5", "--out", "{ws}/new_rep"], "5 is given twice"),

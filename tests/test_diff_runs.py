@@ -51,6 +51,15 @@ def test_differences_walk_nested_records_leaf_by_leaf():
     assert math.isnan(differences({"n": float("nan")}, {"n": 0.0})[0][1])
 
 
+def test_a_tolerance_lets_last_bit_rounding_through_and_nothing_else():
+    a = {"t": 512.25, "z": -1.0967893389286918e-05, "n": 600, "ok": True}
+    b = {"t": 512.25 * (1 + 3e-13), "z": -1.0967893389286e-05, "n": 601, "ok": True}
+    assert [p for p, _, _ in differences(a, b)] == ["n", "t", "z"]
+    assert [p for p, _, _ in differences(a, b, tolerance=1e-9)] == ["n"]              # a count is never close
+    assert [p for p, _, _ in differences({"z": 0.0}, {"z": 1e-7}, tolerance=1e-9)] == ["z"]   # near zero: absolute 1e-12
+    assert differences({"ok": True}, {"ok": 1}, tolerance=0.5) == [("ok", True, 1)]
+
+
 def test_identical_runs_exit_0_and_wall_time_and_memory_do_not_count(tmp_path):
     a = _run(tmp_path / "a", 4)
     b = _run(tmp_path / "b", 4, changes={1: lambda r: r.update(wall_time=99.0, memory={"peak_rss_mb": 1.0})})
@@ -82,6 +91,9 @@ def test_a_changed_outcome_is_named_with_both_values_and_exit_1(tmp_path):
     rc, out, _ = run_cli(["diff", str(a), str(b), "--ignore",
                           "metrics.place,metrics.success,metrics.failure_reason,success,extra.decisions"])
     assert rc == 0 and "identical: 5 of 5" in out
+    # a tolerance does not hide a changed outcome, and says it was used
+    rc, out, _ = run_cli(["diff", str(a), str(b), "--tolerance", "1e-6"])
+    assert rc == 1 and "numbers within 1e-06 (relative) count as equal" in out and "identical: 3 of 5" in out
     # only the first N shared episodes
     rc, out, _ = run_cli(["diff", str(a), str(b), "--episodes", "2"])
     assert rc == 0 and "compared: the first 2 of the 5 episodes both runs have (val-00000 .. val-00001)" in out

@@ -33,6 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ignore", default="", metavar="FIELD[,FIELD...]",
                         help="dotted record fields to leave out (and everything under them), e.g. "
                              "config_fingerprint,extra.start_receptacle.viewed")
+    parser.add_argument("--tolerance", type=float, default=0.0, metavar="REL",
+                        help="numbers within this relative tolerance count as equal (default 0: exact; e.g. 1e-9 "
+                             "to see only what grew past last-bit rounding)")
     parser.add_argument("--show", type=int, default=MAX_EPISODES_LISTED, metavar="K",
                         help=f"differing episodes to list one by one (default {MAX_EPISODES_LISTED})")
 
@@ -43,36 +46,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 _MISSING = object()
 
 
-def _same_leaf(a, b) -> bool:
-    """Exact equality of two JSON leaves, with NaN equal to NaN and a bool never equal to a number
-    (JSON keeps the difference; Python's ``True == 1`` does not); 1 and 1.0 are the same number."""
+def _same_leaf(a, b, tolerance: float = 0.0) -> bool:
+    """Equality of two JSON leaves, with NaN equal to NaN and a bool never equal to a number (JSON
+    keeps the difference; Python's ``True == 1`` does not); 1 and 1.0 are the same number. Two
+    numbers within ``tolerance`` of each other, relative to the larger, count as equal (0: exact)."""
     if isinstance(a, bool) or isinstance(b, bool):
         return type(a) is type(b) and a == b
     if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
         return True
+    if tolerance > 0 and isinstance(a, (int, float)) and isinstance(b, (int, float)):
+        return math.isclose(a, b, rel_tol=tolerance, abs_tol=tolerance * 1e-3)
     return a == b
 
 
-def differences(a, b, ignore: frozenset[str] = frozenset(), path: str = "") -> list[tuple[str, object, object]]:
+def differences(a, b, ignore: frozenset[str] = frozenset(), path: str = "",
+                tolerance: float = 0.0) -> list[tuple[str, object, object]]:
     """(dotted path, value in a, value in b) for every leaf where two JSON values differ; a key
     present on one side only reads as missing on the other. Lists differ element by element when
-    they have the same length, else as a whole. Paths in ``ignore`` are skipped with all below."""
+    they have the same length, else as a whole. Paths in ``ignore`` are skipped with all below;
+    numbers within ``tolerance`` (relative) of each other are the same (see ``_same_leaf``)."""
     if path in ignore:
         return []
     if isinstance(a, dict) and isinstance(b, dict):
         out = []
         for key in sorted(set(a) | set(b), key=str):
             sub = f"{path}.{key}" if path else str(key)
-            out += differences(a.get(key, _MISSING), b.get(key, _MISSING), ignore, sub)
+            out += differences(a.get(key, _MISSING), b.get(key, _MISSING), ignore, sub, tolerance)
         return out
     if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
         out = []
         for i, (x, y) in enumerate(zip(a, b)):
-            out += differences(x, y, ignore, f"{path}[{i}]")
+            out += differences(x, y, ignore, f"{path}[{i}]", tolerance)
         return out
     if a is _MISSING or b is _MISSING or isinstance(a, (dict, list)) or isinstance(b, (dict, list)):
         return [] if a == b and a is not _MISSING else [(path, a, b)]
-    return [] if _same_leaf(a, b) else [(path, a, b)]
+    return [] if _same_leaf(a, b, tolerance) else [(path, a, b)]
 
 
 def paths_of(value, path: str = "") -> set[str]:
@@ -114,6 +122,7 @@ class RunDiff:
     config: list[tuple[str, object, object]] = field(default_factory=list)
     cpu: tuple[tuple[str, ...], tuple[str, ...]] = ((), ())
     shared: int = 0                                       # episodes both runs have (compared or not)
+    tolerance: float = 0.0                                # relative; 0 = exact
 
     @property
     def identical(self) -> int:
@@ -136,7 +145,8 @@ def parse_ignore(text: str) -> frozenset[str]:
     return frozenset(paths)
 
 
-def diff_runs(a, b, episodes: int | None = None, ignore: frozenset[str] = frozenset()) -> RunDiff:
+def diff_runs(a, b, episodes: int | None = None, ignore: frozenset[str] = frozenset(),
+              tolerance: float = 0.0) -> RunDiff:
     """Compare two loaded runs (``tools.report.Run``) on the episodes both have (the first
     ``episodes`` of them by id). The records' nondeterministic fields (wall time, memory, recording
     path: ``tasks.trials.NONDETERMINISTIC_FIELDS``) are always left out; CliError when the runs
@@ -162,14 +172,14 @@ def diff_runs(a, b, episodes: int | None = None, ignore: frozenset[str] = frozen
     skip = frozenset(ignore) | frozenset(NONDETERMINISTIC_FIELDS)
     differing = {}
     for eid in compared:
-        d = differences(ra[eid], rb[eid], skip)
+        d = differences(ra[eid], rb[eid], skip, tolerance=tolerance)
         if d:
             differing[eid] = outcomes_first(d)
     cfg_a = {k: v for k, v in a.config.items() if k not in CONFIG_ASIDE}
     cfg_b = {k: v for k, v in b.config.items() if k not in CONFIG_ASIDE}
     config = differences(cfg_a, cfg_b) if a.config and b.config else []
     return RunDiff(compared, differing, sorted(set(ra) - set(rb)), sorted(set(rb) - set(ra)), config, (a.cpu, b.cpu),
-                   len(shared))
+                   len(shared), tolerance)
 
 
 def outcomes_first(diffs: list[tuple[str, object, object]]) -> list[tuple[str, object, object]]:
@@ -224,7 +234,8 @@ def report_lines(a, b, diff: RunDiff, show: int = MAX_EPISODES_LISTED) -> list[s
     which = f"the {n} episode{'s' if n != 1 else ''} both runs have" if n == shared else \
         f"the first {n} of the {shared} episodes both runs have"
     span = f" ({diff.compared[0]})" if n == 1 else f" ({diff.compared[0]} .. {diff.compared[-1]})"
-    lines.append(f"compared: {which}{span}, field by field (wall time, memory and recording paths aside)")
+    exact = "" if not diff.tolerance else f"; numbers within {diff.tolerance:g} (relative) count as equal"
+    lines.append(f"compared: {which}{span}, field by field (wall time, memory and recording paths aside{exact})")
     lines.append(f"identical: {diff.identical} of {len(diff.compared)}")
     if diff.differing:
         lines.append(f"different: {len(diff.differing)} (A / B)")
@@ -260,11 +271,13 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--episodes must be a positive number of episodes, got {args.episodes}")
     if args.show < 0:
         raise CliError(f"--show must be 0 or more, got {args.show}")
+    if not (math.isfinite(args.tolerance) and 0.0 <= args.tolerance < 1.0):
+        raise CliError(f"--tolerance must be a relative tolerance in [0, 1), got {args.tolerance}")
     ignore = parse_ignore(args.ignore)
     warnings: list[str] = []
     a = load_run(args.run_a, warnings=warnings)
     b = load_run(args.run_b, warnings=warnings)
-    diff = diff_runs(a, b, args.episodes, ignore)
+    diff = diff_runs(a, b, args.episodes, ignore, args.tolerance)
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
     print("\n".join(report_lines(a, b, diff, args.show)))
