@@ -79,7 +79,7 @@ def differences(a, b, ignore: frozenset[str] = frozenset(), path: str = "",
             out += differences(x, y, ignore, f"{path}[{i}]", tolerance)
         return out
     if a is _MISSING or b is _MISSING or isinstance(a, (dict, list)) or isinstance(b, (dict, list)):
-        return [] if a == b and a is not _MISSING else [(path, a, b)]
+        return [(path, a, b)]          # a side missing, or shapes that differ (dict against list, lengths)
     return [] if _same_leaf(a, b, tolerance) else [(path, a, b)]
 
 
@@ -163,7 +163,7 @@ def diff_runs(a, b, episodes: int | None = None, ignore: frozenset[str] = frozen
                        f"{b.name}: {_span(sorted(rb))}): nothing to compare")
     compared = shared if episodes is None else shared[:episodes]
     known = set()
-    for eid in compared:
+    for eid in compared if ignore else ():
         known |= paths_of(ra[eid]) | paths_of(rb[eid])
     for p in sorted(ignore):
         if p not in known:

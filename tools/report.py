@@ -426,15 +426,9 @@ def budget_rows(runs: list[Run], budgets: tuple[float, ...]) -> tuple[list[str],
 
 def budget_summary(run: Run, budgets: tuple[float, ...]) -> dict:
     """{budget s: {phase: percent reached within it}} for report.json (phases without times left out)."""
-    out: dict = {}
-    for t in budgets:
-        cells = {}
-        for key, name in BUDGET_PHASES:
-            times = _phase_times(run, key)
-            if times:
-                cells[name] = 100.0 * sum(reached_within(times, t).values()) / len(times)
-        out[f"{t:g}"] = cells
-    return out
+    phase_times = {name: times for key, name in BUDGET_PHASES if (times := _phase_times(run, key))}
+    return {f"{t:g}": {name: 100.0 * sum(reached_within(times, t).values()) / len(times)
+                       for name, times in phase_times.items()} for t in budgets}
 
 
 def budget_curve(times: dict[str, float], grid: np.ndarray) -> np.ndarray:
