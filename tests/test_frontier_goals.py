@@ -13,10 +13,12 @@ import numpy as np
 
 from helios.agents.config import AgentConfig
 from helios.agents.body import MAX_GAZE_YAW, UNSEEN_SIDE_NO_TURN, Body
-from helios.agents.frontier_goals import frontier_options, unseen_bearing
+from helios.agents.frontier_goals import StallWatch, frontier_options, unseen_bearing
 from helios.agents.helios_agent import HeliosAgent
 from helios.maps.frontiers import Frontier
 from helios.maps.grid import GridGeometry
+from helios.config import OccupancyConfig
+from helios.maps.occupancy import OccupancyGrid
 from helios.planning.fmm import PlanResult
 from helios.search.objective import FrontierOption
 from robots.hal import SE2Pose
@@ -108,10 +110,17 @@ class _Objective:
         pass
 
 
+class _GridMap:
+    def __init__(self, occupancy):
+        self.occupancy = occupancy
+
+
 def _agent(config: AgentConfig, body: _Body) -> HeliosAgent:
     agent = HeliosAgent.__new__(HeliosAgent)
     agent.config, agent.body, agent.observer, agent.log = config, body, _Observer(), []
     agent.reached, agent.unreachable, agent.last_frontier, agent.stats = [], [], None, Counter()
+    agent.stall = StallWatch(config) if config.stall_steps else None
+    agent.observer.map = _GridMap(OccupancyGrid(OccupancyConfig(grid_size=400, cell_size=0.05, origin_xy=(-10.0, -10.0))))
     options, agent._frontier_cells = frontier_options([LINE], "table", GEO, [], [], config)
     return agent, options[0]
 
@@ -179,6 +188,57 @@ def test_blocked_at_the_first_step_marks_the_frontier_unreachable_instead_of_loo
     agent, option = _agent(OFF, body)
     agent._explore(None, option, _Objective())
     assert agent.unreachable == []
+
+
+def test_stall_watch_counts_steps_towards_one_frontier_that_end_in_one_place_and_see_nothing_new():
+    """``AgentConfig.stall_steps``: after a first step, ``stall_steps`` more towards the same
+    frontier that end within ``stall_radius`` of it and see under ``stall_new_area`` of new floor
+    give the frontier up; a step that sees new floor, ends elsewhere or heads for another frontier
+    starts the count again."""
+    grid = OccupancyGrid(OccupancyConfig(grid_size=400, cell_size=0.05, origin_xy=(-10.0, -10.0)))
+    grid.mark_seen((0.0, 0.0), 1.0)
+    config = replace(AgentConfig(), stall_steps=3)
+    watch, f = StallWatch(config), (3.0, 0.0)
+    assert [watch.stalled(f, (0.1 * (i % 2), 0.0), grid) for i in range(4)] == [0, 0, 0, 3]
+    assert [watch.stalled(f, (0.0, 0.0), grid) for _ in range(4)] == [0, 0, 0, 3]   # afresh after giving up
+    # new floor (a disc of 0.3 m radius: 0.28 m^2 >= stall_new_area) between steps restarts the count
+    watch = StallWatch(config)
+    got = [watch.stalled(f, (0.0, 0.0), grid) for _ in range(3)]
+    grid.mark_seen((-3.0, -3.0), 0.3)
+    got += [watch.stalled(f, (0.0, 0.0), grid) for _ in range(3)]
+    assert got == [0, 0, 0, 0, 0, 0] and watch.stalled(f, (0.0, 0.0), grid) == 3
+    # a little new floor (0.2 m radius: 0.13 m^2) does not
+    watch = StallWatch(config)
+    got = [watch.stalled(f, (0.0, 0.0), grid) for _ in range(2)]
+    grid.mark_seen((-5.0, -5.0), 0.2)
+    assert got + [watch.stalled(f, (0.0, 0.0), grid) for _ in range(2)] == [0, 0, 0, 3]
+    # ending elsewhere, or a step towards another frontier, restarts it
+    watch = StallWatch(config)
+    assert [watch.stalled(f, (0.0, 0.0), grid) for _ in range(3)] == [0, 0, 0]
+    assert watch.stalled(f, (0.0, 0.6), grid) == 0 and watch.stalled((3.0, 1.0), (0.0, 0.6), grid) == 0
+    assert [watch.stalled((3.0, 1.0), (0.0, 0.6), grid) for _ in range(3)] == [0, 0, 3]
+
+
+def test_a_frontier_walked_at_without_getting_anywhere_is_given_up_after_stall_steps():
+    """The loop of train-00086: each step towards the frontier ends where the last one did (the
+    robot walks up to a wall and steps back to give the arm room) and sees nothing new. With
+    ``stall_steps`` = 4 the fifth such step marks the frontier unreachable; with 0 (default) the
+    robot keeps at it."""
+    stuck = SE2Pose(0.4, 0.05, 0.0)
+    for steps, given_up_after in ((4, 5), (0, None)):
+        body = _Body([_plan(waypoints=[stuck], reaches=False) for _ in range(8)])
+        agent, option = _agent(replace(AgentConfig(), stall_steps=steps), body)
+        for n in range(1, 9):
+            agent._explore(None, option, _Objective())
+            if agent.unreachable:
+                break
+        assert (n if agent.unreachable else None) == given_up_after
+        if given_up_after:
+            assert np.allclose(agent.unreachable[0], LINE.xy) and agent.observer.changes == 1
+            assert agent.log[-1] == f"frontier ({LINE.xy[0]:.1f}, {LINE.xy[1]:.1f}): 5 steps without progress, given up"
+            assert frontier_options([LINE], "table", GEO, agent.reached, agent.unreachable, agent.config)[0] == []
+        else:
+            assert body.looks == 8 and agent.reached == []
 
 
 def test_a_plan_blocked_at_the_first_step_steps_aside_before_giving_up_on_the_frontier():

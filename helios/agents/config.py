@@ -213,6 +213,28 @@ class AgentConfig:
     (default): give up on the goal at once, which ends some "not found" episodes early with "no
     path: blocked" for every goal. Measured with the other exploration fixes; see
     ``frontier_parts``."""
+    stall_steps: int = 6
+    """Give up on a frontier (mark it unreachable) when, after a step towards it, this many more
+    steps in a row towards it each end within ``stall_radius`` of where that first one ended and
+    together add less than ``stall_new_area`` of explored floor (``frontier_goals.StallWatch``);
+    0: never (the behaviour before 2026-12-04). Why: an
+    exploration step can repeat itself for the rest of the episode: walk towards a frontier beside
+    a wall, step back to give the arm room (``make_room``), look over floor already seen, choose
+    the same frontier again. Of the 25 timeouts among the first 100 train episodes, train-00020,
+    -00058, -00086 and -00092 spent 26 to 138 such steps in a row (up to 450 s of the 600), and
+    train-00022 114 steps of the planner's shuffle loop (see ``planner.blocked_without_progress``).
+    Most loops end by themselves within a few rounds (the robot drifts until the arm has room):
+    a guard that fired after two such steps changed 18 of those 100 records and cost 3 successes,
+    so the count to give up after is set well above the few rounds a loop that ends needs. With 6,
+    on those 100 train episodes (decided there) 6 records changed: the five loops above end "not
+    found" (4) or in a failed grasp of the target (train-00086, FindObj +1) instead of timing
+    out, and train-00099 times out instead of ending "not found" (the frontier given up was not
+    its last); timeouts 21 against 25, every other metric the same."""
+    stall_radius: float = 0.5
+    """See ``stall_steps``: how far (m) from where the first of the stalled steps ended the
+    others may end."""
+    stall_new_area: float = 0.25
+    """See ``stall_steps``: explored floor (m^2) the stalled steps may add between them."""
     face_unseen: bool = True
     """Looking from a frontier (on arrival, or when every part of it is within reach): face the
     never-seen side of the frontier nearest the robot (``frontier_goals.unseen_bearing`` within
@@ -283,6 +305,9 @@ class AgentConfig:
         require_range(self, "unstick_distance", 0.0, 3.0)
         require_range(self, "gaze_hop", 0.0, 10.0)
         require_range(self, "fresh_view_distance", 0.0, 10.0)
+        require_range(self, "stall_steps", 0, 100000)
+        require_range(self, "stall_radius", 0.0, 10.0, lo_open=True)
+        require_range(self, "stall_new_area", 0.0, 1000.0)
         require(self.local_search_views in ("all", "informative"),
                 f"local_search_views must be 'all' or 'informative', got {self.local_search_views!r}")
         require_range(self, "local_search_min_gain", 0.0, 1.0)

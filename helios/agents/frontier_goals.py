@@ -7,6 +7,7 @@ over the map and the agent's memory of places reached or found unreachable, not 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -17,6 +18,38 @@ from helios.search.objective import FrontierOption
 
 MAX_PARTS = 16
 """Cells sampled along a frontier as walking goals besides its centre."""
+
+
+@dataclass
+class StallWatch:
+    """Counts the exploration steps in a row towards one frontier that get nowhere: each ends
+    within ``AgentConfig.stall_radius`` of where the first of them ended, and together they see
+    less than ``stall_new_area`` of new floor (see ``AgentConfig.stall_steps``). A step towards
+    another frontier (centre farther than ``frontier_blacklist_radius``), one that ends elsewhere
+    or one that sees new floor starts the count again from that step."""
+
+    config: AgentConfig
+    _first: tuple[np.ndarray, np.ndarray, int] | None = None   # frontier, where it ended, explored cells
+    _count: int = 0
+
+    def stalled(self, frontier_xy, here, occupancy) -> int:
+        """Note a step towards ``frontier_xy`` that ended at ``here``; the number of steps after
+        the first that got nowhere when that reaches ``stall_steps`` (the watch then starts
+        afresh), else 0."""
+        cfg = self.config
+        xy, here = np.asarray(frontier_xy, dtype=float)[:2], np.asarray(here, dtype=float)[:2]
+        seen = occupancy.explored_cells()
+        first = self._first
+        if first is None or np.linalg.norm(first[0] - xy) > cfg.frontier_blacklist_radius \
+                or np.linalg.norm(first[1] - here) > cfg.stall_radius \
+                or (seen - first[2]) * occupancy.geometry.cell_size ** 2 >= cfg.stall_new_area:
+            self._first, self._count = (xy, here, seen), 0
+            return 0
+        self._count += 1
+        if self._count < cfg.stall_steps:
+            return 0
+        count, self._first, self._count = self._count, None, 0
+        return count
 
 
 def frontier_options(frontiers, layer: str, geometry, reached: Sequence[np.ndarray],

@@ -45,7 +45,7 @@ from helios.agents.activities import ACTIVITIES, DECISION_COUNTS  # noqa: F401  
 from helios.agents.body import Body
 from helios.agents.candidates import candidate_targets, is_candidate, still_candidate
 from helios.agents.config import AgentConfig
-from helios.agents.frontier_goals import frontier_options, revisit_goals
+from helios.agents.frontier_goals import StallWatch, frontier_options, revisit_goals
 from helios.agents.geometry import away_from, facing, fresh_views, gaze_cameras
 from helios.agents.observer import Observer
 from helios.agents.pick import pick
@@ -122,6 +122,7 @@ class HeliosAgent:
         self.revisited: list[np.ndarray] = []
         self._frontier_cells: dict[int, np.ndarray] = {}
         self.last_frontier: np.ndarray | None = None
+        self.stall = StallWatch(self.config) if self.config.stall_steps else None
         self._logged = 0
         self.decisions = 0
         self.activity = "start_scan"
@@ -373,6 +374,11 @@ class HeliosAgent:
                 and not body.unstick(robot):
             self._mark_unreachable(frontier.xy)     # blocked at the first step: never loop on it
             self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}): no way forward")
+        elif self.stall is not None and not arrived and \
+                (n := self.stall.stalled(frontier.xy, body.xy(), self.map.occupancy)):
+            self._mark_unreachable(frontier.xy)     # see AgentConfig.stall_steps
+            self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}): "
+                            f"{n + 1} steps without progress, given up")
 
     def _revisit(self, robot: RobotBackend, layer: str) -> bool:
         """No frontier left: walk to the most promising seen place (highest value-map score for

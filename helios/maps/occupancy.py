@@ -51,6 +51,11 @@ class OccupancyGrid:
         ``FootprintChecker.of_known_region`` relies on that."""
         return self._bounds
 
+    def explored_cells(self) -> int:
+        """How many cells have been seen (counted inside ``explored_bounds``)."""
+        b = self._bounds
+        return 0 if b is None else int(np.count_nonzero(self.explored[b[0]:b[1], b[2]:b[3]]))
+
     def integrate_depth(self, depth: np.ndarray, intrinsics: CameraIntrinsics,
                         T_world_cam: np.ndarray) -> GroundView:
         """Project one depth frame and add it; returns the view for the value maps."""
