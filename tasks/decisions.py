@@ -18,6 +18,9 @@ and the scripted demo do not, and their runs read "n/a"):
     visits that took their view (the walk arrived, the body faced the location and the arm had
     room). Records made before the views were counted lack it; a run with such a record reports
     None for it.
+    ``frontiers_given_up``: frontiers marked unreachable because the steps towards them got
+    nowhere (``AgentConfig.stall_steps``: the robot ended each where the last one ended and saw no
+    new floor); counted since 2026-12-04, None for a run with an older record.
     ``local_search_sizes``: per candidate pick location searched, the gaze points planned for it.
 ``extra["start_receptacle"]`` (the runner's ground-truth check, ``EpisodeJudge.start_receptacle_truth``)
     Of the global decisions with open candidates (``decisions``), in how many the start receptacle
@@ -74,8 +77,9 @@ def summarize_decisions(records: Iterable[dict]) -> dict | None:
         return None
     n = len(stats)
     totals = {k: int(sum(int(d.get(k, 0) or 0) for d in stats)) for k in DECISION_COUNTS}
-    if any("gaze_point_views" not in d for d in stats):      # counted since 2026-12-03 only
-        totals["gaze_point_views"] = None
+    for key in ("gaze_point_views", "frontiers_given_up"):     # counted since 2026-12-03 / -04 only
+        if any(key not in d for d in stats):
+            totals[key] = None
     sizes = [int(s) for d in stats for s in (d.get("local_search_sizes") or [])]
     planned = ({"mean": float(statistics.fmean(sizes)), "median": float(statistics.median(sizes)),
                 "max": max(sizes)} if sizes else None)

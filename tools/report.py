@@ -453,7 +453,7 @@ def decision_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
             "chose_candidate_after_f0", "chose_frontier_after_f0", "extra_views_object", "extra_views_goal")
     headers = ["run", "episodes", "with candidates", "cand. before F0", "frontier before F0", "cand. after F0",
                "frontier after F0", "extra views obj", "extra views goal", "local searches",
-               "gaze pts/search mean", "median", "max", "gaze pt visits", "with a view"]
+               "gaze pts/search mean", "median", "max", "gaze pt visits", "with a view", "frontiers given up"]
     rows = []
     for r in runs:
         d = summarize_decisions(r.records)
@@ -471,7 +471,7 @@ def decision_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
                     + ([f"{planned['mean']:.1f}", f"{planned['median']:g}", str(planned["max"])] if planned
                        else ["-", "-", "-"])
                     + [cell(tot["gaze_point_visits"], per["gaze_point_visits"])]
-                    + ["-" if tot["gaze_point_views"] is None else cell(tot["gaze_point_views"], per["gaze_point_views"])])
+                    + ["-" if tot[k] is None else cell(tot[k], per[k]) for k in ("gaze_point_views", "frontiers_given_up")])
     return headers, rows
 
 

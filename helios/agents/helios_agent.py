@@ -167,9 +167,10 @@ class HeliosAgent:
         """What the agent decided this episode, for the trial report: global decisions made with
         open candidates and how many chose a candidate or a frontier before / after F0 was
         calibrated on a chosen frontier, extra views the Psi' rule asked for, the gaze points of
-        each local search (planned), visited and those that took their view, and ``global_choices``:
-        per decision with open candidates, those offered (``[id, x, y]``, world metres), the one chosen
-        (None: a frontier) and its search's ``views``, which the runner checks and then drops."""
+        each local search (planned), visited and those that took their view, frontiers given up
+        (``AgentConfig.stall_steps``), and ``global_choices``: per decision with open candidates,
+        those offered (``[id, x, y]``, world metres), the one chosen (None: a frontier) and its
+        search's ``views``, which the runner checks and then drops."""
         out = {k: int(self.stats.get(k, 0)) for k in DECISION_COUNTS}
         out["local_search_sizes"] = list(self.local_search_sizes)
         if self.config.flags.object_map:      # agents without candidates (trusting) have nothing to check
@@ -374,9 +375,9 @@ class HeliosAgent:
                 and not body.unstick(robot):
             self._mark_unreachable(frontier.xy)     # blocked at the first step: never loop on it
             self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}): no way forward")
-        elif self.stall is not None and not arrived and \
-                (n := self.stall.stalled(frontier.xy, body.xy(), self.map.occupancy)):
+        elif self.stall and not arrived and (n := self.stall.stalled(frontier.xy, body.xy(), self.map.occupancy)):
             self._mark_unreachable(frontier.xy)     # see AgentConfig.stall_steps
+            self.stats["frontiers_given_up"] += 1
             self.log.append(f"frontier ({frontier.xy[0]:.1f}, {frontier.xy[1]:.1f}): "
                             f"{n + 1} steps without progress, given up")
 
