@@ -53,6 +53,10 @@ from typing import Iterable
 
 from helios.agents.activities import ACTIVITIES, DECISION_COUNTS
 
+COUNTED_LATER = ("gaze_point_views", "frontiers_given_up")
+"""Decision counts that records made before 2026-12-03 / -04 lack: a run with such a record
+totals None for them (unknown), never a 0 that would read as "none"."""
+
 # ACTIVITIES: table order; activities not in it follow in the order they appear.
 
 
@@ -77,7 +81,7 @@ def summarize_decisions(records: Iterable[dict]) -> dict | None:
         return None
     n = len(stats)
     totals = {k: int(sum(int(d.get(k, 0) or 0) for d in stats)) for k in DECISION_COUNTS}
-    for key in ("gaze_point_views", "frontiers_given_up"):     # counted since 2026-12-03 / -04 only
+    for key in COUNTED_LATER:
         if any(key not in d for d in stats):
             totals[key] = None
     sizes = [int(s) for d in stats for s in (d.get("local_search_sizes") or [])]

@@ -447,7 +447,7 @@ def decision_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     """Per run, what the search policy decided (``tasks.decisions`` says what each number means):
     global decisions with open candidates and their choice before / after F0 calibration, extra
     views the Psi' rule asked for, local searches with their planned gaze points and the visits."""
-    from tasks.decisions import summarize_decisions
+    from tasks.decisions import COUNTED_LATER, summarize_decisions
 
     keys = ("global_with_candidates", "chose_candidate_before_f0", "chose_frontier_before_f0",
             "chose_candidate_after_f0", "chose_frontier_after_f0", "extra_views_object", "extra_views_goal")
@@ -471,7 +471,7 @@ def decision_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
                     + ([f"{planned['mean']:.1f}", f"{planned['median']:g}", str(planned["max"])] if planned
                        else ["-", "-", "-"])
                     + [cell(tot["gaze_point_visits"], per["gaze_point_visits"])]
-                    + ["-" if tot[k] is None else cell(tot[k], per[k]) for k in ("gaze_point_views", "frontiers_given_up")])
+                    + ["-" if tot[k] is None else cell(tot[k], per[k]) for k in COUNTED_LATER])
     return headers, rows
 
 

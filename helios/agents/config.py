@@ -217,12 +217,12 @@ class AgentConfig:
     """Give up on a frontier (mark it unreachable) when, after a step towards it, this many more
     steps in a row towards it each end within ``stall_radius`` of where that first one ended and
     together add less than ``stall_new_area`` of explored floor (``frontier_goals.StallWatch``);
-    0: never (the behaviour before 2026-12-04). Why: an
-    exploration step can repeat itself for the rest of the episode: walk towards a frontier beside
-    a wall, step back to give the arm room (``make_room``), look over floor already seen, choose
-    the same frontier again. Of the 25 timeouts among the first 100 train episodes, train-00020,
-    -00058, -00086 and -00092 spent 26 to 138 such steps in a row (up to 450 s of the 600), and
-    train-00022 114 steps of the planner's shuffle loop (see ``planner.blocked_without_progress``).
+    0: never (the behaviour before 2026-12-04). Why: an exploration step can repeat itself for
+    the rest of the episode: walk towards a frontier beside a wall, step back to give the arm
+    room (``make_room``), look over floor already seen, choose the same frontier again. Of the
+    25 timeouts among the first 100 train episodes, train-00020, -00058, -00086 and -00092
+    spent 26 to 138 such steps in a row (up to 450 s of the 600), and train-00022 114 steps of
+    the planner's shuffle loop (see ``planner.blocked_without_progress``).
     Most loops end by themselves within a few rounds (the robot drifts until the arm has room):
     a guard that fired after two such steps changed 18 of those 100 records and cost 3 successes,
     so the count to give up after is set well above the few rounds a loop that ends needs. With 6,

@@ -26,7 +26,8 @@ class StallWatch:
     within ``AgentConfig.stall_radius`` of where the first of them ended, and together they see
     less than ``stall_new_area`` of new floor (see ``AgentConfig.stall_steps``). A step towards
     another frontier (centre farther than ``frontier_blacklist_radius``), one that ends elsewhere
-    or one that sees new floor starts the count again from that step."""
+    or one that brings the new floor since the first to ``stall_new_area`` starts the count again
+    from that step."""
 
     config: AgentConfig
     _first: tuple[np.ndarray, np.ndarray, int] | None = None   # frontier, where it ended, explored cells
