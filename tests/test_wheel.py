@@ -21,6 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # Non-Python files under the package directories that are not read at run time (none ship).
 NOT_RUNTIME = {
     "tools/setup_env.sh": "creates the development .venv (the Makefile's setup step)",
+    "tools/gpu_checks.sh": "the CUDA checks, run by hand from a checkout on a CUDA machine (README, GPU)",
 }
 BUILD_LITTER = {"__pycache__", ".pytest_cache"}
 
