@@ -152,3 +152,68 @@ def test_reach_distances_shrink_for_high_and_low_targets():
     assert d_low.max() < d_mid.max()
     assert d_mid.min() >= reach.min_standoff and c_mid < d_mid.max()
     assert len(d_mid) == 5 and np.all(np.diff(d_mid) >= 0)
+
+
+# ------------------------------------------------------------------------------ bumps while turning
+def test_a_stop_in_a_turn_in_place_is_told_from_a_stop_on_a_straight_stretch():
+    """``turn_in_progress``: a walk turns in place, then goes straight. train-00018's walk (turn
+    to 90 degrees, 15 cm north, turn to 0) stopped at 63.6 degrees, still at its start: a turn of
+    +26.4 degrees was left. Stopped between two places: None. At the far place, having arrived
+    heading north, the turn left is to 0 (the run's last heading), not back to north."""
+    from helios.agents.geometry import turn_in_progress
+
+    walk = [SE2Pose(3.1, 5.2, 1.5708), SE2Pose(3.1, 5.35, 1.5708), SE2Pose(3.1, 5.35, 0.0)]
+    assert turn_in_progress(SE2Pose(3.1, 5.2, 1.11), walk) == pytest.approx(1.5708 - 1.11)
+    assert turn_in_progress(SE2Pose(3.1, 5.27, 1.5708), walk) is None
+    assert turn_in_progress(SE2Pose(3.1, 5.35, 1.0), walk) == pytest.approx(-1.0)
+    assert turn_in_progress(SE2Pose(3.1, 5.2, 1.5708), walk[:2]) is None       # already faces it: moving on
+    assert turn_in_progress(SE2Pose(3.1, 5.2, 3.0), [SE2Pose(3.1, 5.2, -3.0)]) == pytest.approx(
+        2 * math.pi - 6.0)                                                          # the short way round
+
+
+def test_a_bump_while_turning_marks_the_unseen_part_of_the_turns_sweep():
+    """``mark_turn_bump``: the robot turning left (counter-clockwise) hit something; all floor is
+    seen except a patch behind its right hind corner, which a left turn swings into. The unseen
+    cells the next 10 degrees of the turn sweep are marked occupied (and seen), nothing inside the
+    body, nothing elsewhere in the patch; with every cell seen, the sweep outside the body."""
+    from helios.agents.body import mark_turn_bump
+    from helios.agents.geometry import body_rectangle, turn_sweep
+    from helios.config import OccupancyConfig
+    from helios.maps.occupancy import OccupancyGrid
+
+    fp = FootprintConfig()
+    pose = SE2Pose(1.0, 2.0, 0.0)                      # facing +x: the right hind corner is at (-0.545, -0.215)
+    occ = OccupancyGrid(OccupancyConfig(grid_size=200, origin_xy=(-1.5, -0.5)))
+    occ.explored[:] = True
+    rows, cols = np.mgrid[0:200, 0:200]
+    xy = occ.geometry.cell_to_world(rows.ravel(), cols.ravel()).reshape(200, 200, 2)
+    patch = (xy[..., 0] < pose.x - 0.3) & (xy[..., 1] < pose.y - 0.1)   # unseen floor behind-right
+    occ.explored[patch] = False
+    n, which = mark_turn_bump(occ, pose, fp, math.radians(40))
+    assert which == "unseen"
+    marked = occ.obstacle
+    assert n == marked.sum() > 10
+    assert not (marked & ~patch).any()                 # only unseen cells
+    assert occ.explored[marked].all()
+    inside = np.zeros_like(marked)
+    for box in turn_sweep(pose, fp.body, math.radians(10), fp.margin + 0.025):   # + a cell: rasterised edges
+        inside |= _in_polygon(xy, box)
+    assert not (marked & ~inside).any()                # only within the next 10 degrees of the turn
+    assert not (marked & _in_polygon(xy, body_rectangle(pose, fp.body, fp.margin - 0.03))).any()
+    assert (patch & ~marked).sum() > 1000              # the rest of the patch stays unseen, not an obstacle
+    # the rear swings to the right in a left turn: the marks lie behind the body and to its right
+    assert (xy[marked][:, 0] < pose.x - 0.3).all() and (xy[marked][:, 1] < pose.y).all()
+    # everything seen: the map missed it; the sweep outside the body is marked instead
+    seen = OccupancyGrid(OccupancyConfig(grid_size=200, origin_xy=(-1.5, -0.5)))
+    seen.explored[:] = True
+    m, which = mark_turn_bump(seen, pose, fp, -math.radians(5))
+    assert which == "seen" and m == seen.obstacle.sum() > 10
+    assert not (seen.obstacle & _in_polygon(xy, body_rectangle(pose, fp.body, fp.margin - 0.03))).any()
+
+
+def _in_polygon(xy: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Points (..., 2) inside a convex polygon (P, 2) listed counter-clockwise."""
+    inside = np.ones(xy.shape[:-1], dtype=bool)
+    for a, b in zip(poly, np.roll(poly, -1, axis=0)):
+        inside &= (b[0] - a[0]) * (xy[..., 1] - a[1]) - (b[1] - a[1]) * (xy[..., 0] - a[0]) >= -1e-9
+    return inside

@@ -19,7 +19,7 @@ import numpy as np
 
 from helios.agents.config import AgentConfig
 from helios.agents.frontier_goals import unseen_bearing
-from helios.agents.geometry import approach_poses
+from helios.agents.geometry import approach_poses, body_rectangle, turn_in_progress, turn_sweep
 from helios.agents.observer import Observer
 from helios.planning.fmm import FMMPlanner, PlannerConfig, PlanResult
 from helios.planning.footprint import FootprintChecker
@@ -34,6 +34,7 @@ UNSEEN_SIDE_NO_TURN = math.radians(45)
 heading, so the wider side view (60 degrees further) stays within ``MAX_GAZE_YAW``."""
 
 HOP_EXTRA_MARGIN = 0.05
+TURN_BUMP_SWEEP = math.radians(10)      # the part of an interrupted turn in place a bump is put in
 """Metres added to the footprint's margin for a straight hop (``Body.hop``): planned paths keep
 to the middle of free space (FMM^2), a hop only to its own sweep, so it asks for more room."""
 
@@ -168,7 +169,13 @@ class Body:
 
     def _mark_bump(self, waypoints: Sequence[SE2Pose]) -> None:
         """The walk ran into something the map does not show: put an obstacle just beyond the
-        footprint in the direction the body was moving, so the next plan goes around it."""
+        footprint in the direction the body was moving, so the next plan goes around it (a turn
+        in place: see ``AgentConfig.turn_bumps``)."""
+        turn = turn_in_progress(self.pose, waypoints) if self.config.turn_bumps == "sweep" else None
+        if turn is not None:
+            n, which = mark_turn_bump(self.map.occupancy, self.pose, self.config.planner.footprint, turn)
+            self.log.append(f"bumped into something while turning: {n} {which} cells of its sweep marked occupied")
+            return
         here = np.array([self.pose.x, self.pose.y])
         for wp in waypoints:
             step = np.array([wp.x, wp.y]) - here
@@ -462,3 +469,15 @@ def _offsets_nearest_first(limit: float) -> list[tuple[float, float]]:
     steps = np.arange(-limit, limit + 1e-9, 0.1)
     offsets = [(dx, dy) for dx in steps for dy in steps if 0 < math.hypot(dx, dy) <= limit + 1e-9]
     return sorted(offsets, key=lambda o: math.hypot(*o))
+
+
+def mark_turn_bump(occupancy, pose: SE2Pose, footprint, turn: float) -> tuple[int, str]:
+    """A turn in place stopped at ``pose`` on a collision, ``turn`` rad short of its heading: the
+    thing it hit lies in what the body (with the footprint's margin) would sweep over the next
+    ``TURN_BUMP_SWEEP``. Mark the never-seen cells there occupied, or, when the map had seen all
+    of them (something it missed), the whole of that sweep outside the body; returns the count
+    and which ("unseen" or "seen")."""
+    sweep = turn_sweep(pose, footprint.body, math.copysign(min(abs(turn), TURN_BUMP_SWEEP), turn), footprint.margin)
+    here = body_rectangle(pose, footprint.body, footprint.margin)
+    n = occupancy.mark_polygons(sweep, keep_out=here)
+    return (n, "unseen") if n else (occupancy.mark_polygons(sweep, keep_out=here, unseen_only=False), "seen")

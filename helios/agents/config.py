@@ -205,6 +205,16 @@ class AgentConfig:
     episodes (README, "Exploration that gives up early"): "not found" 14 against 19, but FindObj
     53 against 55 (+5 -7) and SR 11 against 11 (+6 -6), timeouts 35 against 33; the episodes
     that no longer give up run out of time or fail later instead, so the defaults stay."""
+    turn_bumps: Literal["sweep", "ahead"] = "ahead"
+    """Where a walk that bumped into something while turning in place puts the obstacle it
+    missed. ``ahead`` (default, the earlier code): beyond the footprint in the direction of the
+    walk's next straight stretch, as for a bump while walking. ``sweep``: in the cells the body
+    would sweep over the next 10 degrees of the turn that no frame has seen (all of them when
+    every one was seen): a turn hits with a corner or a leg, often the rear swinging into floor
+    behind the body that the hand camera never saw. In train-00018 a turn's hind leg hit a counter
+    behind the robot; ``ahead`` put the obstacle on the free floor to its left, which with the
+    unseen counter behind it left no move but a 10 cm step back, and HELIOS gave up ("not found")
+    after 113 s with the object's receptacle chosen and never viewed."""
     unstick_distance: float = 0.0
     """When a plan is blocked at its first step (the path exists but the footprint cannot turn or
     step onto it: wedged beside furniture or in a doorway's corner), step straight, keeping the
@@ -303,6 +313,7 @@ class AgentConfig:
         require_range(self, "frontier_reach gaze_goal_radius", 0.0, 100.0, lo_open=True)
         require_range(self, "frontier_approach", 0.0, 100.0)
         require_range(self, "unstick_distance", 0.0, 3.0)
+        require(self.turn_bumps in ("sweep", "ahead"), f"turn_bumps must be 'sweep' or 'ahead', got {self.turn_bumps!r}")
         require_range(self, "gaze_hop", 0.0, 10.0)
         require_range(self, "fresh_view_distance", 0.0, 10.0)
         require_range(self, "stall_steps", 0, 100000)

@@ -103,3 +103,36 @@ def approach_poses(target, reach: ReachConfig, checker: FootprintChecker) -> np.
     order = np.argsort(np.abs(d - comfortable), kind="stable")
     order = order[free[order]]
     return poses[order]
+
+
+def body_rectangle(pose: SE2Pose, body: tuple[float, float, float, float], margin: float = 0.0) -> np.ndarray:
+    """World corners (4, 2) of the body box ``(x_min, x_max, y_min, y_max)`` in the body frame,
+    grown by ``margin``, at ``pose``."""
+    x0, x1, y0, y1 = body[0] - margin, body[1] + margin, body[2] - margin, body[3] + margin
+    local = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+    return local @ np.array([[c, s], [-s, c]]) + np.array([pose.x, pose.y])
+
+
+def turn_sweep(pose: SE2Pose, body: tuple[float, float, float, float], delta: float, margin: float = 0.0,
+               step: float = math.radians(2.0)) -> np.ndarray:
+    """The body boxes (K, 4, 2) a turn in place by ``delta`` rad passes through (every ``step``
+    and the end), without the one at ``pose``: their union is what the turn sweeps."""
+    n = max(1, int(math.ceil(abs(delta) / step)))
+    return np.stack([body_rectangle(SE2Pose(pose.x, pose.y, pose.yaw + delta * i / n), body, margin)
+                     for i in range(1, n + 1)])
+
+
+def turn_in_progress(pose: SE2Pose, waypoints, near: float = 0.02, tolerance: float = math.radians(2.0)):
+    """The signed turn (rad) a walk stopped in the middle of, or None when it stopped on a straight
+    stretch. The planner's walks turn in place, then go straight, so a turn is a run of waypoints
+    at one place (arrive, then face the next heading): when the robot stands at such a run
+    (within ``near`` m), it was turning to the last heading of the run, unless it already faces it."""
+    at = [math.hypot(wp.x - pose.x, wp.y - pose.y) <= near for wp in waypoints]
+    if True not in at:
+        return None
+    last = at.index(True)
+    while last + 1 < len(at) and at[last + 1]:
+        last += 1
+    left = math.remainder(waypoints[last].yaw - pose.yaw, 2 * math.pi)
+    return left if abs(left) > tolerance else None

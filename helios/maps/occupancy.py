@@ -7,6 +7,7 @@ a cell is an obstacle once ``obstacle_min_hits`` returns in the band have landed
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from helios.config import OccupancyConfig
@@ -134,6 +135,46 @@ class OccupancyGrid:
         box = (r0, r1, c0, c1)
         b = self._bounds or box
         self._bounds = (min(b[0], box[0]), max(b[1], box[1]), min(b[2], box[2]), max(b[3], box[3]))
+
+    def mark_polygons(self, polygons, keep_out=None, unseen_only: bool = True, height: float = 1.0) -> int:
+        """Declare the cells inside any of ``polygons`` ((K, P, 2) world x, y) occupied, except those
+        inside ``keep_out`` ((P, 2), e.g. where the body stands) and, with ``unseen_only``, those a
+        frame has seen; returns how many cells were marked. A turn that bumped into something hit
+        it inside the sweep of the body, and unless the map is wrong about seen floor, in the part
+        of the sweep nobody saw (:meth:`helios.agents.body.Body` after a collision)."""
+        geo = self.geometry
+        polys = np.asarray(polygons, dtype=float).reshape(-1, np.shape(polygons)[-2], 2)
+        pts = polys.reshape(-1, 2)
+        rows, cols = geo.world_to_cell(pts)
+        r0, r1 = max(int(rows.min()) - 1, 0), min(int(rows.max()) + 2, geo.size)
+        c0, c1 = max(int(cols.min()) - 1, 0), min(int(cols.max()) + 2, geo.size)
+        if r1 <= r0 or c1 <= c0:
+            return 0
+
+        def raster(poly_list) -> np.ndarray:
+            mask = np.zeros((r1 - r0, c1 - c0), dtype=np.uint8)
+            # OpenCV's pixel i has its centre at i; cell c spans [c, c + 1) cells from the origin
+            px = [np.stack([(p[:, 0] - geo.origin_x) / geo.cell_size - c0 - 0.5,
+                            (p[:, 1] - geo.origin_y) / geo.cell_size - r0 - 0.5], axis=1) for p in poly_list]
+            cv2.fillPoly(mask, [np.round(q * 16).astype(np.int32) for q in px], 1, shift=4)
+            return mask.astype(bool)
+
+        mark = raster(list(polys))
+        if keep_out is not None:
+            mark &= ~raster([np.asarray(keep_out, dtype=float)])
+        if unseen_only:
+            mark &= ~self.explored[r0:r1, c0:c1]
+        n = int(mark.sum())
+        if n:
+            self.revision += 1
+            self.obstacle_hits[r0:r1, c0:c1][mark] += self.cfg.obstacle_min_hits
+            self.obstacle[r0:r1, c0:c1] |= mark
+            self.explored[r0:r1, c0:c1] |= mark
+            self.max_height[r0:r1, c0:c1][mark] = np.maximum(self.max_height[r0:r1, c0:c1][mark], height)
+            box = (r0, r1, c0, c1)
+            b = self._bounds or box
+            self._bounds = (min(b[0], box[0]), max(b[1], box[1]), min(b[2], box[2]), max(b[3], box[3]))
+        return n
 
     def memory_bytes(self) -> int:
         return self.obstacle_hits.nbytes + self.obstacle.nbytes + self.explored.nbytes + self.max_height.nbytes
