@@ -209,6 +209,17 @@ def test_a_bump_while_turning_marks_the_unseen_part_of_the_turns_sweep():
     m, which = mark_turn_bump(seen, pose, fp, -math.radians(5))
     assert which == "seen" and m == seen.obstacle.sum() > 10
     assert not (seen.obstacle & _in_polygon(xy, body_rectangle(pose, fp.body, fp.margin - 0.03))).any()
+    # the whole sweep, however many body boxes it is made of (overlapping polygons filled in one
+    # call leave holes): every cell well inside a box and well outside the body is marked
+    for turn in (8, -8, 10, -20):
+        seen = OccupancyGrid(OccupancyConfig(grid_size=200, origin_xy=(-1.5, -0.5)))
+        seen.explored[:] = True
+        mark_turn_bump(seen, pose, fp, math.radians(turn))
+        deep = np.zeros_like(seen.obstacle)
+        for box in turn_sweep(pose, fp.body, math.radians(math.copysign(min(abs(turn), 10), turn)), fp.margin):
+            deep |= _in_polygon(xy, box)          # the next 10 degrees of the turn at most
+        deep &= ~_in_polygon(xy, body_rectangle(pose, fp.body, fp.margin + 0.03))
+        assert deep.sum() > 10 and seen.obstacle[deep].all(), turn
 
 
 def _in_polygon(xy: np.ndarray, poly: np.ndarray) -> np.ndarray:

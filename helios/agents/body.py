@@ -34,9 +34,11 @@ UNSEEN_SIDE_NO_TURN = math.radians(45)
 heading, so the wider side view (60 degrees further) stays within ``MAX_GAZE_YAW``."""
 
 HOP_EXTRA_MARGIN = 0.05
-TURN_BUMP_SWEEP = math.radians(10)      # the part of an interrupted turn in place a bump is put in
 """Metres added to the footprint's margin for a straight hop (``Body.hop``): planned paths keep
 to the middle of free space (FMM^2), a hop only to its own sweep, so it asks for more room."""
+
+TURN_BUMP_SWEEP = math.radians(10)
+"""The part of an interrupted turn in place (rad) in which a bump is marked (``mark_turn_bump``)."""
 
 
 class CheckerCache:

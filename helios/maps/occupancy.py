@@ -156,7 +156,8 @@ class OccupancyGrid:
             # OpenCV's pixel i has its centre at i; cell c spans [c, c + 1) cells from the origin
             px = [np.stack([(p[:, 0] - geo.origin_x) / geo.cell_size - c0 - 0.5,
                             (p[:, 1] - geo.origin_y) / geo.cell_size - r0 - 0.5], axis=1) for p in poly_list]
-            cv2.fillPoly(mask, [np.round(q * 16).astype(np.int32) for q in px], 1, shift=4)
+            for q in px:   # one at a time: one fillPoly call over overlapping polygons leaves holes
+                cv2.fillPoly(mask, [np.round(q * 16).astype(np.int32)], 1, shift=4)
             return mask.astype(bool)
 
         mark = raster(list(polys))
