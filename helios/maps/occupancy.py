@@ -127,14 +127,7 @@ class OccupancyGrid:
         if r1 <= r0 or c1 <= c0:
             return
         rr, cc = np.ogrid[r0:r1, c0:c1]
-        disc = (rr - r) ** 2 + (cc - c) ** 2 <= k * k
-        self.obstacle_hits[r0:r1, c0:c1][disc] += self.cfg.obstacle_min_hits
-        self.obstacle[r0:r1, c0:c1] |= disc
-        self.explored[r0:r1, c0:c1] |= disc
-        self.max_height[r0:r1, c0:c1][disc] = np.maximum(self.max_height[r0:r1, c0:c1][disc], height)
-        box = (r0, r1, c0, c1)
-        b = self._bounds or box
-        self._bounds = (min(b[0], box[0]), max(b[1], box[1]), min(b[2], box[2]), max(b[3], box[3]))
+        self._occupy(r0, r1, c0, c1, (rr - r) ** 2 + (cc - c) ** 2 <= k * k, height)
 
     def mark_polygons(self, polygons, keep_out=None, unseen_only: bool = True, height: float = 1.0) -> int:
         """Declare the cells inside any of ``polygons`` ((K, P, 2) world x, y) occupied, except those
@@ -168,14 +161,19 @@ class OccupancyGrid:
         n = int(mark.sum())
         if n:
             self.revision += 1
-            self.obstacle_hits[r0:r1, c0:c1][mark] += self.cfg.obstacle_min_hits
-            self.obstacle[r0:r1, c0:c1] |= mark
-            self.explored[r0:r1, c0:c1] |= mark
-            self.max_height[r0:r1, c0:c1][mark] = np.maximum(self.max_height[r0:r1, c0:c1][mark], height)
-            box = (r0, r1, c0, c1)
-            b = self._bounds or box
-            self._bounds = (min(b[0], box[0]), max(b[1], box[1]), min(b[2], box[2]), max(b[3], box[3]))
+            self._occupy(r0, r1, c0, c1, mark, height)
         return n
+
+    def _occupy(self, r0: int, r1: int, c0: int, c1: int, mask: np.ndarray, height: float) -> None:
+        """Cells of ``mask`` (the window rows r0:r1, cols c0:c1) become seen obstacles at least
+        ``height`` tall, with enough hits to stay so; the explored bounds grow to the window."""
+        self.obstacle_hits[r0:r1, c0:c1][mask] += self.cfg.obstacle_min_hits
+        self.obstacle[r0:r1, c0:c1] |= mask
+        self.explored[r0:r1, c0:c1] |= mask
+        self.max_height[r0:r1, c0:c1][mask] = np.maximum(self.max_height[r0:r1, c0:c1][mask], height)
+        box = (r0, r1, c0, c1)
+        b = self._bounds or box
+        self._bounds = (min(b[0], box[0]), max(b[1], box[1]), min(b[2], box[2]), max(b[3], box[3]))
 
     def memory_bytes(self) -> int:
         return self.obstacle_hits.nbytes + self.obstacle.nbytes + self.explored.nbytes + self.max_height.nbytes
