@@ -137,8 +137,7 @@ class OccupancyGrid:
         of the sweep nobody saw (:meth:`helios.agents.body.Body` after a collision)."""
         geo = self.geometry
         polys = np.asarray(polygons, dtype=float).reshape(-1, np.shape(polygons)[-2], 2)
-        pts = polys.reshape(-1, 2)
-        rows, cols = geo.world_to_cell(pts)
+        rows, cols = geo.world_to_cell(polys.reshape(-1, 2))
         r0, r1 = max(int(rows.min()) - 1, 0), min(int(rows.max()) + 2, geo.size)
         c0, c1 = max(int(cols.min()) - 1, 0), min(int(cols.max()) + 2, geo.size)
         if r1 <= r0 or c1 <= c0:
@@ -146,14 +145,13 @@ class OccupancyGrid:
 
         def raster(poly_list) -> np.ndarray:
             mask = np.zeros((r1 - r0, c1 - c0), dtype=np.uint8)
-            # OpenCV's pixel i has its centre at i; cell c spans [c, c + 1) cells from the origin
-            px = [np.stack([(p[:, 0] - geo.origin_x) / geo.cell_size - c0 - 0.5,
-                            (p[:, 1] - geo.origin_y) / geo.cell_size - r0 - 0.5], axis=1) for p in poly_list]
-            for q in px:   # one at a time: one fillPoly call over overlapping polygons leaves holes
+            for p in poly_list:   # one at a time: one fillPoly call over overlapping polygons leaves holes
+                # OpenCV's pixel i has its centre at i; cell c spans [c, c + 1) cells from the origin
+                q = (np.asarray(p) - (geo.origin_x, geo.origin_y)) / geo.cell_size - (c0 + 0.5, r0 + 0.5)
                 cv2.fillPoly(mask, [np.round(q * 16).astype(np.int32)], 1, shift=4)
             return mask.astype(bool)
 
-        mark = raster(list(polys))
+        mark = raster(polys)
         if keep_out is not None:
             mark &= ~raster([np.asarray(keep_out, dtype=float)])
         if unseen_only:
