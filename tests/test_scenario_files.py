@@ -61,6 +61,21 @@ def test_the_ablation_set_is_one_file_per_agent_of_make_compare():
     assert smoke == TrialConfig(agent="helios", split="smoke", episodes=20, seed=0)     # `make run`
 
 
+def test_the_poor_receptacle_pair_differs_from_the_ablation_rows_only_in_the_detector():
+    """The stress-test pair (README, "A poorer receptacle detector") must compare like with like:
+    each file is its ablation row's config with the same three receptacle parameters changed."""
+    from dataclasses import replace
+
+    from sim.perception.config import SimPerceptionConfig
+
+    poor = replace(SimPerceptionConfig(), receptacle_part_false_positive=1.0,
+                   score_false_positive_logit_receptacle=0.3, bad_view_receptacle=0.3)
+    for run in ("helios", "helios-no-global"):
+        _, cfg = load_trial_config(CONFIGS / f"val_{run}-poor-receptacles.yaml")
+        _, row = load_trial_config(CONFIGS / f"val_{run}.yaml")
+        assert cfg.perception == poor != row.perception
+        assert replace(cfg, perception=row.perception) == row
+
 def test_precedence_defaults_file_flags_then_key_value(tmp_path):
     path = tmp_path / "s.yaml"
     path.write_text("agent: helios\nsplit: val\nepisodes: 50\nseed: 3\nrunner:\n  max_sim_time: 120\n"
