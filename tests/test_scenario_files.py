@@ -61,8 +61,8 @@ def test_the_ablation_set_is_one_file_per_agent_of_make_compare():
     assert smoke == TrialConfig(agent="helios", split="smoke", episodes=20, seed=0)     # `make run`
 
 
-def test_the_poor_receptacle_pair_differs_from_the_ablation_rows_only_in_the_detector():
-    """The stress-test pair (README, "A poorer receptacle detector") must compare like with like:
+def test_the_poor_receptacle_runs_differ_from_the_ablation_rows_only_in_the_detector():
+    """The stress-test runs (README, "A poorer receptacle detector") must compare like with like:
     each file is its ablation row's config with the same three receptacle parameters changed."""
     from dataclasses import replace
 
@@ -70,7 +70,7 @@ def test_the_poor_receptacle_pair_differs_from_the_ablation_rows_only_in_the_det
 
     poor = replace(SimPerceptionConfig(), receptacle_part_false_positive=1.0,
                    score_false_positive_logit_receptacle=0.3, bad_view_receptacle=0.3)
-    for run in ("helios", "helios-no-global"):
+    for run in ("helios", "helios-no-global", "helios-5050"):
         _, cfg = load_trial_config(CONFIGS / f"val_{run}-poor-receptacles.yaml")
         _, row = load_trial_config(CONFIGS / f"val_{run}.yaml")
         assert cfg.perception == poor != row.perception
