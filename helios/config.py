@@ -276,6 +276,12 @@ class SearchConfig:
     """*paper* Measurement assumption of IG: every hypothetical view labels the candidate as the
     searched class (HELIOS), or 50 % that class / 50 % background (the ablation). The same
     assumption predicts Psi' for the decision rule (``DecisionConfig.view_prediction``)."""
+    candidate_gain: Literal["sum", "per_gaussian"] = "sum"
+    """IG of a candidate pick location in the objective: *paper* ``sum`` over the instance's
+    Gaussians (IG_a(a_i) = sum over theta_n in a_i), which makes S IG grow with how much of the
+    receptacle the map holds, so one seen small or from afar waits behind the frontiers; or
+    ``per_gaussian``, that sum divided by the instance's Gaussian count (an ablation of that size
+    bias, not the paper; F0 is built from the same values, so the frontiers' scale follows)."""
     frontier_choice: Literal["highest_value", "value_minus_distance"] = "highest_value"
     """How a search with no candidates to weigh (the trusting agent; every agent's place phase)
     picks a frontier: *paper* the one with the highest value-map score (ties to the nearest), or
@@ -296,6 +302,7 @@ class SearchConfig:
                 "frontier_choice must be 'highest_value' or 'value_minus_distance'")
         require(self.information_gain in ("optimistic", "fifty_fifty"),
                 "information_gain must be 'optimistic' or 'fifty_fifty'")
+        require(self.candidate_gain in ("sum", "per_gaussian"), "candidate_gain must be 'sum' or 'per_gaussian'")
 
 
 @dataclass(frozen=True)

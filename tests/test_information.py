@@ -146,6 +146,28 @@ def two_sided_map() -> tuple[GaussianMap, int]:
     return gmap, 7
 
 
+def test_candidate_gain_per_gaussian_takes_the_size_out_of_the_sum():
+    """SearchConfig.candidate_gain: the paper sums IG over an instance's Gaussians, so a candidate
+    the map holds twice as much of is worth twice as much; per_gaussian divides by the count."""
+    from helios.config import SearchConfig
+    from helios.search.information import views_information_gain
+
+    gmap, iid = two_sided_map()                           # 50 Gaussians, two sheets of 25
+    both = [look_at([1.0, 1.0, 1.0], [2.0, 1.0, 1.0]), look_at([1.0, -1.0, 1.0], [2.0, -1.0, 1.0])]
+    total = views_information_gain(gmap, iid, "table", CAM, both)
+    assert total > 0
+    assert views_information_gain(gmap, iid, "table", CAM, both, aggregate="per_gaussian") == pytest.approx(total / 50)
+    gmap.instance_ids[25:] = 8                            # the same sheets as two instances of 25
+    left, right = (views_information_gain(gmap, i, "table", CAM, both) for i in (7, 8))
+    assert left + right == pytest.approx(total) and left == pytest.approx(total / 2, rel=0.2)
+    assert views_information_gain(gmap, 7, "table", CAM, both, aggregate="per_gaussian") == pytest.approx(left / 25)
+    assert SearchConfig().candidate_gain == "sum"        # the paper's definition stays the default
+    with pytest.raises(ValueError, match="aggregate"):
+        views_information_gain(gmap, 7, "table", CAM, both, aggregate="mean")
+    with pytest.raises(ValueError, match="candidate_gain"):
+        SearchConfig(candidate_gain="mean")
+
+
 def test_informative_views_skip_repeats_and_blind_views_but_cover_every_side():
     from helios.search.information import informative_views, views_information_gain
 

@@ -310,7 +310,7 @@ class HeliosAgent:
                     continue
                 cams = gaze_cameras(views, self.body.body_height, self.config.view)
                 ig = views_information_gain(self.map.objects, inst.id, self.start_class, intr, cams,
-                                            self.method.search.information_gain)
+                                            self.method.search.information_gain, self.method.search.candidate_gain)
                 cands.append(CandidateLocation(inst.id, inst.centre, inst.class_scores[self.start_class], ig))
         frontiers = self._frontier_options(self.start_class)
         calibrated = self.pick_objective.calibrated

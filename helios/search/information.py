@@ -160,20 +160,24 @@ def _predicted(gmap: GaussianMap, idx: np.ndarray, target_class: str, delta: tor
 
 
 def views_information_gain(gmap: GaussianMap, instance_id: int, target_class: str, intrinsics: CameraIntrinsics,
-                           T_world_cams, assumption: str = "optimistic") -> float:
+                           T_world_cams, assumption: str = "optimistic", aggregate: str = "sum") -> float:
     """IG of one view from each pose together (the gaze points of a local search): the
     evidence of all views is added to one copy of the concentrations. ``assumption`` is
     ``optimistic`` (all views say ``target_class``) or ``fifty_fifty`` (expected IG when they all
-    say the class or all say background, 1/2 each)."""
+    say the class or all say background, 1/2 each). ``aggregate``: ``sum`` over the instance's
+    Gaussians (the paper) or ``per_gaussian`` (that sum over their count; ``SearchConfig.candidate_gain``)."""
     if assumption not in ("optimistic", "fifty_fifty"):
         raise ValueError(f"unknown information-gain assumption {assumption!r}")
+    if aggregate not in ("sum", "per_gaussian"):
+        raise ValueError(f"unknown information-gain aggregate {aggregate!r}")
     cls = gmap.classes.index(target_class)
     idx = gmap.instance_indices(instance_id)
     if idx.size == 0:
         return 0.0
     gamma = gmap.concentrations[torch.as_tensor(idx, device=gmap.device)]
     delta = _summed_evidence(gmap, instance_id, intrinsics, T_world_cams, idx.size)
-    return _views_gain(gamma, cls, gmap.classes.background_index, delta, assumption)
+    gain = _views_gain(gamma, cls, gmap.classes.background_index, delta, assumption)
+    return gain / idx.size if aggregate == "per_gaussian" else gain
 
 
 def _summed_evidence(gmap: GaussianMap, instance_id: int, intrinsics: CameraIntrinsics, T_world_cams,
