@@ -140,7 +140,11 @@ def test_true_and_false_receptacle_scores_overlap(furniture):
     right, wrong = np.array(right), np.array(wrong)
     assert len(right) > 200 and len(wrong) > 100
     assert np.median(right) > np.median(wrong) + 0.1
-    assert np.mean(right < 0.35) > 0.1 and np.mean(wrong >= 0.35) > 0.3
+    # Transient confusions are keyed by the backend's frame number, which depends on how many
+    # frames the module's shared fixture rendered before this test (xdist order): over 8 frame
+    # offsets the share of right labels under od_a was 0.085-0.133 and of wrong ones over it
+    # 0.61-0.69 (a 0.1 bound failed run alone), so the bounds say "a real share", not a rate.
+    assert np.mean(right < 0.35) > 0.05 and np.mean(wrong >= 0.35) > 0.3
 
 
 def test_ground_truth_mode_stays_perfect_for_receptacles(furniture):
