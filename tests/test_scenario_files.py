@@ -76,6 +76,7 @@ def test_the_poor_receptacle_runs_differ_from_the_ablation_rows_only_in_the_dete
         assert cfg.perception == poor != row.perception
         assert replace(cfg, perception=row.perception) == row
 
+
 def test_precedence_defaults_file_flags_then_key_value(tmp_path):
     path = tmp_path / "s.yaml"
     path.write_text("agent: helios\nsplit: val\nepisodes: 50\nseed: 3\nrunner:\n  max_sim_time: 120\n"

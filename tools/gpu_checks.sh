@@ -16,11 +16,12 @@ REC=${HELIOS_MAPS_RECORDING:-runs/bench_maps/sim_helios_val0_300f_320x240.npz}
 $PY -c "import torch, sys; sys.exit(0 if torch.cuda.is_available() else 1)" ||
   { echo "gpu_checks: torch sees no CUDA device here; nothing to check" >&2; exit 2; }
 failed=""   # every step runs; the exit status says whether any failed (or ran past its time limit: 124)
-timeout 120 $PY -m pytest -m gpu tests/test_maps_gpu.py -p no:cacheprovider -q -rA 2>&1 | tee "$OUT"/gpu_tests.txt ||
-  failed="$failed gpu-tests"
-timeout 240 $PY -m tools bench maps --maps-device both --maps-recording "$REC" 2>&1 | tee "$OUT"/bench_both.txt ||
-  failed="$failed bench-both"
-timeout 150 $PY -m tools bench maps --maps-device cuda --maps-recording "$REC" 2>&1 | tee "$OUT"/bench_cuda.txt ||
-  failed="$failed bench-cuda"
+step() {    # step NAME SECONDS COMMAND...: log to $OUT/NAME.txt, remember a failure
+  local name=$1 limit=$2; shift 2
+  timeout "$limit" "$@" 2>&1 | tee "$OUT/$name.txt" || failed="$failed $name"
+}
+step gpu_tests 120 $PY -m pytest -m gpu tests/test_maps_gpu.py -p no:cacheprovider -q -rA
+step bench_both 240 $PY -m tools bench maps --maps-device both --maps-recording "$REC"
+step bench_cuda 150 $PY -m tools bench maps --maps-device cuda --maps-recording "$REC"
 echo "gpu_checks: logs in $OUT"
 [ -z "$failed" ] || { echo "gpu_checks: failed:$failed" >&2; exit 1; }
