@@ -56,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--record", type=int, default=0, metavar="N",
                         help="write rerun recordings of the first N episodes to OUT/recordings/")
     parser.add_argument("--no-pictures", action="store_true",
-                        help="do not keep each episode's picture data (OUT/episodes/<id>.npz, tens of kB each; "
+                        help="do not keep each episode's picture data (OUT/episodes/<id>.npz, 40-140 kB each; "
                              "drawn by `tools report` as one page per episode)")
     parser.add_argument("--replace-stale", action="store_true",
                         help="if the run folder holds results of a different configuration or of another commit, "
