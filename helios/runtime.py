@@ -95,6 +95,16 @@ def _numpy_at_least_2_4() -> bool:
     return (major, minor) >= (2, 4)
 
 
+def check_cpu_choice(environ) -> str:
+    """``HELIOS_CPU`` as given in ``environ``: ``x86-64-v3`` (also when unset) or ``native``;
+    ValueError naming the variable otherwise."""
+    choice = environ.get(CPU_ENV_VAR, PORTABLE_LEVEL).strip().lower()
+    if choice not in (PORTABLE_LEVEL, "native"):
+        raise ValueError(f"{CPU_ENV_VAR} must be {PORTABLE_LEVEL} or native (or unset), "
+                         f"got {environ[CPU_ENV_VAR][:60]!r}")
+    return choice
+
+
 def cpu_pin_settings(flags: set[str], environ: dict[str, str], machine: str,
                      numpy_2_4: bool = True) -> tuple[dict[str, str], str]:
     """The environment variables that pin the libraries to ``PORTABLE_LEVEL`` on a CPU with
@@ -106,11 +116,8 @@ def cpu_pin_settings(flags: set[str], environ: dict[str, str], machine: str,
     AVX-512 targets are listed only where the CPU has AVX-512 (otherwise there is nothing to
     turn off) and never together with ``NPY_ENABLE_CPU_FEATURES`` (NumPy refuses both); targets
     already disabled in the environment are kept."""
-    choice = environ.get(CPU_ENV_VAR, PORTABLE_LEVEL).strip().lower()
-    if choice == "native":
+    if check_cpu_choice(environ) == "native":
         return {}, f"native ({CPU_ENV_VAR}=native)"
-    if choice != PORTABLE_LEVEL:
-        raise ValueError(f"{CPU_ENV_VAR} must be {PORTABLE_LEVEL} or native, got {environ[CPU_ENV_VAR]!r}")
     if machine.lower() not in ("x86_64", "amd64"):
         return {}, f"native (no pin for {machine} CPUs)"
     if not {"avx2", "fma"} <= flags:

@@ -186,3 +186,22 @@ def test_a_resume_on_other_code_paths_is_reported(tmp_path):
     report = BatchReport([])
     run_batch(config, load_split("smoke")[:3], tmp_path, report=report)
     assert report.cpu_changed == "native (HELIOS_CPU=native), numpy AVX512_ICL, torch AVX512"
+
+
+def test_a_bad_helios_cpu_is_one_error_line_for_every_command(monkeypatch, tmp_path):
+    """HELIOS_CPU is read when `tools` is imported (before NumPy loads); a value that is neither
+    x86-64-v3 nor native used to raise a ValueError traceback there, for every command, --help too.
+    Now every command ends with one `error:` line naming the variable, exit status 2, before any work."""
+    proc = _fresh_python("import runpy, sys; sys.argv = ['tools', 'trials', '--help']; "
+                         "runpy.run_module('tools', run_name='__main__')", **{CPU_ENV_VAR: "bogus"})
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert proc.stderr.splitlines() == [f"error: {CPU_ENV_VAR} must be x86-64-v3 or native (or unset), got 'bogus'"]
+    assert proc.stdout == ""
+
+    from cli_helpers import run_cli
+
+    monkeypatch.setenv(CPU_ENV_VAR, "avx512")
+    rc, out, err = run_cli(["trials", "--episodes", "1", "--out", str(tmp_path / "run")])
+    assert rc == 2 and err.splitlines() == [f"error: {CPU_ENV_VAR} must be x86-64-v3 or native (or unset), "
+                                            f"got 'avx512'"]
+    assert not (tmp_path / "run").exists()

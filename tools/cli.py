@@ -153,8 +153,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from helios.runtime import configure_threads
+    from helios.runtime import check_cpu_choice, configure_threads
 
+    try:
+        check_cpu_choice(os.environ)      # HELIOS_CPU (read when `tools` was imported, before NumPy)
+    except ValueError as exc:
+        print(f"error: {one_line(exc)}", file=sys.stderr)
+        return 2
     configure_threads(1)  # see helios.runtime: one native thread per process is fastest here
     parser = build_parser()
     args = parser.parse_args(argv)
