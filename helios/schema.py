@@ -235,10 +235,13 @@ def parse_overrides(overrides: Iterable[str]) -> list[tuple[str, Any]]:
         if not key:
             raise ConfigError(f"override {short_repr(item)} has an empty key")
         try:
-            value = yaml.safe_load(raw) if raw.strip() else ""
+            value = yaml.load(raw, Loader=UniqueKeyLoader) if raw.strip() else ""
         except yaml.YAMLError as exc:
             raise ConfigError(f"override {short_repr(item)}: cannot parse value "
                               f"({shorten(getattr(exc, 'problem', None) or exc, 100)})") from None
+        except (ValueError, TypeError, RecursionError) as exc:   # as yaml_load_text: a date out of range
+            raise ConfigError(f"override {short_repr(item)}: cannot parse value "     # (seed=2024-13-45), '!!float
+                              f"({shorten(exc, 100)})") from None                     # abc', deep nesting
         out.append((key, value))
     return out
 
@@ -292,10 +295,35 @@ def read_text(path: str | Path, what: str, error: type[Exception] = ConfigError)
                     f"is it the right file?") from None
 
 
+class UniqueKeyLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses a mapping holding the same key twice (PyYAML keeps the last
+    one silently: ``runner: {max_sim_time: 10}`` then ``runner: {max_commands: 5}`` would drop
+    max_sim_time). Keys brought in by a merge (``<<: *base``) may be overridden, as YAML intends."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen: dict = {}
+            for key_node, _ in node.value:
+                if not isinstance(key_node, yaml.ScalarNode) or key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=deep)
+                try:
+                    first = seen.setdefault(key, key_node)
+                except TypeError:                # an unhashable key: the base class says so
+                    continue
+                if first is not key_node:
+                    raise yaml.constructor.ConstructorError(
+                        "while constructing a mapping", node.start_mark,
+                        f"found duplicate key {short_repr(key, 60)} (first on line {first.start_mark.line + 1})",
+                        key_node.start_mark)
+        return super().construct_mapping(node, deep=deep)
+
+
 def yaml_load_text(text: str, what: str, error: type[Exception] = ConfigError):
-    """``yaml.safe_load`` whose errors are one line naming ``what`` and the line."""
+    """``yaml.safe_load`` (refusing duplicate keys: :class:`UniqueKeyLoader`) whose errors are one
+    line naming ``what`` and the line."""
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=UniqueKeyLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""

@@ -118,6 +118,7 @@ def ws(tmp_path_factory):
         "range.yaml": b"runner:\n  max_sim_time: -1\n",
         "camera.yaml": b"camera:\n  width: 0\n",
         "sdk.yaml": b"rpc_timeout: 0\n",
+        "duplicate.yaml": b"runner: {max_sim_time: 10}\nrunner: {max_commands: 5}\n",
     }
     for name, data in configs.items():
         (cfg / name).write_bytes(data)
@@ -470,6 +471,21 @@ CASES: list[tuple[str, list[str], str]] = [
      "p_detect_object must be"),
     ("no-command", [], "required"),
     ("unknown-command", ["trails"], "invalid choice"),
+    # config values (QA 2026-12-04)
+    ("override-date", [*T, "seed=2024-13-45"], "cannot parse value (month must be in 1..12)"),
+    ("override-float-tag", [*T, "runner.max_sim_time=!!float abc"], "cannot parse value"),
+    ("override-int-tag", [*T, "runner.max_commands=!!int abc"], "cannot parse value"),
+    ("override-nested", [*T, "seed=" + "[" * 50_000], "cannot parse value"),
+    ("override-duplicate-key", [*T, "agent_config={max_walk_chunks: 3, max_walk_chunks: 4}"],
+     "found duplicate key 'max_walk_chunks'"),
+    ("spot-set-date", [*SPOT, "--out", "{ws}/new_spot", "--set", "rpc_timeout=2024-13-45"], "cannot parse value"),
+    ("demo-float-tag", ["demo", "--no-record", "stream_hz=!!float abc"], "cannot parse value"),
+    ("tsdf-nested", ["tsdf", "smoke-00001", "voxel_size=" + "[" * 50_000, "--out", "{ws}/new_tsdf"],
+     "cannot parse value"),
+    ("calibrate-int-tag", ["calibrate-perception", "--out", "{ws}/new_cal", "min_pixels=!!int abc"],
+     "cannot parse value"),
+    ("cfg-duplicate-key", ["trials", "--config", C + "duplicate.yaml", "--out", "{ws}/new_run"],
+     "found duplicate key 'runner'"),
 ]
 
 
