@@ -486,6 +486,21 @@ CASES: list[tuple[str, list[str], str]] = [
      "cannot parse value"),
     ("cfg-duplicate-key", ["trials", "--config", C + "duplicate.yaml", "--out", "{ws}/new_run"],
      "found duplicate key 'runner'"),
+    ("perception-category-unknown", [*T, "--agent", "helios", "perception.category_difficulty={unicorn: 1.0}"],
+     "unknown category ('unicorn')"),
+    ("perception-category-oracle", [*T, "--agent", "oracle", "perception.category_difficulty={glas: 1.0}"],
+     "did you mean 'glass'"),
+    ("calibrate-category-unknown", ["calibrate-perception", "--views", "5", "--out", "{ws}/new_cal",
+                                    "category_difficulty={unicorn: 1.0}"], "unknown category ('unicorn')"),
+    ("perception-morph-huge", [*T, "perception.mask_morph_px=1000000000000"], "mask_morph_px must be in [0, 64]"),
+    ("calibrate-morph-huge", ["calibrate-perception", "--views", "5", "--group", "5", "--scenes", "1",
+                              "--out", "{ws}/new_cal", "mask_morph_px=100000"], "mask_morph_px must be in [0, 64]"),
+    ("perception-shift-huge", [*T, "perception.mask_shift_px=100000"], "mask_shift_px must be"),
+    ("perception-bins-huge", [*T, "perception.azimuth_bins=1000000000000"], "azimuth_bins must be in [1, 360]"),
+    ("perception-min-pixels-huge", [*T, "perception.min_pixels=1000000000000"], "min_pixels must be"),
+    ("perception-gt-pixels-huge", [*T, "perception.gt_min_pixels=1000000000000"], "gt_min_pixels must be"),
+    ("perception-distance-huge", [*T, "perception.distance_half_object=1.0e+12"], "distance_half_object must be"),
+    ("perception-edges-huge", [*T, "perception.distance_edges=[1.5, 1.0e+12]"], "distance_edges must lie in"),
 ]
 
 

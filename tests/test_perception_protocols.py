@@ -86,6 +86,47 @@ def test_configs_load_from_yaml_and_overrides_with_clear_errors(tmp_path):
         with_overrides(PerceptionConfig(), ["value_prompt=Seems like there is something ahead"])
 
 
+def test_every_simulated_perception_number_has_both_bounds():
+    """Not only -1e12 but also +1e12 is refused for every number of the simulated detector's
+    config (mask_morph_px=100000 used to reach OpenCV and run it out of memory; azimuth_bins,
+    min_pixels, gt_min_pixels took 1e12), and so for the elements of its lists and maps; category
+    names must be the simulator's (a typo was silently ignored by the oracle and failed HELIOS
+    episodes after the run folder was written)."""
+    import dataclasses
+    import typing
+
+    hints = typing.get_type_hints(SimPerceptionConfig)
+    numbers = [f.name for f in dataclasses.fields(SimPerceptionConfig) if hints[f.name] in (int, float)]
+    assert len(numbers) > 40
+    accepted = []
+    for name in numbers:
+        for value in (-10 ** 12, 10 ** 12):
+            try:
+                with_overrides(SimPerceptionConfig(), {name: hints[name](value)})
+                accepted.append((name, value))
+            except ConfigError:
+                pass
+    for name, value in (("elevation_edges_deg", [20.0, 1e12]), ("distance_edges", [1.5, 1e12]),
+                        ("bad_view_distance_scale", [0.8, 1.0, 1e12]), ("bad_view_elevation_scale", [1e12, 1.0, 0.9]),
+                        ("category_difficulty", {"glass": 1e12}), ("elevation_edges_deg", [-1e12, 45.0])):
+        try:
+            with_overrides(SimPerceptionConfig(), {name: value})
+            accepted.append((name, value))
+        except ConfigError:
+            pass
+    assert not accepted, accepted
+    with pytest.raises(ConfigError, match=r"mask_morph_px must be in \[0, 64\], got 100000"):
+        with_overrides(SimPerceptionConfig(), ["mask_morph_px=100000"])
+    with pytest.raises(ConfigError, match=r"unknown category \('unicorn'\)"):
+        with_overrides(SimPerceptionConfig(), ["category_difficulty={unicorn: 1.0}"])
+    with pytest.raises(ConfigError, match="did you mean 'glass'"):
+        with_overrides(SimPerceptionConfig(), ["category_difficulty={glas: 1.0}"])
+    # the defaults and the values the scenario files and the README use stay valid
+    with_overrides(SimPerceptionConfig(), ["mask_morph_px=64", "mask_shift_px=0", "azimuth_bins=360",
+                                           "category_difficulty={glass: 2.0, mug: 0.0}", "receptacle_part_false_positive=1.0",
+                                           "score_false_positive_logit_receptacle=0.3", "bad_view_receptacle=0.3"])
+
+
 def test_confusion_table_extends_the_catalogue_families_symmetrically():
     table = ConfusionTable(0.5)
     for fam in LOOKALIKES:

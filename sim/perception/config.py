@@ -38,7 +38,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
-from helios.schema import require, require_range
+from helios.schema import require, require_range, short_repr
 
 
 RECEPTACLE_TARGETS: dict[str, float] = {"precision": 0.65, "recall": 0.60, "tolerance": 0.05}
@@ -197,35 +197,52 @@ class SimPerceptionConfig:
     """Ground-truth mode: instances with at least this many visible pixels are detected."""
 
     def __post_init__(self) -> None:
-        probs = ("p_detect_object", "p_detect_receptacle", "bad_view_object", "bad_view_receptacle",
-                 "bad_view_true_label", "transient_confusion", "transient_confusion_receptacle", "part_false_positive",
-                 "distractor_false_positive", "receptacle_part_false_positive", "receptacle_part_unrelated",
-                 "mask_jitter", "min_score")
-        for name in probs:
-            v = getattr(self, name)
-            require(math.isfinite(v) and 0.0 <= v <= 1.0, f"{name} must be in [0, 1], got {v}")
-        positive = ("area_half", "area_slope", "distance_half_object", "distance_half_receptacle", "distance_width",
-                    "visible_half", "visible_half_receptacle", "visible_width", "foreshortening_half", "foreshortening_width", "part_size", "receptacle_part_size",
-                    "scorer_saturation_object", "scorer_saturation_receptacle")
-        for name in positive:
-            v = getattr(self, name)
-            require(math.isfinite(v) and v > 0, f"{name} must be > 0, got {v}")
-        require(self.azimuth_bins >= 1, f"azimuth_bins must be >= 1, got {self.azimuth_bins}")
-        for edges in ("elevation_edges_deg", "distance_edges"):
+        # Every number has a range: the lower bound is what the model needs, the upper bound what
+        # makes sense (camera images are at most 4096 x 4096 px, homes tens of metres across); an
+        # absurd value (mask_morph_px=100000 made OpenCV run out of memory) is refused here, before
+        # any work, naming the field.
+        require_range(self, "p_detect_object p_detect_receptacle bad_view_object bad_view_receptacle "
+                            "bad_view_true_label transient_confusion transient_confusion_receptacle "
+                            "part_false_positive distractor_false_positive receptacle_part_false_positive "
+                            "receptacle_part_unrelated mask_jitter min_score", 0.0, 1.0)
+        # image fractions and ratios
+        require_range(self, "area_half visible_half visible_half_receptacle visible_width foreshortening_half "
+                            "foreshortening_width scorer_saturation_object scorer_saturation_receptacle",
+                      0.0, 1.0, lo_open=True)
+        require_range(self, "area_slope", 0.0, 10.0, lo_open=True)          # natural-log units of area
+        require_range(self, "distance_half_object distance_half_receptacle distance_width", 0.0, 100.0,
+                      lo_open=True)                                         # m
+        require_range(self, "part_size receptacle_part_size", 0.0, 10.0, lo_open=True)      # m
+        require_range(self, "azimuth_bins", 1, 360)                         # 1-degree bins at the finest
+        require_range(self, "min_pixels gt_min_pixels", 1, 4096 * 4096)     # pixels of the largest image
+        require_range(self, "mask_morph_px mask_shift_px", 0, 64)           # px (a mask is a few dozen px)
+        require_range(self, "score_logit_std score_logit_std_receptacle", 0.0, 10.0)
+        require_range(self, "score_quality_gain", 0.0, 20.0)
+        require_range(self, "lookalike_weight_extra", 0.0, 100.0)
+        require_range(self, "scorer_lookalike_gain scorer_noise", 0.0, 1.0)
+        for edges, lo, hi in (("elevation_edges_deg", -90.0, 90.0), ("distance_edges", 0.0, 100.0)):
             e = getattr(self, edges)
+            require(all(lo <= v <= hi for v in e), f"{edges} must lie in [{lo:g}, {hi:g}], got {list(e)}")
             require(all(a < b for a, b in zip(e, e[1:])), f"{edges} must be increasing, got {e}")
         require(len(self.bad_view_distance_scale) == len(self.distance_edges) + 1,
                 f"bad_view_distance_scale needs {len(self.distance_edges) + 1} values (one per distance bin)")
         require(len(self.bad_view_elevation_scale) == len(self.elevation_edges_deg) + 1,
                 f"bad_view_elevation_scale needs {len(self.elevation_edges_deg) + 1} values (one per elevation bin)")
-        require(all(v >= 0 for v in (*self.bad_view_distance_scale, *self.bad_view_elevation_scale,
-                                     *self.category_difficulty.values())), "bad-view multipliers must be >= 0")
-        require(self.score_logit_std >= 0 and self.score_logit_std_receptacle >= 0 and self.score_quality_gain >= 0,
-                "score spreads must be >= 0")
-        require(self.min_pixels >= 1 and self.gt_min_pixels >= 1, "min_pixels and gt_min_pixels must be >= 1")
-        require(self.mask_morph_px >= 0 and self.mask_shift_px >= 0, "mask noise sizes must be >= 0")
-        require(self.lookalike_weight_extra >= 0 and self.scorer_lookalike_gain >= 0, "weights must be >= 0")
-        require(self.scorer_noise >= 0, "scorer_noise must be >= 0")
+        require(all(0 <= v <= 100 for v in (*self.bad_view_distance_scale, *self.bad_view_elevation_scale,
+                                             *self.category_difficulty.values())),
+                "bad-view multipliers (bad_view_distance_scale, bad_view_elevation_scale, category_difficulty) "
+                "must be in [0, 100]")
+        from sim.scenes.catalog import ALL_CATEGORIES     # (here: importing it loads PyBullet)
+
+        unknown = sorted(set(self.category_difficulty) - set(ALL_CATEGORIES))
+        if unknown:
+            import difflib
+
+            close = difflib.get_close_matches(unknown[0], ALL_CATEGORIES, n=1)
+            require(False, f"category_difficulty names {len(unknown)} unknown categor{'ies' if len(unknown) > 1 else 'y'}"
+                           f" ({', '.join(short_repr(c, 40) for c in unknown[:3])}{', ...' if len(unknown) > 3 else ''}"
+                           f"{f'; did you mean {close[0]!r}?' if close else ''}); the simulator's "
+                           f"{len(ALL_CATEGORIES)} categories are in sim/scenes/catalog.py")
         # logits beyond +-10 are scores of 0.99995 / 0.00005: no detector calibration needs them
         require_range(self, "score_correct_logit score_wrong_logit score_false_positive_logit "
                             "score_correct_logit_receptacle score_wrong_logit_receptacle "
