@@ -41,7 +41,7 @@ from helios.agents.config import AgentConfig
 from helios.config import HeliosConfig
 from helios.runtime import cpu_dispatch
 from helios.schema import (ConfigError, dump_yaml, from_dict, load_config, read_config_file, read_text, require,
-                           require_range, shorten, to_dict, yaml_load_text)
+                           require_range, short_repr, shorten, to_dict, yaml_load_text)
 from robots.spot.sim_backend import SimBackendConfig
 from sim.perception.config import SimPerceptionConfig
 from tasks.executors import WORKER_EPISODES
@@ -82,6 +82,31 @@ class TrialConfig:
         require(bool(self.agent.strip()), "agent must be a non-empty name")
         require_range(self, "episodes", 1, 10_000_000)
         require_range(self, "seed", 0, 2 ** 32 - 1)     # numpy seeds are non-negative
+        from sim.scenes.catalog import ALL_CATEGORIES
+
+        # A task's classes are categories of the simulator (tasks.spec); HELIOS's map refuses a
+        # task class named like its background class (helios.maps.classes.ClassSet.from_task), so
+        # such a background name would end every episode that names it on a MapInputError.
+        require(self.helios.background_class not in ALL_CATEGORIES,
+                f"helios.background_class {short_repr(self.helios.background_class, 40)} is a category of the "
+                f"simulator, which clashes with the task classes of the episodes that name it; use a name that "
+                f"is not a category (default 'other')")
+
+
+def check_devices(config: TrialConfig) -> None:
+    """ConfigError, before any work, when ``config`` asks for a torch device this machine lacks:
+    ``helios.device=cuda`` for a HELIOS agent (the oracle ignores ``helios``) without a CUDA
+    device. Its episodes would otherwise each end on that ConfigError, counted as failures."""
+    from helios.agents.variants import VARIANTS
+
+    if config.helios.device != "cuda" or config.agent.removesuffix("-gt") not in VARIANTS:
+        return
+    from helios.maps.hierarchical import resolve_device
+
+    try:
+        resolve_device("cuda")
+    except ConfigError as exc:
+        raise ConfigError(f"helios.device=cuda: {exc}") from None
 
 
 class RunFolderError(ValueError):

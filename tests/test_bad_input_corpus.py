@@ -492,6 +492,8 @@ CASES: list[tuple[str, list[str], str]] = [
      "did you mean 'glass'"),
     ("calibrate-category-unknown", ["calibrate-perception", "--views", "5", "--out", "{ws}/new_cal",
                                     "category_difficulty={unicorn: 1.0}"], "unknown category ('unicorn')"),
+    ("background-class-task", [*T, "--agent", "helios", "helios.background_class=cup"],
+     "background_class 'cup' is a category"),
     ("perception-morph-huge", [*T, "perception.mask_morph_px=1000000000000"], "mask_morph_px must be in [0, 64]"),
     ("calibrate-morph-huge", ["calibrate-perception", "--views", "5", "--group", "5", "--scenes", "1",
                               "--out", "{ws}/new_cal", "mask_morph_px=100000"], "mask_morph_px must be in [0, 64]"),

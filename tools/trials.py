@@ -125,8 +125,9 @@ def run(args: argparse.Namespace) -> int:
 
     from tasks.executors import check_address
     from tasks.registry import check_agent
-    from tasks.trials import (METRIC_NAMES, BatchReport, EpisodeSetupError, check_folder_layout, metrics_table_rows,
-                              move_aside, prepare_run_folder, read_results, run_batch, stale_results, summarize)
+    from tasks.trials import (METRIC_NAMES, BatchReport, EpisodeSetupError, check_devices, check_folder_layout,
+                              metrics_table_rows, move_aside, prepare_run_folder, read_results, run_batch,
+                              stale_results, summarize)
     from tools.cli import CliError, check_output_dir
     from tools.progress import Progress, format_duration
     from tools.tables import format_markdown, format_table
@@ -145,6 +146,8 @@ def run(args: argparse.Namespace) -> int:
         raise CliError("--address only applies to --executor ray")
     if args.executor == "ray":
         check_address(args.address)           # syntax, then a bounded wait for the head to answer
+    if args.executor == "local" or args.address == "local":
+        check_devices(config)                 # (a Ray cluster's workers may have the device this machine lacks)
     episodes = select_episodes(config)
     out = check_output_dir(args.out if args.out else default_out(config))
     if args.replace_stale:
