@@ -16,8 +16,16 @@ from typing import Iterable
 
 import numpy as np
 
-from helios.schema import require_range
+from helios.schema import ConfigValueError, require_range
 from robots.hal import Observation
+
+
+BYTES_PER_VOXEL = 20
+"""tsdf, weight and an RGB colour, float32 each (:class:`TsdfIntegrator`'s attributes)."""
+PREALLOCATION_LIMIT_BYTES = 4 * 2 ** 30
+"""The most a TSDF may preallocate for its voxel blocks (``block_count`` x ``block_resolution``^3
+voxels): 4 GiB, 25 times the default's 164 MB. block_count=10000000, inside its range, asked
+Open3D for 820 GB and died on a "CPU malloc failed" traceback."""
 
 
 @dataclass(frozen=True)
@@ -39,10 +47,22 @@ class TsdfConfig:
         require_range(self, "voxel_size", 0.001, 1.0)
         require_range(self, "block_resolution", 2, 64)
         require_range(self, "block_count", 1, 10_000_000)
+        need = self.preallocated_bytes()
+        if need > PREALLOCATION_LIMIT_BYTES:
+            most = PREALLOCATION_LIMIT_BYTES // (self.block_resolution ** 3 * BYTES_PER_VOXEL)
+            raise ConfigValueError(
+                f"block_count={self.block_count} blocks of {self.block_resolution}^3 voxels would preallocate "
+                f"{need / 2 ** 30:.1f} GiB ({BYTES_PER_VOXEL} bytes a voxel); at most "
+                f"{PREALLOCATION_LIMIT_BYTES // 2 ** 30} GiB is allowed, block_count <= {most} at this "
+                f"block_resolution (the map grows by itself as blocks are seen)")
         require_range(self, "depth_max", 0.0, 100.0, lo_open=True)
         require_range(self, "trunc_voxels", 0.0, 100.0, lo_open=True)
         require_range(self, "tolerance sample_spacing", 0.0, 1.0, lo_open=True)
         require_range(self, "weight_threshold", 0.0, 1e6)
+
+    def preallocated_bytes(self) -> int:
+        """What Open3D allocates up front for the voxel blocks (the hash map's own tables aside)."""
+        return self.block_count * self.block_resolution ** 3 * BYTES_PER_VOXEL
 
 
 class TsdfIntegrator:

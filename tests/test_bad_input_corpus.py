@@ -503,6 +503,10 @@ CASES: list[tuple[str, list[str], str]] = [
     ("perception-gt-pixels-huge", [*T, "perception.gt_min_pixels=1000000000000"], "gt_min_pixels must be"),
     ("perception-distance-huge", [*T, "perception.distance_half_object=1.0e+12"], "distance_half_object must be"),
     ("perception-edges-huge", [*T, "perception.distance_edges=[1.5, 1.0e+12]"], "distance_edges must lie in"),
+    ("tsdf-block-count-memory", ["tsdf", "smoke-00001", "block_count=10000000", "--out", "{ws}/new_tsdf"],
+     "would preallocate 762.9 GiB"),
+    ("tsdf-block-resolution-memory", ["tsdf", "smoke-00001", "block_resolution=64", "--out", "{ws}/new_tsdf"],
+     "block_count <= 819 at this block_resolution"),
 ]
 
 
