@@ -279,7 +279,8 @@ def move_aside(out: Path, stamp: str | None = None) -> Path:
 
 
 def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | None" = None,
-                       dry_run: bool = False) -> dict[str, dict]:
+                       dry_run: bool = False, episode_ids: Iterable[str] | None = None,
+                       episode_source: str = "the run's episodes") -> dict[str, dict]:
     """Create or reopen a run folder; returns the episodes already finished (by id).
 
     Reopening checks that the configuration is the one that made the results (results of
@@ -292,7 +293,9 @@ def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | No
 
     Damaged lines of episodes.jsonl (a torn last line after a kill, or any line that is not a
     valid record) are moved to ``episodes.damaged.jsonl``, never deleted; their episodes run
-    again. All checks happen before anything is written. ``report`` (a BatchReport) receives the
+    again; so are records of one episode that disagree (a re-run settles which is right) and, given
+    ``episode_ids`` (the episodes this configuration selects), records of other episodes (see
+    :func:`scan_results`). All checks happen before anything is written. ``report`` (a BatchReport) receives the
     fingerprint new records get, the saved commit and notes on what was repaired. ``dry_run``: only
     the checks (a command line refuses a folder before it creates or locks anything).
     """
@@ -305,9 +308,9 @@ def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | No
     except OSError as exc:
         raise RunFolderError(f"cannot create run folder {str(out)!r}: {exc.strerror or exc}") from None
     notes: list[str] = []
-    scan = scan_results(out / "episodes.jsonl")
+    scan = scan_results(out / "episodes.jsonl", episode_ids, episode_source)
     fps = {r.get(FINGERPRINT_FIELD) for r in scan.records.values()}
-    known = fps - {None}
+    known = scan.fingerprints() - {None}      # a damaged record of another configuration: a mix, never repaired
     cfg_path = out / "config.yaml"
     current = config_fingerprint(config)
     folder_fp, new_config_text, saved_commit, damaged_config = current, None, None, None
@@ -415,15 +418,32 @@ class ResultsScan:
     damaged: list[DamagedLine]
     good_lines: list[bytes]         # the valid lines as written, in order (duplicates included)
     legacy: int = 0                 # valid records without a configuration fingerprint
+    unused: list[dict] = field(default_factory=list)    # records among the damaged lines (disagreeing
+    # with another record of their episode, or of an episode not the run's): their fingerprints still
+    # say whether the folder mixes configurations
+
+    def fingerprints(self) -> set:
+        """The configuration fingerprints of every record in the file, damaged ones included (None:
+        a record without one); the records used are :attr:`records`."""
+        return {r.get(FINGERPRINT_FIELD) for r in [*self.records.values(), *self.unused]}
 
 
 def record_problem(record) -> str | None:
-    """Why a parsed line of episodes.jsonl is not a usable record, or None when it is."""
+    """Why a parsed line of episodes.jsonl is not a usable record, or None when it is. Besides the
+    numbers the tables use, the fields that name files (``episode_id``: the report's episode pages,
+    picture data, recordings) and those the episode pages draw (``collision_events``,
+    ``extra.decisions``, ``extra.activity_time``) must have their shapes."""
+    from helios.agents.activities import DECISION_COUNTS
+    from tasks.episodes import _ID as EPISODE_ID
+
     if not isinstance(record, dict):
         return f"a JSON {type(record).__name__}, not an episode record"
     eid = record.get("episode_id")
     if not isinstance(eid, str) or not eid:
         return "no episode_id"
+    if not EPISODE_ID.fullmatch(eid):
+        return (f"episode_id {shorten(repr(eid), 60)} is not an episode id (1-100 letters, digits, '-', '_' or '.'; "
+                f"it names files)")
 
     def number(v) -> bool:
         return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
@@ -451,8 +471,29 @@ def record_problem(record) -> str | None:
         return "success is not true/false"
     if record.get(FINGERPRINT_FIELD) is not None and not isinstance(record[FINGERPRINT_FIELD], str):
         return f"{FINGERPRINT_FIELD} is not a string"
-    if record.get("extra") is not None and not isinstance(record["extra"], dict):
+    events = record.get("collision_events")
+    if events is not None:
+        if not isinstance(events, list) or not all(isinstance(c, dict) for c in events):
+            return "collision_events is not a list of objects"
+        if not all(c.get("time") is None or number(c["time"]) for c in events):
+            return "collision_events: a time is not a non-negative number"
+    extra = record.get("extra")
+    if extra is not None and not isinstance(extra, dict):
         return "extra is not an object"
+    decisions = (extra or {}).get("decisions")
+    if decisions is not None:
+        if not isinstance(decisions, dict):
+            return "extra.decisions is not an object"
+        for key in DECISION_COUNTS:
+            if decisions.get(key) is not None and not (number(decisions[key]) and float(decisions[key]).is_integer()):
+                return f"extra.decisions.{key} is not a count"
+        sizes = decisions.get("local_search_sizes")
+        if sizes is not None and not (isinstance(sizes, list) and all(number(v) for v in sizes)):
+            return "extra.decisions.local_search_sizes is not a list of counts"
+    activity = (extra or {}).get("activity_time")
+    if activity is not None and not (isinstance(activity, dict) and all(v is None or number(v)
+                                                                          for v in activity.values())):
+        return "extra.activity_time is not an object of non-negative seconds"
     mem = record.get("memory")
     if mem is not None:
         if not isinstance(mem, dict):
@@ -473,9 +514,16 @@ def record_problem(record) -> str | None:
     return None
 
 
-def scan_results(path: Path) -> ResultsScan:
+def scan_results(path: Path, episode_ids: Iterable[str] | None = None,
+                 episode_source: str = "the run's episodes") -> ResultsScan:
     """Read episodes.jsonl without changing it: every line is a valid record or a damaged line
-    (with its line number and why). RunFolderError when the file itself cannot be read."""
+    (with its line number and why). RunFolderError when the file itself cannot be read.
+
+    Besides lines that are not records (:func:`record_problem`), damaged are: records of the same
+    episode that disagree (their deterministic fields differ: nothing says which is right, so every
+    record of that episode is damaged; identical copies are kept and the first one used), and,
+    given ``episode_ids`` (the episodes the run's configuration selects, ``episode_source`` says
+    which), records of other episodes."""
     path = Path(path)
     scan = ResultsScan({}, [], [])
     if path.is_dir():
@@ -486,6 +534,7 @@ def scan_results(path: Path) -> ResultsScan:
         data = path.read_bytes()
     except OSError as exc:
         raise RunFolderError(f"cannot read {path}: {exc.strerror or exc}") from None
+    valid: list[tuple[int, bytes, dict]] = []
     for lineno, line in enumerate(data.splitlines(keepends=True), 1):
         if not line.endswith(b"\n"):
             scan.damaged.append(DamagedLine(lineno, "torn last line (an interrupted write)", line, torn=True))
@@ -506,11 +555,70 @@ def scan_results(path: Path) -> ResultsScan:
         if problem:
             scan.damaged.append(DamagedLine(lineno, problem, line))
             continue
+        valid.append((lineno, line, record))
+    by_episode: dict[str, list[tuple[int, dict]]] = {}
+    for lineno, _line, record in valid:
+        by_episode.setdefault(record["episode_id"], []).append((lineno, record))
+    conflicts = {eid: _conflict(entries) for eid, entries in by_episode.items() if len(entries) > 1}
+    conflicts = {eid: fields for eid, fields in conflicts.items() if fields}
+    allowed = None if episode_ids is None else set(episode_ids)
+    for lineno, line, record in valid:
+        eid = record["episode_id"]
+        if eid in conflicts:
+            others = ", ".join(str(n) for n, _ in by_episode[eid] if n != lineno)
+            scan.damaged.append(DamagedLine(lineno, f"episode {eid} has records that disagree (this one and line(s) "
+                                                    f"{others}, in {conflicts[eid]}); none of them is used", line))
+            scan.unused.append(record)
+            continue
+        if allowed is not None and eid not in allowed:
+            scan.damaged.append(DamagedLine(lineno, f"episode {eid} is not one of {episode_source}", line))
+            scan.unused.append(record)
+            continue
         scan.good_lines.append(line)
-        if record["episode_id"] not in scan.records:
-            scan.records[record["episode_id"]] = record
+        if eid not in scan.records:
+            scan.records[eid] = record
             scan.legacy += record.get(FINGERPRINT_FIELD) is None
+    scan.damaged.sort(key=lambda d: d.lineno)
     return scan
+
+
+def _conflict(entries: list[tuple[int, dict]]) -> str:
+    """The top-level fields in which records of one episode differ (wall time, memory and
+    recording path aside: :func:`deterministic_view`), as text; "" when they agree."""
+    def canon(v) -> str:
+        return json.dumps(v, sort_keys=True)
+
+    first = deterministic_view(entries[0][1])
+    fields: set[str] = set()
+    for _, record in entries[1:]:
+        view = deterministic_view(record)
+        fields |= {k for k in set(first) | set(view) if canon(first.get(k)) != canon(view.get(k)) or
+                   (k in first) != (k in view)}
+    shown = sorted(fields)
+    return ", ".join(shown[:4]) + (f" and {len(shown) - 4} more field(s)" if len(shown) > 4 else "")
+
+
+def run_episode_ids(config: "TrialConfig | dict") -> tuple[list[str], str] | None:
+    """The episodes a run folder of trial configuration ``config`` (a TrialConfig, or its
+    config.yaml as loaded) holds records of: the first ``episodes`` of its split or episode file,
+    and a description of them; None when that cannot be told (not a trial configuration, e.g. a
+    hardware run's; an episode file that cannot be read)."""
+    from tasks.episodes import DatasetError, load_episodes, load_split
+
+    d = to_dict(config) if isinstance(config, TrialConfig) else config
+    if not isinstance(d, dict):
+        return None
+    split, source, count = d.get("split"), d.get("episodes_file") or "", d.get("episodes")
+    if not isinstance(count, int) or isinstance(count, bool) or count < 1 or not isinstance(source, str) or \
+            (not source and not isinstance(split, str)):
+        return None
+    try:
+        episodes = load_episodes(source) if source else load_split(split)
+    except (DatasetError, OSError, ValueError):
+        return None
+    where = f"episode file {source}" if source else f"split {split}"
+    return [e.episode_id for e in episodes[:count]], f"the run's {min(count, len(episodes))} episodes ({where}, " \
+                                                     f"config.yaml)"
 
 
 def quarantine(path: Path, scan: ResultsScan) -> None:
@@ -776,7 +884,10 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
     t0 = time.perf_counter()
     report = report if report is not None else BatchReport([])
     with _FolderLock(out):
-        done = prepare_run_folder(out, config, report)
+        selected = run_episode_ids(config)
+        ids, source = (selected[0], selected[1]) if selected else (None, "")
+        done = prepare_run_folder(out, config, report, episode_ids=None if ids is None else
+                                  [*ids, *(e.episode_id for e in episodes)], episode_source=source)
         saved_commit = report.saved_commit
         commit = git_commit()
         if saved_commit and saved_commit != commit and done:

@@ -117,7 +117,7 @@ def real_runs(tmp_path_factory):
     short oracle episode, as run folders."""
     tmp = tmp_path_factory.mktemp("runs")
     ep = next(e for e in load_split("smoke") if e.episode_id == "smoke-00001")
-    cfg = with_overrides(TrialConfig(agent="helios", split="smoke", episodes=1), ["runner.max_commands=40"])
+    cfg = with_overrides(TrialConfig(agent="helios", split="smoke", episodes=2), ["runner.max_commands=40"])
     helios = tmp / "helios"
     prepare_run_folder(helios, cfg)
     append_result(helios / "episodes.jsonl", run_one(cfg, ep))
@@ -209,7 +209,7 @@ def test_report_prints_the_sections_with_na_for_old_runs(tmp_path):
     runs = {}
     for name, records in (("new", NEW + [OLD]), ("old", [OLD])):
         runs[name] = tmp_path / name
-        prepare_run_folder(runs[name], TrialConfig(agent="helios", split="val", episodes=len(records)))
+        prepare_run_folder(runs[name], TrialConfig(agent="helios", split="val", episodes=50))
         for r in records:
             append_result(runs[name] / "episodes.jsonl", r)
     result = make_report([runs["new"], runs["old"]], tmp_path / "rep")
@@ -235,7 +235,7 @@ def test_gaze_point_views_unknown_when_a_record_predates_them(tmp_path):
     assert d["totals"]["gaze_point_views"] is None and d["per_episode"]["gaze_point_views"] is None
     assert d["totals"]["gaze_point_visits"] == 22
     run = tmp_path / "mixed"
-    prepare_run_folder(run, TrialConfig(agent="helios", split="val", episodes=3))
+    prepare_run_folder(run, TrialConfig(agent="helios", split="val", episodes=20))
     for r in NEW + [before]:
         append_result(run / "episodes.jsonl", r)
     md = make_report([run], tmp_path / "rep")["markdown"]
@@ -291,7 +291,7 @@ def test_report_has_the_timeouts_table(tmp_path):
     runs = {}
     for name, records in (("with", NEW + TIMEOUTS), ("without", NEW)):
         runs[name] = tmp_path / name
-        prepare_run_folder(runs[name], TrialConfig(agent="helios", split="val", episodes=len(records)))
+        prepare_run_folder(runs[name], TrialConfig(agent="helios", split="val", episodes=50))
         for r in records:
             append_result(runs[name] / "episodes.jsonl", r)
     result = make_report([runs["with"], runs["without"]], tmp_path / "rep", episode_pages=False)
@@ -346,7 +346,7 @@ def test_report_has_the_start_receptacle_table_only_when_a_run_has_the_check(tmp
     runs = {}
     for name, records in (("checked", CHECKED), ("viewed", VIEWED), ("looked", LOOKED), ("old", [OLD])):
         runs[name] = tmp_path / name
-        prepare_run_folder(runs[name], TrialConfig(agent="helios", split="val", episodes=len(records)))
+        prepare_run_folder(runs[name], TrialConfig(agent="helios", split="val", episodes=50))
         for r in records:
             append_result(runs[name] / "episodes.jsonl", r)
     md = make_report([runs["checked"], runs["viewed"], runs["looked"], runs["old"]], tmp_path / "rep",
