@@ -218,8 +218,9 @@ def key_frame_strip(trace: dict):
     return strip
 
 
-def hand_camera_gif(trace: dict, path: Path) -> bool:
-    """An animated GIF of the hand camera (the trace's thinned frames); False when there are none."""
+def hand_camera_gif(trace: dict, path) -> bool:
+    """An animated GIF of the hand camera (the trace's thinned frames) written to ``path`` (a file
+    name or a binary file object); False when there are none."""
     from PIL import Image
 
     frames = trace["frames"]
@@ -228,7 +229,10 @@ def hand_camera_gif(trace: dict, path: Path) -> bool:
     ims = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]
     buf = io.BytesIO()
     ims[0].save(buf, format="GIF", save_all=True, append_images=ims[1:], duration=200, loop=0)
-    path.write_bytes(buf.getvalue())
+    if hasattr(path, "write"):
+        path.write(buf.getvalue())
+    else:
+        Path(path).write_bytes(buf.getvalue())
     return True
 
 
@@ -247,10 +251,107 @@ class EpisodePage:
     page: str                 # relative to the report folder
     thumb: str | None         # likewise; None without a trace
     outcome: str              # "success", a failure reason, or "unscored"
+    damaged: str | None = None  # why its picture data could not be read or drawn (the page says so too)
+
+
+MAX_SLUG = 100               # characters of a file name made from a name (file systems allow 255 bytes)
 
 
 def slug(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("._") or "run"
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("._")[:MAX_SLUG] or "run"
+
+
+MAX_MAP_CELLS = 4000         # cells along a side of the map in picture data (real maps: a few hundred)
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+
+
+def _xy(v, n: int = 2) -> bool:
+    """``v`` is a list of at least ``n`` finite numbers (a point)."""
+    return isinstance(v, (list, tuple)) and len(v) >= n and all(_finite(x) for x in v[:n])
+
+
+def trace_problem(trace: dict) -> str | None:
+    """Why loaded picture data (``tasks.episode_trace.load_trace``) cannot be drawn, or None: the
+    shapes and values :func:`map_picture`, :func:`key_frame_strip`, :func:`hand_camera_gif` and the
+    page rely on (a file that loads but was damaged or written by something else)."""
+    meta = trace.get("meta")
+    if not isinstance(meta, dict):
+        return "meta is not an object"
+    grid = meta.get("grid")
+    if not isinstance(grid, dict) or not _xy(grid.get("origin_xy")):
+        return "meta.grid.origin_xy is not a point"
+    if not (_finite(grid.get("cell_size")) and grid["cell_size"] > 0):
+        return "meta.grid.cell_size is not a positive number"
+    if not isinstance(meta.get("outcome"), dict):
+        return "meta.outcome is not an object"
+    m = trace.get("map")
+    if not (isinstance(m, np.ndarray) and m.ndim == 2 and m.size and m.dtype.kind in "iu"
+            and max(m.shape) <= MAX_MAP_CELLS):
+        return f"map is not a 2-D array of cell codes of at most {MAX_MAP_CELLS} cells a side"
+    path = trace.get("path")
+    if not (isinstance(path, np.ndarray) and path.ndim == 2 and path.shape[1] >= 3 and path.dtype.kind in "biuf"
+            and np.isfinite(path).all()):
+        return "path is not an (N, 4) array of finite numbers (t, x, y, yaw)"
+    frames = trace.get("frames")
+    if not (isinstance(frames, np.ndarray) and frames.ndim == 4 and frames.shape[3] == 3 and frames.dtype == np.uint8):
+        return "frames is not an (F, h, w, 3) array of 8-bit colours"
+    for info, data in trace.get("key_frames") or []:
+        if not (isinstance(info, dict) and isinstance(info.get("label"), str) and _finite(info.get("t"))):
+            return "meta.key_frames: a key frame has no label or time"
+    for key, what in (("events", "an event"), ("candidates", "a candidate")):
+        items = meta.get(key, [])
+        if not isinstance(items, list) or not all(isinstance(x, dict) and _xy(x.get("xy")) for x in items):
+            return f"meta.{key} is not a list of objects with a point xy ({what} has none)"
+    if not all(isinstance(ev.get("kind"), str) and ev["kind"] for ev in meta.get("events", [])):
+        return "meta.events: an event has no kind"
+    for c in meta.get("candidates", []):
+        if not (isinstance(c.get("class_name"), str) and isinstance(c.get("psi"), dict)
+                and all(v is None or _finite(v) for v in c["psi"].values())):
+            return "meta.candidates: a candidate has no class_name or psi"
+    fronts = meta.get("frontiers", {})
+    if not isinstance(fronts, dict) or not all(
+            isinstance(v, list) and all(_xy(f) and len(f) == 3 for f in v) for v in fronts.values()):
+        return "meta.frontiers is not an object of lists of (x, y, value)"
+    truth = meta.get("truth") or {}
+    if not isinstance(truth, dict):
+        return "meta.truth is not an object"
+
+    def box(b) -> bool:
+        return isinstance(b, dict) and _xy(b.get("lo")) and _xy(b.get("hi")) and isinstance(b.get("name"), str)
+
+    goals = truth.get("goals", [])
+    if not isinstance(goals, list) or not all(map(box, goals)) or (truth.get("start_receptacle")
+                                                                   and not box(truth["start_receptacle"])):
+        return "meta.truth: a receptacle box is malformed"
+    targets = truth.get("targets", [])
+    if not isinstance(targets, list) or not all(isinstance(o, dict) and _xy(o.get("xyz")) and "named" in o
+                                                for o in targets):
+        return "meta.truth.targets is malformed"
+    if truth.get("start_pose") is not None and not _xy(truth["start_pose"]):
+        return "meta.truth.start_pose is not a point"
+    for key in ("log", "errors"):
+        lines = meta.get(key)
+        if lines is not None and not (isinstance(lines, list) and all(isinstance(x, str) for x in lines)):
+            return f"meta.{key} is not a list of text lines"
+    return None
+
+
+def draw_trace(trace: dict) -> dict:
+    """The episode's pictures in memory (``map``, ``thumb``, maybe ``strip``, maybe ``gif`` bytes)."""
+    img, _ = map_picture(trace)
+    only_map = img.crop((0, HEADER, img.width, img.height - FOOTER))       # title and legend: on the page
+    out = {"map": img, "thumb": only_map.resize((THUMB_WIDTH, max(1, round(only_map.height * THUMB_WIDTH
+                                                                           / only_map.width))))}
+    strip = key_frame_strip(trace)
+    if strip is not None:
+        out["strip"] = strip
+    buf = io.BytesIO()
+    if hand_camera_gif(trace, buf):
+        out["gif"] = buf.getvalue()
+    return out
 
 
 def record_outcome(record: dict) -> str:
@@ -262,6 +363,7 @@ def record_outcome(record: dict) -> str:
 
 def write_episode_pages(report_dir: Path, run_index: int, run, index_name: str = "index.html") -> list[EpisodePage]:
     """Pictures and one HTML page per episode of ``run`` under ``report_dir/episodes/<run>/``."""
+    from helios.schema import shorten
     from tasks.episode_trace import load_trace, trace_path
 
     sub = f"episodes/{run_index + 1}-{slug(run.name)}"
@@ -272,35 +374,43 @@ def write_episode_pages(report_dir: Path, run_index: int, run, index_name: str =
     for i, rec in enumerate(run.records):
         eid = rec["episode_id"]
         name = slug(eid)
-        trace, problem = None, None
+        trace, problem, damaged = None, None, None
         tpath = trace_path(run.path, eid)
         if tpath.exists():
             try:
                 trace = load_trace(tpath)
             except Exception as exc:  # noqa: BLE001 - a damaged trace: the page says so
-                problem = f"its picture data {tpath} cannot be read ({type(exc).__name__}: {exc})"
+                damaged = f"cannot be read ({type(exc).__name__}: {exc})"
+            else:
+                why = trace_problem(trace)
+                damaged = f"is damaged ({why})" if why else None
         else:
             problem = "no picture data: the episode was run with --no-pictures or by an older version"
         files: dict[str, str] = {}
-        if trace is not None:
-            img, _ = map_picture(trace)
-            img.save(folder / f"{name}.png")
-            files["map"] = f"{name}.png"
-            only_map = img.crop((0, HEADER, img.width, img.height - FOOTER))       # title and legend: on the page
-            thumb = only_map.resize((THUMB_WIDTH, max(1, round(only_map.height * THUMB_WIDTH / only_map.width))))
-            thumb.save(folder / f"{name}.thumb.png")
-            files["thumb"] = f"{name}.thumb.png"
-            strip = key_frame_strip(trace)
-            if strip is not None:
-                strip.save(folder / f"{name}.frames.png")
-                files["strip"] = f"{name}.frames.png"
-            if hand_camera_gif(trace, folder / f"{name}.gif"):
-                files["gif"] = f"{name}.gif"
+        if trace is not None and damaged is None:
+            try:
+                drawn = draw_trace(trace)
+            except Exception as exc:  # noqa: BLE001 - data the checks let through that still cannot be drawn
+                damaged = f"cannot be drawn ({type(exc).__name__}: {exc})"
+            else:
+                for key, suffix in (("map", ".png"), ("thumb", ".thumb.png"), ("strip", ".frames.png"),
+                                    ("gif", ".gif")):
+                    if key not in drawn:
+                        continue
+                    if key == "gif":
+                        (folder / f"{name}{suffix}").write_bytes(drawn[key])
+                    else:
+                        drawn[key].save(folder / f"{name}{suffix}")
+                    files[key] = f"{name}{suffix}"
+        if damaged is not None:
+            damaged = shorten(damaged, 300)
+            problem = f"its picture data {tpath} {damaged}"
+            trace = None
         prev_id = ids[i - 1] if i > 0 else None
         next_id = ids[i + 1] if i + 1 < len(ids) else None
         (folder / f"{name}.html").write_text(_page_html(run, rec, trace, files, problem, prev_id, next_id, index_name))
         pages.append(EpisodePage(eid, f"{sub}/{name}.html", f"{sub}/{files['thumb']}" if "thumb" in files else None,
-                                 record_outcome(rec)))
+                                 record_outcome(rec), damaged))
     return pages
 
 
@@ -328,9 +438,9 @@ def _page_html(run, rec: dict, trace: dict | None, files: dict, problem: str | N
                      ("find_obj", "pick", "find_rec", "place", "success"))
     parts.append("<table><tr><th>FindObj</th><th>Pick</th><th>FindRec</th><th>Place</th><th>SR</th><th>commands</th>"
                  "<th>sim s</th><th>wall s</th><th>collisions</th><th>pick attempts</th><th>released on</th>"
-                 f"<th>budget used up</th></tr><tr>{phases}<td>{rec.get('commands')}</td>"
+                 f"<th>budget used up</th></tr><tr>{phases}<td>{e(str(rec.get('commands')))}</td>"
                  f"<td>{float(rec.get('sim_time') or 0):.1f}</td><td>{float(rec.get('wall_time') or 0):.1f}</td>"
-                 f"<td>{m.get('collisions', '-')}</td><td>{m.get('pick_attempts', '-')}</td>"
+                 f"<td>{e(str(m.get('collisions', '-')))}</td><td>{e(str(m.get('pick_attempts', '-')))}</td>"
                  f"<td>{e(str(m.get('released_on') or '-'))}</td><td>{'yes' if rec.get('limit_hit') else 'no'}</td>"
                  "</tr></table>")
     if problem:
@@ -345,9 +455,9 @@ def _page_html(run, rec: dict, trace: dict | None, files: dict, problem: str | N
         parts.append(f"<h2>Hand camera</h2><img id='hand-camera' alt='hand camera animation' "
                      f"src='{e(files['gif'])}' width='384'>")
     events = rec.get("collision_events") or []
-    if events:
+    if isinstance(events, list) and events and all(isinstance(c, dict) for c in events):
         parts.append("<h2>Collisions</h2><ul>" + "".join(
-            f"<li>t={float(c.get('time', 0)):.1f} s: {e(str(c.get('robot_link')))} touched {e(str(c.get('body')))} "
+            f"<li>t={float(c.get('time') or 0):.1f} s: {e(str(c.get('robot_link')))} touched {e(str(c.get('body')))} "
             f"({e(str(c.get('phase')))})</li>" for c in events) + "</ul>")
     if trace is not None:
         meta = trace["meta"]
@@ -355,15 +465,15 @@ def _page_html(run, rec: dict, trace: dict | None, files: dict, problem: str | N
             parts.append("<h2>End of the agent's log</h2><pre>" + e("\n".join(meta["log"])) + "</pre>")
         if meta.get("errors"):
             parts.append("<p><i>picture problems: " + e("; ".join(meta["errors"])) + "</i></p>")
-    extra = rec.get("extra") or {}
-    if extra.get("decisions"):
+    extra = rec.get("extra") if isinstance(rec.get("extra"), dict) else {}
+    if isinstance(extra.get("decisions"), dict) and extra["decisions"]:
         d = {k: v for k, v in extra["decisions"].items() if not isinstance(v, list)}
         parts.append("<h2>Decisions</h2><table><tr>" + "".join(f"<th>{e(k)}</th>" for k in d) + "</tr><tr>"
                      + "".join(f"<td>{e(str(v))}</td>" for v in d.values()) + "</tr></table>")
-    if extra.get("activity_time"):
+    if isinstance(extra.get("activity_time"), dict) and extra["activity_time"]:
         a = extra["activity_time"]
         parts.append("<h2>Simulated time per phase (s)</h2><table><tr>" + "".join(f"<th>{e(k)}</th>" for k in a)
-                     + "</tr><tr>" + "".join(f"<td>{float(v):.1f}</td>" for v in a.values()) + "</tr></table>")
+                     + "</tr><tr>" + "".join(f"<td>{float(v or 0):.1f}</td>" for v in a.values()) + "</tr></table>")
     parts.append("</body></html>")
     return "\n".join(parts)
 
@@ -381,7 +491,8 @@ def episode_table_html(run, pages: list[EpisodePage]) -> str:
         marks = "".join(f"<td>{'&#10003;' if m.get(k) else '&middot;'}</td>"
                         for k in ("find_obj", "pick", "find_rec", "place", "success"))
         rows.append(f"<tr class='episode-row'><td><a href='{e(p.page)}'>{e(rec['episode_id'])}</a></td>"
-                    f"<td>{e(p.outcome)}</td>{marks}<td>{m.get('collisions', '-')}</td><td>{rec.get('commands')}</td>"
+                    f"<td>{e(p.outcome)}</td>{marks}<td>{e(str(m.get('collisions', '-')))}</td>"
+                    f"<td>{e(str(rec.get('commands')))}</td>"
                     f"<td>{float(rec.get('sim_time') or 0):.0f}</td><td>{e(str(rec.get('task', '')))}</td></tr>")
     return f"<table class='episodes'><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
 
