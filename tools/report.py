@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import base64
+import contextlib
 import functools
 import html
 import json
@@ -60,25 +61,89 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 MAX_LISTED_DAMAGE = 10     # damaged lines named one by one (FILE:LINE) per run folder; the rest are counted
+MAX_NAME_CHARS = 100       # a --names name (row labels, file and folder names of the episode pages)
+
+
+def shown_path(path) -> str:
+    """A path as text that can always be printed: bytes that are not UTF-8 as ``\\xNN``."""
+    import os
+
+    return os.fsencode(str(path)).decode("utf-8", "backslashreplace")
+
+
+def check_text_path(path, what: str) -> None:
+    """CliError when ``path`` is not UTF-8 text (a name made of other bytes): the report writes its
+    paths into UTF-8 pages and tables, and prints them."""
+    from tools.cli import CliError
+
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        raise CliError(f"{what} '{shown_path(path)}': its name is not UTF-8 text, which the pages and tables "
+                       f"of reports cannot show; rename it to a UTF-8 name") from None
+
+
+def check_names(names: list[str]) -> None:
+    """CliError for a --names name that is empty, too long or holds control characters (names are
+    row labels and become folder names of the episode pages)."""
+    from helios.schema import short_repr
+    from tools.cli import CliError
+
+    for n in names:
+        if not n:
+            raise CliError("--names has an empty name")
+        if len(n) > MAX_NAME_CHARS:
+            raise CliError(f"--names: the name {short_repr(n)} has {len(n)} characters, at most {MAX_NAME_CHARS}")
+        if not n.isprintable():
+            raise CliError(f"--names: the name {short_repr(n)} holds a control character")
+        check_text_path(n, "--names: the name")
+
+
+def invocations_problem(run_path: Path) -> str | None:
+    """What is wrong with a run folder's invocations.jsonl (a directory in its place), or None. It
+    only says which code paths the episodes ran on: the report and diff read the records without
+    it, but say so (a resume refuses the folder). Its damaged lines are skipped without a word
+    (``tasks.trials.run_cpu_paths``: informative, never a reason to fail; a resume appends to it)."""
+    path = run_path / "invocations.jsonl"
+    if path.is_dir():
+        return (f"{path} is a directory, where the log of the run's invocations belongs: the CPU code paths of its "
+                f"episodes are unknown (a resume refuses the folder until it is moved away)")
+    return None
 
 
 def load_run(path: str | Path, name: str | None = None, warnings: list[str] | None = None) -> Run:
     """A run folder's finished episodes and summary; CliError when it is missing, unreadable or
-    empty. Damaged lines of episodes.jsonl are skipped, each named as FILE:LINE in ``warnings``;
-    so are an unreadable config.yaml and records that disagree with it."""
+    empty. Damaged lines of episodes.jsonl are skipped, each named as FILE:LINE in ``warnings``
+    (also records of one episode that disagree, and records of episodes that are not the run's:
+    ``tasks.trials.scan_results``); so are an unreadable config.yaml, records that disagree with it
+    and a damaged invocations.jsonl."""
     from helios.schema import read_text, short_repr, yaml_load_text
-    from tasks.trials import FINGERPRINT_FIELD, RunFolderError, config_fingerprint, run_cpu_paths, scan_results, summarize
+    from tasks.trials import (FINGERPRINT_FIELD, RunFolderError, config_fingerprint, run_cpu_paths, run_episode_ids,
+                              scan_results, summarize)
     from tools.cli import CliError
 
     warnings = warnings if warnings is not None else []
     p = Path(path)
+    check_text_path(p, "run folder")
     if not p.exists():
         raise CliError(f"run folder {short_repr(str(p))} does not exist")
     if not p.is_dir():
         raise CliError(f"run folder {short_repr(str(p))} is a file, not a run folder")
     results = p / "episodes.jsonl"
+    config: dict = {}
+    config_warnings: list[str] = []
+    cfg_path = p / "config.yaml"
+    if cfg_path.exists():
+        try:
+            loaded = yaml_load_text(read_text(cfg_path, str(cfg_path), CliError), str(cfg_path), CliError)
+            if loaded is not None and not isinstance(loaded, dict):
+                raise CliError(f"{cfg_path} holds a {type(loaded).__name__}, not a trial config")
+            config = loaded or {}
+        except CliError as exc:
+            config_warnings.append(f"{exc}; the run's configuration is shown as unknown")
+    selected = run_episode_ids(config) if config else None      # the episodes its records may be of
     try:
-        scan = scan_results(results)
+        scan = scan_results(results, *(selected or (None,)))
     except RunFolderError as exc:
         raise CliError(str(exc)) from None
     for d in scan.damaged[:MAX_LISTED_DAMAGE]:
@@ -91,17 +156,11 @@ def load_run(path: str | Path, name: str | None = None, warnings: list[str] | No
         raise CliError(f"run folder {str(p)!r} has no finished episodes (episodes.jsonl {what}); "
                        f"run `python -m tools trials --out {p}` first")
     records.sort(key=lambda r: r["episode_id"])
-    config: dict = {}
-    cfg_path = p / "config.yaml"
-    if cfg_path.exists():
-        try:
-            loaded = yaml_load_text(read_text(cfg_path, str(cfg_path), CliError), str(cfg_path), CliError)
-            if loaded is not None and not isinstance(loaded, dict):
-                raise CliError(f"{cfg_path} holds a {type(loaded).__name__}, not a trial config")
-            config = loaded or {}
-        except CliError as exc:
-            warnings.append(f"{exc}; the run's configuration is shown as unknown")
-    fps = {r.get(FINGERPRINT_FIELD) for r in records} - {None}
+    warnings.extend(config_warnings)
+    invocations = invocations_problem(p)
+    if invocations:
+        warnings.append(invocations)
+    fps = scan.fingerprints() - {None}
     if len(fps) > 1:
         warnings.append(f"{results}: the records were made with {len(fps)} different configurations "
                         f"(fingerprints {', '.join(sorted(fps))}); they are reported together")
@@ -581,6 +640,25 @@ def start_receptacle_rows(runs: list[Run]) -> tuple[list[str], list[list]] | Non
 # ------------------------------------------------------------------------------------------------
 # Plots
 # ------------------------------------------------------------------------------------------------
+@contextlib.contextmanager
+def _quiet_plots():
+    """Drawing never writes to stderr: matplotlib's warnings (a tight layout that does not fit long
+    labels, a glyph missing from the font) and its log messages are left out; what matters about
+    the figures is in the tables."""
+    import logging
+    import warnings
+
+    logger = logging.getLogger("matplotlib")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield
+    finally:
+        logger.setLevel(level)
+
+
 def _pyplot():
     try:
         import matplotlib
@@ -889,6 +967,7 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     ``EpisodePage`` list). ``common``: compare on the episodes all runs have finished.
     ``pick_limits``: also the paper's "N picks" tables (:func:`pick_limit_tables`). ``budgets``:
     the simulated seconds of the time-budget table (:func:`budget_rows`; default fifths of the cap)."""
+    from tasks.episode_trace import trace_path
     from tasks.trials import MAX_PICK_LIMIT, is_pick_limit
     from tools.cli import CliError, check_output_dir, check_output_file
     from tools.tables import format_markdown, format_table
@@ -898,13 +977,22 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
         raise CliError(f"pick limits must be distinct integers in [1, {MAX_PICK_LIMIT}], got {pick_limits}")
     if names and len(names) != len(run_paths):
         raise CliError(f"--names has {len(names)} name(s) for {len(run_paths)} run(s)")
-    if names and any(not n for n in names):
-        raise CliError("--names has an empty name")
+    if names:
+        check_names(names)
     out = Path(out)
+    check_text_path(out, "--out")
     for p in run_paths:
-        if Path(p).exists() and out.resolve() == Path(p).resolve():
+        check_text_path(p, "run folder")
+    for p in run_paths:
+        if not Path(p).is_dir():
+            continue
+        run_dir, target = Path(p).resolve(), out.resolve()
+        if target == run_dir:
             raise CliError(f"--out {str(out)!r} is a run folder given to report; write the report elsewhere "
-                           f"(e.g. --out {Path(p) / 'report'})")
+                           f"(e.g. --out {Path(p).parent / (Path(p).name + '-report')})")
+        if target.is_relative_to(run_dir):
+            raise CliError(f"--out {str(out)!r} is inside run folder {str(p)!r}, which is given to report; "
+                           f"write the report elsewhere (e.g. --out {Path(p).parent / (Path(p).name + '-report')})")
     check_output_dir(out)
     for fname in ("table.txt", "table.md", "index.html", "report.json", *FIGURES):
         check_output_file(out / fname, "--out")
@@ -969,18 +1057,28 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     if plt is None:
         warnings.append("plots need matplotlib (pip install -e '.[viz]'); wrote the tables only")
     else:
-        for fname, fn in zip(FIGURES, (plot_subtasks, plot_failures, plot_memory,
-                                       functools.partial(plot_budgets, budgets=budgets))):
-            fn(runs, out / fname, plt)
-            figures.append(out / fname)
+        with _quiet_plots():
+            for fname, fn in zip(FIGURES, (plot_subtasks, plot_failures, plot_memory,
+                                           functools.partial(plot_budgets, budgets=budgets))):
+                fn(runs, out / fname, plt)
+                figures.append(out / fname)
     episodes: list[tuple[Run, list]] = []
     if episode_pages:
         from tools.episode_pages import write_episode_pages
 
         try:
-            episodes = [(r, write_episode_pages(out, i, r)) for i, r in enumerate(runs)]
+            with _quiet_plots():
+                episodes = [(r, write_episode_pages(out, i, r)) for i, r in enumerate(runs)]
         except ImportError as exc:
             warnings.append(f"episode pages need Pillow (pip install -e '.[viz]'): {exc}; wrote the tables only")
+        for r, pages in episodes:
+            damaged = [pg for pg in pages if pg.damaged]
+            for pg in damaged[:MAX_LISTED_DAMAGE]:
+                warnings.append(f"{trace_path(r.path, pg.episode_id)}: the picture data {pg.damaged}; its episode "
+                                f"page says so and shows no pictures")
+            if len(damaged) > MAX_LISTED_DAMAGE:
+                warnings.append(f"{r.path}: {len(damaged) - MAX_LISTED_DAMAGE} more episode(s) with damaged "
+                                f"picture data")
     write_html(out / "index.html", runs, tables, figures, episodes)
     from tasks.decisions import (summarize_activity_time, summarize_decisions, summarize_start_receptacle,
                                  summarize_timeouts)
