@@ -148,7 +148,7 @@ def ws(tmp_path_factory):
                                                      FINGERPRINT_FIELD: "0123456789abcdef"})
     (runs / "damaged_only").mkdir()
     (runs / "damaged_only" / "episodes.jsonl").write_bytes(b"{}\n[]\nnot json\n")
-    _synthetic_run(runs / "other", TrialConfig(agent="oracle", episodes=2), ids=("smoke-00005",))
+    _synthetic_run(runs / "other", TrialConfig(agent="oracle", episodes=6), ids=("smoke-00005",))
     return root
 
 
@@ -506,6 +506,14 @@ CASES: list[tuple[str, list[str], str]] = [
      "would preallocate 762.9 GiB"),
     ("tsdf-block-resolution-memory", ["tsdf", "smoke-00001", "block_resolution=64", "--out", "{ws}/new_tsdf"],
      "block_count <= 819 at this block_resolution"),
+    # report and run folders (QA 2026-12-04)
+    ("report-names-long", [*REPORT, "--names", "n" * 5000, "--out", "{ws}/new_rep"], "at most 100"),
+    ("report-names-control", [*REPORT, "--names", "a\nb", "--out", "{ws}/new_rep"], "control character"),
+    ("report-out-in-run", [*REPORT, "--out", R + "valid/episodes"], "is inside run folder"),
+    ("report-out-deep-in-run", [*REPORT, "--out", R + "valid/sub/rep"], "is inside run folder"),
+    ("report-out-not-utf8", [*REPORT, "--out", "{ws}/rep\udcff"], "not UTF-8"),
+    ("report-run-not-utf8", ["report", R + "r\udcff", "--out", "{ws}/new_rep"], "not UTF-8"),
+    ("diff-run-not-utf8", ["diff", R + "valid", R + "r\udcff"], "not UTF-8"),
 ]
 
 
@@ -684,6 +692,63 @@ def _other_config_record(folder: Path) -> None:
     _set_lines(folder, lines + [(json.dumps(rec, sort_keys=True) + "\n").encode()])
 
 
+def _append_record(i: int, **changes):
+    """Append a copy of record ``i`` with ``changes`` (dotted keys reach into objects)."""
+    def damage(folder: Path) -> None:
+        lines = _lines(folder)
+        rec = json.loads(lines[i])
+        for key, value in changes.items():
+            *path, last = key.split("__")
+            target = rec
+            for part in path:
+                target = target[part]
+            target[last] = value
+        _set_lines(folder, lines + [(json.dumps(rec, sort_keys=True) + "\n").encode()])
+    return damage
+
+
+def _edit_trace(eid: str, edit):
+    """Rewrite an episode's picture data (it still loads) after ``edit(meta, arrays)``."""
+    import numpy as np
+
+    def damage(folder: Path) -> None:
+        path = folder / "episodes" / f"{eid}.npz"
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        meta = json.loads(str(arrays["meta"]))
+        edit(meta, arrays)
+        arrays["meta"] = np.array(json.dumps(meta))
+        with path.open("wb") as fh:
+            np.savez(fh, **arrays)
+    return damage
+
+
+def _set_map_3d(meta, arrays):
+    arrays["map"] = arrays["map"][..., None]
+
+
+def _set_path_1d(meta, arrays):
+    arrays["path"] = arrays["path"].ravel()
+
+
+# Picture data that loads but cannot be drawn, three episodes each (tests below check every one)
+TRACE_DAMAGE_A = (("smoke-00000", lambda m, a: m.pop("grid"), "meta.grid"),
+                  ("smoke-00001", lambda m, a: m["grid"].update(cell_size=0), "meta.grid.cell_size"),
+                  ("smoke-00002", _set_path_1d, "path is not"))
+TRACE_DAMAGE_B = (("smoke-00000", _set_map_3d, "map is not"),
+                  ("smoke-00001", lambda m, a: m.update(events=[{"kind": "grasp"}]), "meta.events"),
+                  ("smoke-00002", lambda m, a: m.pop("outcome"), "meta.outcome"))
+
+
+def _trace_damage(table):
+    return _combine(*(_edit_trace(eid, edit) for eid, edit, _ in table))
+
+
+def _record_shapes(folder: Path) -> None:
+    _edit_record(0, lambda r: r.update(collision_events="boom"))(folder)
+    _edit_record(2, lambda r: r.update(extra={"activity_time": {"explore": "x"}}))(folder)
+
+
 # name, damage, report: (exit status, fragment in stderr), resume: (extra args, exit status, fragment),
 # fix(folder, clean) applied after a refusal, before the valid command (None: the same command again)
 DAMAGES = [
@@ -733,6 +798,25 @@ DAMAGES = [
      (0, "without a configuration fingerprint"), ([], 2, "carry no configuration fingerprint"),
      lambda f, clean: shutil.copy(clean / "config.yaml", f / "config.yaml")),
     ("duplicate-record", lambda f: _set_lines(f, _lines(f) + _lines(f)[:1]), (0, ""), ([], 0, ""), None),
+    # report and run folders (QA 2026-12-04)
+    ("conflicting-duplicate", _append_record(0, success=True, metrics__success=True, metrics__failure_reason=None),
+     (0, "episodes.jsonl:4: episode smoke-00000 has records that disagree (this one and line(s) 1, in metrics, "
+         "success)"), ([], 0, "line 1: episode smoke-00000 has records that disagree"), None),
+    ("record-of-another-episode", _append_record(0, episode_id="smoke-00015"),
+     (0, "episodes.jsonl:4: episode smoke-00015 is not one of the run's 3 episodes (split smoke"),
+     ([], 0, "smoke-00015 is not one of"), None),
+    ("episode-id-not-a-name", _combine(_append_record(0, episode_id="../../../tmp/qa/pwned"),
+                                       _append_record(1, episode_id="smoke-" + "x" * 5000)),
+     (0, "episodes.jsonl:4: episode_id '../../../tmp/qa/pwned' is not an episode id"),
+     ([], 0, "line 5: episode_id 'smoke-xxx"), None),
+    ("record-fields-malformed", _record_shapes, (0, "episodes.jsonl:1: collision_events is not a list"),
+     ([], 0, "line 3: extra.activity_time"), None),
+    ("invocations-directory", _to_directory("invocations.jsonl"), (0, "invocations.jsonl is a directory"),
+     ([], 2, "invocations.jsonl is a directory"), _undo_directory("invocations.jsonl")),
+    ("picture-data-content-a", _trace_damage(TRACE_DAMAGE_A),
+     (0, "smoke-00000.npz: the picture data is damaged (meta.grid"), ([], 0, ""), None),
+    ("picture-data-content-b", _trace_damage(TRACE_DAMAGE_B),
+     (0, "smoke-00001.npz: the picture data is damaged (meta.events"), ([], 0, ""), None),
 ]
 
 
@@ -752,12 +836,13 @@ def _views(folder: Path) -> dict[str, dict]:
 
 def _intact(folder: Path, clean: Path) -> set[str]:
     """Episodes of the clean run whose record is still in ``folder``'s episodes.jsonl, unchanged
-    (fingerprints aside), found without the code under test."""
+    (fingerprints aside), found without the code under test. An episode with another, different
+    record too is not intact (nothing says which of the two is right)."""
     def bare(rec: dict) -> dict:
         return {k: v for k, v in rec.items() if k != FINGERPRINT_FIELD}
 
     clean_records = {r["episode_id"]: bare(r) for r in map(json.loads, _lines(clean))}
-    found = set()
+    found, spoilt = set(), set()
     if not (folder / "episodes.jsonl").is_file():
         return found
     for line in _lines(folder):
@@ -765,9 +850,13 @@ def _intact(folder: Path, clean: Path) -> set[str]:
             rec = json.loads(line)
         except ValueError:
             continue
-        if isinstance(rec, dict) and clean_records.get(rec.get("episode_id")) == bare(rec):
+        if not isinstance(rec, dict) or rec.get("episode_id") not in clean_records:
+            continue
+        if clean_records[rec["episode_id"]] == bare(rec):
             found.add(rec["episode_id"])
-    return found
+        elif isinstance(rec.get("metrics"), dict) and "success" in rec:      # a record, but another one
+            spoilt.add(rec["episode_id"])
+    return found - spoilt
 
 
 def test_a_config_left_by_a_failed_start_does_not_block_the_corrected_command(tmp_path):
@@ -832,6 +921,83 @@ def test_a_damaged_run_folder(damage, clean_run, tmp_path):
 
     fps = {r.get(FINGERPRINT_FIELD) for r in read_results(folder / "episodes.jsonl").values()}
     assert fps <= {config_fingerprint(read_run_config(clean_run)[1]), None}
+
+
+@pytest.mark.parametrize("field, value, says", [
+    ("collision_events", "boom", "collision_events is not a list of objects"),
+    ("collision_events", [{"time": "soon"}], "collision_events: a time"),
+    ("extra", {"decisions": "x"}, "extra.decisions is not an object"),
+    ("extra", {"decisions": {"global_with_candidates": "many"}}, "extra.decisions.global_with_candidates"),
+    ("extra", {"decisions": {"local_search_sizes": [1, "x"]}}, "extra.decisions.local_search_sizes"),
+    ("extra", {"activity_time": "x"}, "extra.activity_time"),
+    ("extra", {"activity_time": {"explore": -1}}, "extra.activity_time"),
+    ("episode_id", "a/b", "is not an episode id"),
+    ("episode_id", "x" * 101, "is not an episode id"),
+])
+def test_record_fields_the_pages_use_are_checked(clean_run, field, value, says):
+    """(QA 2026-12-04) The line checks cover what the episode pages draw and what names files."""
+    from tasks.trials import record_problem
+
+    rec = json.loads(_lines(clean_run)[0])
+    assert record_problem(rec) is None
+    rec[field] = value
+    assert says in (record_problem(rec) or "")
+
+
+@pytest.mark.parametrize("table", [TRACE_DAMAGE_A, TRACE_DAMAGE_B], ids=["a", "b"])
+def test_picture_data_that_loads_but_is_damaged_is_named(table, clean_run, tmp_path):
+    """(QA 2026-12-04) Each damaged picture file is named on stderr and on its episode page; the
+    report finishes; the other pages are drawn."""
+    from tools.episode_pages import write_episode_pages
+    from tools.report import load_run
+
+    folder = tmp_path / "run"
+    shutil.copytree(clean_run, folder)
+    _trace_damage(table)(folder)
+    pages = write_episode_pages(tmp_path / "rep", 0, load_run(folder))
+    for (eid, _, says), page in zip(table, pages):
+        assert page.episode_id == eid and page.thumb is None
+        assert page.damaged.startswith("is damaged (") and says in page.damaged, page.damaged
+        assert f"{eid}.npz is damaged" in (tmp_path / "rep" / page.page).read_text()
+
+
+def test_report_prints_nothing_from_matplotlib(clean_run, tmp_path):
+    """(QA 2026-12-04) A long row name made matplotlib warn (tight layout) on stderr. (pytest
+    catches Python warnings before they reach stderr: they are recorded here instead.)"""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rc, out, err = run_cli(["report", str(clean_run), "--names", "n" * 100, "--out", str(tmp_path / "rep")])
+    assert rc == 0, err
+    assert not [str(w.message) for w in caught]
+    assert all(line.startswith("warning: ") for line in err.splitlines()), err
+
+
+def test_diff_names_damage_report_names(clean_run, tmp_path):
+    """(QA 2026-12-04) diff reads run folders as report does: records that disagree are named
+    FILE:LINE (not "identical"), and a damaged invocations.jsonl is said in one line."""
+    folder = tmp_path / "run"
+    shutil.copytree(clean_run, folder)
+    DAMAGES[[d[0] for d in DAMAGES].index("conflicting-duplicate")][1](folder)
+    _to_directory("invocations.jsonl")(folder)
+    rc, out, err = run_cli(["diff", str(clean_run), str(folder)])
+    assert rc == 0, err
+    assert "episodes.jsonl:1: episode smoke-00000 has records that disagree" in err
+    assert "episodes.jsonl:4: episode smoke-00000 has records that disagree" in err
+    assert "invocations.jsonl is a directory" in err
+    assert "only in A: 1 episode, smoke-00000" in out
+
+
+def test_a_run_folder_whose_name_is_not_utf8_is_refused_before_writing(clean_run, tmp_path):
+    """(QA 2026-12-04) report wrote table.txt, then failed on the path in its HTML."""
+    import os
+
+    folder = Path(os.fsdecode(bytes(tmp_path) + b"/r\xff"))
+    shutil.copytree(clean_run, folder)
+    rc, out, err = run_cli(["report", str(folder), "--out", str(tmp_path / "rep")])
+    assert rc == 2 and err.count("\n") == 1 and "r\\xff': its name is not UTF-8 text" in err, err
+    assert not (tmp_path / "rep").exists()
 
 
 # ------------------------------------------------------------------------------------------------
