@@ -269,8 +269,8 @@ def read_config_file(path: str | Path) -> dict:
     name = short_repr(str(p))
     if p.is_dir():
         raise ConfigError(f"config file {name} is a directory, not a YAML file")
-    if not p.is_file():
-        raise ConfigError(f"config file {name} does not exist")
+    if not p.is_file():     # /dev/null, a FIFO (reading one would block), a socket: not a config file
+        raise ConfigError(f"config file {name} {'is not a regular file' if p.exists() else 'does not exist'}")
     loaded = yaml_load_text(read_text(p, f"config file {name}"), f"config file {name}", ConfigError)
     if loaded is not None and not isinstance(loaded, Mapping):
         raise ConfigError(f"config file {str(p)!r} must hold a mapping at the top level, "

@@ -180,7 +180,7 @@ def test_view_prints_how_to_view_without_a_display(tmp_path, capsys, monkeypatch
     from tools.cli import main
 
     f = tmp_path / "ep.rrd"
-    f.write_bytes(b"\0" * 1000)
+    f.write_bytes(b"RRF2" + b"\0" * 996)           # the header rerun-sdk 0.41 writes, then anything
     monkeypatch.setenv("CI", "true")
     assert main(["view", str(f)]) == 0
     out = capsys.readouterr().out

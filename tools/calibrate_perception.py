@@ -20,7 +20,7 @@ import json
 import math
 from pathlib import Path
 
-from tools.cli import CliError, check_output_dir, check_output_file
+from tools.cli import CliError, check_output_dir, check_output_file, check_seed
 from tools.tables import format_table
 
 
@@ -169,8 +169,7 @@ def run(args: argparse.Namespace) -> int:
         raise CliError("--scenes must be >= 1")
     if args.views > 1_000_000 or args.scenes > 10_000:
         raise CliError(f"--views ({args.views}) must be at most 1000000 and --scenes ({args.scenes}) at most 10000")
-    if args.seed < 0:
-        raise CliError(f"--seed must be >= 0, got {args.seed}")
+    check_seed(args.seed)
     if args.min_pixels < 1:
         raise CliError(f"--min-pixels must be >= 1, got {args.min_pixels}")
     baseline = None

@@ -119,6 +119,16 @@ def check_output_file(path: str | Path, flag: str = "--out") -> Path:
     return p
 
 
+MAX_SEED = 2 ** 32 - 1       # NumPy seeds are 32-bit: every command's seed (trials' TrialConfig.seed too)
+
+
+def check_seed(value: int, flag: str = "--seed") -> int:
+    """A seed within 0..MAX_SEED, else CliError naming ``flag`` (the range ``trials`` and ``demo`` check)."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_SEED:
+        raise CliError(f"{flag} must be within 0..{MAX_SEED}, got {value}")
+    return value
+
+
 def check_finite(value: float, flag: str, positive: bool = False) -> float:
     """A finite number (and > 0 with ``positive``), else CliError naming ``flag``."""
     import math

@@ -151,10 +151,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from helios.schema import load_config
     from robots.spot.sim_backend import SimBackendConfig
-    from tools.cli import CliError, check_output_file
+    from tools.cli import CliError, check_output_file, check_seed
 
-    if not 0 <= args.seed < 2 ** 32:
-        raise CliError(f"--seed must be within 0..4294967295, got {args.seed}")
+    check_seed(args.seed)
     load_config(SimBackendConfig, getattr(args, "config", None), list(args.overrides))   # bad config: fail first
     record = None if args.no_record else check_output_file(Path(args.out) / f"demo_seed{args.seed}.rrd", "--out")
     outcome = run_demo(args.seed, args.overrides, record, config_file=getattr(args, "config", None))

@@ -15,6 +15,11 @@ import sys
 from pathlib import Path
 
 
+RRD_MAGIC = b"RRF"
+"""Every .rrd file starts with ``RRF`` and a format digit (rerun-sdk 0.41 writes ``RRF2``; older
+versions ``RRF0``/``RRF1``): the rerun log encoder's file header."""
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="a .rrd recording (e.g. from `tools trials --record N` or `tools demo`)")
     parser.add_argument("--print", dest="print_only", action="store_true",
@@ -56,9 +61,14 @@ def run(args: argparse.Namespace) -> int:
     if path.is_dir():
         raise CliError(f"recording {str(path)!r} is a folder, not a .rrd file")
     if not path.is_file():
-        raise CliError(f"recording {str(path)!r} does not exist")
+        raise CliError(f"recording {str(path)!r} {'is not a regular file' if path.exists() else 'does not exist'}")
     if path.suffix != ".rrd":
         raise CliError(f"{str(path)!r} is not a rerun recording (expected a .rrd file)")
+    with path.open("rb") as fh:
+        head = fh.read(len(RRD_MAGIC) + 1)
+    if not (head.startswith(RRD_MAGIC) and head[len(RRD_MAGIC):].isdigit()):
+        raise CliError(f"{str(path)!r} is not a rerun recording: it does not start with a .rrd header "
+                       f"({RRD_MAGIC.decode()}0-{RRD_MAGIC.decode()}2; a damaged or truncated file?)")
     viewer = find_viewer()
     if args.print_only or viewer is None or not display_available() or not sys.stdin.isatty():
         print(instructions(path, viewer))
