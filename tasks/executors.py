@@ -90,13 +90,42 @@ def _bounded(fn: Callable, timeout: float):
     return ("ok", box["ok"]) if "ok" in box else ("error", box.get("error"))
 
 
+def find_auto_address() -> tuple[str, int] | None:
+    """What ``ray.init(address="auto")`` would join: ``RAY_ADDRESS`` if set, else the cluster a
+    ``ray start`` on this machine recorded, else a running raylet's GCS address (Ray's own lookup,
+    ``ray._private.services``). ExecutorError when there is none, before anything starts."""
+    env = os.environ.get("RAY_ADDRESS", "").strip()
+    if env:
+        try:
+            return parse_address(env)
+        except ExecutorError as exc:
+            raise ExecutorError(f"--address auto takes the address from RAY_ADDRESS: {exc}") from None
+    from ray._private.services import find_bootstrap_address, find_gcs_addresses
+
+    found = find_bootstrap_address(None) or next(iter(sorted(find_gcs_addresses())), None)
+    if not found:
+        raise ExecutorError("--address auto: no running Ray cluster found on this machine (RAY_ADDRESS is not set "
+                            "and no `ray start` cluster is running); start one with `ray start --head`, name its "
+                            "head as HOST:PORT, or use --address local")
+    try:
+        return parse_address(found)
+    except ExecutorError:
+        return None                     # an address only Ray itself understands: let ray.init try it
+
+
 def check_address(address: str, timeout: float | None = None) -> None:
-    """A Ray address that names a head which answers: the syntax (:func:`parse_address`), then a
-    TCP connection within ``timeout`` seconds (default :data:`RAY_CONNECT_TIMEOUT_S`, name lookup
-    included), so an unreachable cluster is one clear error instead of a hang."""
+    """A Ray address that names a head which answers: the syntax (:func:`parse_address`), Ray is
+    installed, ``auto`` finds a cluster (:func:`find_auto_address`), then a TCP connection within
+    ``timeout`` seconds (default :data:`RAY_CONNECT_TIMEOUT_S`, name lookup included), so an
+    unreachable cluster is one clear error instead of a hang; all before a run folder is made."""
+    import importlib.util
     import socket
 
-    target = parse_address(address)
+    target = parse_address(address)                 # the syntax first: it needs no Ray
+    if importlib.util.find_spec("ray") is None:
+        raise ExecutorError("--executor ray needs Ray, an optional extra: pip install -e '.[ray]' (ray==2.60.0)")
+    if address == "auto":
+        target = find_auto_address()
     if target is None:
         return
     timeout = RAY_CONNECT_TIMEOUT_S if timeout is None else timeout
