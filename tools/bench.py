@@ -9,7 +9,7 @@ import argparse
 import importlib
 from pathlib import Path
 
-from tools.cli import CliError
+from tools.cli import CliError, check_seed
 
 # suite name -> module exposing ``add_arguments(parser)`` (optional) and ``run(args) -> str``
 SUITES: dict[str, str] = {
@@ -48,12 +48,16 @@ def run(args: argparse.Namespace) -> int:
 
 def _check_options(args: argparse.Namespace) -> None:
     """Every suite's numeric options, before any suite starts (so a typo costs no benchmark time)."""
-    if args.seed < 0:
-        raise CliError(f"--seed must be >= 0, got {args.seed}")
+    check_seed(args.seed)
     for flag, lo in (("agent_episodes", 1), ("agent_replans", 1), ("trials_episodes", 1), ("maps_threads", 1)):
         value = getattr(args, flag, None)
         if value is not None and not lo <= value <= 100_000:
             raise CliError(f"--{flag.replace('_', '-')} must be within {lo}..100000, got {value}")
+    from helios.schema import short_repr
+
+    twice = _first_repeat(args.suites)
+    if twice is not None:
+        raise CliError(f"suite {short_repr(twice, 40)} is given twice")
     workers = getattr(args, "trials_workers", None)
     if workers is not None:
         try:
@@ -61,14 +65,60 @@ def _check_options(args: argparse.Namespace) -> None:
         except ValueError:
             counts = []
         if not counts or not all(1 <= c <= 1024 for c in counts):
-            from helios.schema import short_repr
-
             raise CliError(f"--trials-workers must be comma-separated worker counts within 1..1024, "
                            f"got {short_repr(workers, 60)}")
-    if "maps" in args.suites:
-        from tools.bench_maps import check_device
+        if _first_repeat(counts) is not None:
+            raise CliError(f"--trials-workers: {_first_repeat(counts)} is given twice")
+    _check_agents(args)
+    if "trials" in args.suites:
+        from tasks.episodes import load_split
 
-        check_device(getattr(args, "maps_device", "cpu") or "cpu")
+        n = 3 if getattr(args, "quick", False) else args.trials_episodes
+        available = len(load_split(args.trials_split))        # an unknown split is one line too
+        if n > available:
+            raise CliError(f"--trials-episodes must be in 1..{available} (split {args.trials_split!r}), got {n}")
     recording = getattr(args, "maps_recording", None)
     if recording and not Path(recording).is_file():
-        raise CliError(f"--maps-recording {recording!r} is not a file")
+        raise CliError(f"--maps-recording {short_repr(recording)} is not a file")
+    if "maps" in args.suites:
+        _check_maps(args)
+
+
+def _first_repeat(values):
+    """The first value that occurs twice in ``values``, else None."""
+    seen = set()
+    for v in values:
+        if v in seen:
+            return v
+        seen.add(v)
+    return None
+
+
+def _check_agents(args: argparse.Namespace) -> None:
+    """The agents the trials and agent suites would run are registered episode agents."""
+    from tasks.registry import UnknownAgentError, check_agent
+
+    for flag in ("trials_agent", "agent_name"):
+        name = getattr(args, flag, None)
+        if name is not None:
+            try:
+                check_agent(name)
+            except UnknownAgentError as exc:
+                raise CliError(f"--{flag.replace('_', '-')}: {exc}") from None
+
+
+def _check_maps(args: argparse.Namespace) -> None:
+    """The maps suite's device, thread count and recording (flag or environment), before any suite runs."""
+    import os
+
+    from tools.bench_maps import RECORDING_ENV, _env_threads, check_device, check_trajectory
+
+    check_device(getattr(args, "maps_device", "cpu") or "cpu")
+    if getattr(args, "maps_threads", None) is None:
+        _env_threads()
+    recording = getattr(args, "maps_recording", None)
+    where = "--maps-recording"
+    if not recording and os.environ.get(RECORDING_ENV):
+        recording, where = os.environ[RECORDING_ENV], RECORDING_ENV
+    if recording:
+        check_trajectory(recording, where)

@@ -58,6 +58,8 @@ from robots.hal import CameraIntrinsics, CommandProxy, Observation
 from sim.synthetic_boxes import HEIGHT, WIDTH, Frame, synthetic_frames
 
 DEFAULT_FRAMES = 300
+RECORDING_ENV = "HELIOS_MAPS_RECORDING"     # a trajectory .npz, when --maps-recording is not given
+THREADS_ENV = "HELIOS_BENCH_THREADS"        # torch threads, when --maps-threads is not given
 QUICK_FRAMES = 60
 SYNTHETIC_DIR = Path("runs/bench_maps")
 
@@ -105,6 +107,10 @@ def save_trajectory(path: str | Path, frames: Iterable[Frame], task_classes: Seq
     return path
 
 
+TRAJECTORY_ARRAYS = frozenset({"rgb", "depth", "K", "T_world_cam", "T_world_body", "stamps", "det_frame", "det_class",
+                               "det_score", "det_masks", "class_names", "task_classes", "value_layers", "scores"})
+
+
 @dataclass
 class Trajectory:
     """A loaded trajectory file; iterate ``frames()`` for (Observation, detections, scores)."""
@@ -118,9 +124,7 @@ class Trajectory:
             raise FileNotFoundError(f"trajectory file {str(path)!r} does not exist")
         with np.load(path, allow_pickle=False) as data:
             arrays = {key: data[key] for key in data.files}
-        required = {"rgb", "depth", "K", "T_world_cam", "T_world_body", "stamps", "det_frame", "det_class",
-                    "det_score", "det_masks", "class_names", "task_classes", "value_layers", "scores"}
-        missing = sorted(required - set(arrays))
+        missing = sorted(TRAJECTORY_ARRAYS - set(arrays))
         if missing:
             raise ValueError(f"trajectory {str(path)!r} lacks the arrays {missing}; see tools/bench_maps.py")
         return Trajectory(arrays)
@@ -157,6 +161,66 @@ class Trajectory:
             obs = Observation(rgb=a["rgb"][i], depth=a["depth"][i], intrinsics=cam, T_world_cam=a["T_world_cam"][i],
                               T_world_body=a["T_world_body"][i], stamp=float(a["stamps"][i]), frame_id=i)
             yield obs, detections, dict(zip(self.value_layers, a["scores"][i].tolist()))
+
+
+def check_trajectory(path: str | Path, where: str = "--maps-recording") -> None:
+    """``path`` is a trajectory ``.npz`` this benchmark can replay (the arrays of the module
+    docstring, with matching shapes); a CliError naming ``where`` otherwise. Loads it in this
+    process, so a bad file is one line before any worker starts."""
+    import zipfile
+
+    from helios.schema import short_repr
+    from tools.cli import CliError
+
+    name = f"{where} {short_repr(str(path))}"
+    if not Path(path).is_file():
+        raise CliError(f"{name} is not a file")
+    def bad(what: str):
+        return CliError(f"{name}: {what}; see tools/bench_maps.py for the format")
+
+    try:
+        data = np.load(path, allow_pickle=False)
+        if not isinstance(data, np.lib.npyio.NpzFile):
+            raise bad("a single NumPy array, not a trajectory .npz")
+        with data:
+            a = {key: data[key] for key in data.files}
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError, RuntimeError) as exc:
+        why = "not a .npz file" if isinstance(exc, (zipfile.BadZipFile, EOFError)) else one_line_text(exc)
+        if "pickle" in str(exc):
+            why = "not a trajectory .npz (it holds pickled objects, or is not a NumPy file)"
+        raise bad(why) from None
+    missing = sorted(TRAJECTORY_ARRAYS - set(a))
+    if missing:
+        raise bad(f"lacks the arrays {', '.join(missing)}")
+    rgb, depth = a["rgb"], a["depth"]
+    if depth.ndim != 3 or depth.shape[0] < 1 or min(depth.shape[1:]) < 1:
+        raise bad(f"depth has shape {depth.shape}, expected (N, H, W) with N >= 1")
+    n, h, w = depth.shape
+    expected = {"rgb": (n, h, w, 3), "K": (3, 3), "T_world_cam": (n, 4, 4), "T_world_body": (n, 4, 4),
+                "stamps": (n,)}
+    for key, shape in expected.items():
+        if a[key].shape != shape:
+            raise bad(f"{key} has shape {a[key].shape}, expected {shape}")
+    if rgb.dtype != np.uint8:
+        raise bad(f"rgb is {rgb.dtype}, expected uint8")
+    m = a["det_frame"].shape[0] if a["det_frame"].ndim == 1 else -1
+    for key in ("det_frame", "det_class", "det_score"):
+        if a[key].shape != (m,) or m < 0:
+            raise bad(f"{key} has shape {a[key].shape}, expected one value per detection")
+    if a["det_masks"].shape != (m, math.ceil(h * w / 8)):
+        raise bad(f"det_masks has shape {a['det_masks'].shape}, expected {(m, math.ceil(h * w / 8))}")
+    for key in ("class_names", "task_classes", "value_layers"):
+        if a[key].ndim != 1 or a[key].dtype.kind not in "US":
+            raise bad(f"{key} must be a list of names")
+    if a["scores"].shape != (n, len(a["value_layers"])):
+        raise bad(f"scores has shape {a['scores'].shape}, expected {(n, len(a['value_layers']))}")
+    if m and (a["det_frame"].min() < 0 or a["det_frame"].max() >= n
+              or a["det_class"].min() < 0 or a["det_class"].max() >= len(a["class_names"])):
+        raise bad("a detection names a frame or class the file does not have")
+
+
+def one_line_text(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def synthetic_trajectory_file(n_frames: int, seed: int) -> Path:
@@ -390,18 +454,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="torch threads (default 1, or $HELIOS_BENCH_THREADS)")
 
 
+def _env_threads() -> int:
+    """Torch threads from ``HELIOS_BENCH_THREADS`` (default 1); a CliError naming it unless it is a
+    whole number within 1..100000."""
+    from helios.schema import short_repr
+    from tools.cli import CliError
+
+    text = os.environ.get(THREADS_ENV, "").strip()
+    if not text:
+        return 1
+    try:
+        threads = int(text)
+    except ValueError:
+        threads = 0
+    if not 1 <= threads <= 100_000:
+        raise CliError(f"{THREADS_ENV}={short_repr(text, 40)} must be a whole number of torch threads "
+                       f"within 1..100000 (or unset: 1 thread)")
+    return threads
+
+
 def run(args: argparse.Namespace) -> str:
     device = getattr(args, "maps_device", "cpu") or "cpu"
     check_device(device)                 # before a recording that may take a minute to make
-    recording = getattr(args, "maps_recording", None) or os.environ.get("HELIOS_MAPS_RECORDING")
+    recording = getattr(args, "maps_recording", None) or os.environ.get(RECORDING_ENV)
     # One torch thread by default: on a 2-core machine that also runs the simulator, 2 threads
     # make the p90 erratic (oversubscription) while gaining little on the median.
-    threads = getattr(args, "maps_threads", None) or int(os.environ.get("HELIOS_BENCH_THREADS", 0)) or 1
+    threads = getattr(args, "maps_threads", None) or _env_threads()
     limit = QUICK_FRAMES if getattr(args, "quick", False) else None
     if recording:
         path, source = Path(recording), f"recording {recording}"
-        if not path.is_file():
-            raise FileNotFoundError(f"maps recording {recording!r} does not exist")
+        check_trajectory(path, "--maps-recording" if getattr(args, "maps_recording", None) else RECORDING_ENV)
     elif getattr(args, "maps_synthetic", False):
         path = synthetic_trajectory_file(DEFAULT_FRAMES, getattr(args, "seed", 0))
         source = f"synthetic two-room flat ({path})"
