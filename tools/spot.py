@@ -56,6 +56,7 @@ from tasks.registry import DEMO, EPISODE, RunContext, agent_names, check_agent, 
 from tasks.scripted_demo import DemoHints, physical_outcome
 
 _LOG = logging.getLogger("helios.spot")
+DEFAULT_MAX_TIME = 600.0        # s of robot time per task-episode run (the paper's 10 minutes)
 
 
 # ============================================================================ command line
@@ -102,8 +103,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     hw.add_argument("--detector-weights", default=None, metavar="DIR", help="OWLv2 weight folder (overrides --models)")
     hw.add_argument("--scorer-weights", default=None, metavar="DIR", help="CLIP weight folder (overrides --models)")
     hw.add_argument("--device", choices=("cpu", "cuda", "auto"), default=None, help="torch device for the models")
-    hw.add_argument("--max-time", type=float, default=600.0,
-                    help="s of robot time per run before the agent is stopped (default 600: the paper's 10 minutes)")
+    hw.add_argument("--max-time", type=float, default=None,
+                    help=f"s of robot time per run before the agent is stopped (default {DEFAULT_MAX_TIME:g}: the "
+                         f"paper's 10 minutes)")
     hw.add_argument("--trial-id", default=None, help="episode id of this robot run (default hw-<time>-<task>)")
     hw.add_argument("--on-goal", default=None, metavar="yes|no",
                     help="operator's answer: the object is on the goal receptacle (default: asked at the end)")
@@ -153,8 +155,41 @@ class _RunLog(logging.Handler):
         super().close()
 
 
-def _validate(args: argparse.Namespace):
+def _refuse_ignored(args: argparse.Namespace) -> None:
+    """A flag that would have no effect in this mode is one error saying so, never silently ignored.
+    Modes: a demo-layout agent (``--fake --task``, or ``scripted-demo`` on a robot), a task-episode
+    agent on a robot (``HOSTNAME --agent helios --task``), and ``--fake --episode ID``."""
     from tools.cli import CliError
+
+    episode_agent = args.episode is not None or check_agent(args.agent, None).runs_on == EPISODE
+    operator = (("--on-goal", args.on_goal is not None), ("--at-rest", args.at_rest is not None),
+                ("--extra-collisions", args.extra_collisions is not None))
+    models = (("--models", args.models), ("--detector-weights", args.detector_weights),
+              ("--scorer-weights", args.scorer_weights), ("--device", args.device))
+    if not episode_agent:
+        for flag, given in (("--perception", args.perception is not None), *models,
+                            ("--max-time", args.max_time is not None), ("--trial-id", args.trial_id is not None),
+                            *operator, ("--no-recording", args.no_recording)):
+            if given:
+                raise CliError(f"{flag} is for task-episode agents (--fake --episode ID, or HELIOS & co. on a robot); "
+                               f"{args.agent} is given the demo layout, where {flag} is ignored")
+        return
+    if args.perception != "real":
+        for flag, given in models:
+            if given:
+                raise CliError(f"{flag} sets up real perception; it is ignored with --perception {args.perception} "
+                               f"(give --perception real to run the models)")
+    if args.fake:                                   # --fake --episode: the simulator judges and names the run
+        if args.trial_id is not None:
+            raise CliError("--trial-id names a run on a real robot; with --episode the record takes the episode's id")
+        for flag, given in operator:
+            if given:
+                raise CliError(f"{flag} is the operator's answer on a real robot; it is ignored with --fake --episode, "
+                               f"where the simulator judges the episode")
+
+
+def _validate(args: argparse.Namespace):
+    from tools.cli import CliError, check_seed
 
     if args.episode is not None:
         if not args.fake:
@@ -180,13 +215,21 @@ def _validate(args: argparse.Namespace):
                 raise CliError("--perception sim needs the simulator's ground truth: on a robot HELIOS runs with "
                                "real perception (--perception real)")
             args.perception = "real"
+    _refuse_ignored(args)
     if args.perception == "real" and not (args.models or args.detector_weights or args.scorer_weights):
         raise CliError("real perception needs the models' weight folders: --models FILE.yaml, or --detector-weights "
                        "DIR and --scorer-weights DIR (helios.perception.config.ModelConfig)")
-    if args.perception is not None and (args.episode is None and check_agent(args.agent, None).runs_on == DEMO):
-        raise CliError(f"--perception is for task-episode agents; {args.agent} is given the demo layout")
-    if not (isinstance(args.max_time, float) and 0 < args.max_time <= 3600):
+    if args.max_time is not None and not (isinstance(args.max_time, float) and 0 < args.max_time <= 3600):
         raise CliError(f"--max-time must be within (0, 3600] s, got {args.max_time}")
+    if args.max_time is None:
+        args.max_time = DEFAULT_MAX_TIME
+    if args.trial_id is not None:
+        from helios.schema import short_repr
+        from tasks.episodes import _ID
+
+        if not _ID.fullmatch(args.trial_id):
+            raise CliError(f"--trial-id {short_repr(args.trial_id, 80)} must be 1-100 letters, digits, '-', '_' or '.' "
+                           f"(it names the run's recording)")
     if args.time_scale is not None:
         if not args.fake:
             raise CliError("--time-scale paces the fake Spot: it needs --fake")
@@ -200,8 +243,14 @@ def _validate(args: argparse.Namespace):
         raise CliError("the robot's HOSTNAME is required (or --fake for a dry run against a simulated Spot)")
     if args.port is not None and not 0 < args.port < 65536:
         raise CliError(f"--port must be within 1..65535, got {args.port}")
-    if args.seed < 0:
-        raise CliError(f"--seed must be >= 0, got {args.seed}")
+    if args.episode is None and args.split:
+        raise CliError("--split is where --episode ID is looked up; without --episode it is ignored")
+    if args.fake:
+        for flag, given in (("--port", args.port is not None), ("--cert", args.cert is not None)):
+            if given:
+                raise CliError(f"{flag} is ignored with --fake: the fake Spot listens on a port of its own with a "
+                               f"throwaway certificate")
+    check_seed(args.seed)
     if args.name is not None:
         import re
 
@@ -235,6 +284,12 @@ def run(args: argparse.Namespace) -> int:
     config = with_overrides(with_overrides(base, flags), list(args.overrides))
     if not args.fake and not config.hostname:
         raise CliError(f"the robot's HOSTNAME is required: {config_file} sets none (or --fake for a dry run)")
+    if not args.fake and config.cert_path is not None:     # --cert or the config file's cert_path
+        cert = Path(config.cert_path)
+        if not cert.exists():
+            raise CliError(f"certificate file {config.cert_path!r} does not exist (--cert: the CA bundle, PEM)")
+        if not cert.is_file():
+            raise CliError(f"certificate file {config.cert_path!r} is not a regular file (--cert: the CA bundle, PEM)")
 
     from tools.cli import check_output_dir
 
@@ -355,6 +410,13 @@ def _prepare_trial(args, run_dir: Path) -> _Trial:
         raise CliError("--on-goal/--at-rest are the operator's answers on a real robot; on the fake the simulator "
                        "judges the episode")
     perception = None
+    if args.perception == "real" and models.device == "cuda":
+        import torch
+
+        if not torch.cuda.is_available():
+            raise CliError(f"{'--device' if args.device else '--models ' + str(args.models) + ':'} cuda: no CUDA "
+                           f"device here (torch.cuda.is_available() is False; torch {torch.__version__}); use cpu "
+                           f"or auto")
     if args.perception == "real":
         print(f"[spot] loading real perception: detector {models.detector_weights or '?'}, scorer "
               f"{models.scorer_weights or '?'} ({models.device})")
