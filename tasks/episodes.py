@@ -162,6 +162,15 @@ def episode_from_dict(d: dict, where: str) -> Episode:
         raise DatasetError(f"{where}: robot_start must be 3 finite numbers [x, y, yaw], got {_short(start)}")
     if not d["goal_receptacles"] or not all(isinstance(g, str) and g for g in d["goal_receptacles"]):
         raise DatasetError(f"{where}: goal_receptacles must be a non-empty list of instance names")
+    goals = d["goal_receptacles"]
+    twice = next((g for i, g in enumerate(goals) if g in goals[:i]), None)
+    if twice is not None:
+        raise DatasetError(f"{where}: goal receptacle {_short(twice)} is listed twice in goal_receptacles")
+    if d["start_receptacle"] in goals:
+        raise DatasetError(f"{where}: the start receptacle {_short(d['start_receptacle'])} is also a goal receptacle "
+                           f"(the episode would be over before it starts)")
+    if d["difficulty"] not in DIFFICULTIES:
+        raise DatasetError(f"{where}: difficulty {_short(d['difficulty'])} is not one of: {', '.join(DIFFICULTIES)}")
     if not _ID.fullmatch(d["episode_id"]):
         raise DatasetError(f"{where}: episode_id {_short(d['episode_id'])} must be 1-100 letters, digits, '-', '_' "
                            f"or '.' (it names files, e.g. recordings)")
@@ -175,6 +184,22 @@ def episode_from_dict(d: dict, where: str) -> Episode:
                    schema_version=d["schema_version"])
 
 
+class _DuplicateKey(Exception):
+    def __init__(self, key: str):
+        super().__init__(key)
+        self.key = key
+
+
+def _unique_keys(pairs: list[tuple[str, object]]) -> dict:
+    """``json.loads``'s object hook: a dict, refusing a key given twice (plain JSON keeps the last)."""
+    out: dict = {}
+    for key, value in pairs:
+        if key in out:
+            raise _DuplicateKey(key)
+        out[key] = value
+    return out
+
+
 def load_episodes(path: str | Path) -> list[Episode]:
     """Read and validate a JSONL episode file; the first bad line raises DatasetError."""
     from helios.schema import read_text, short_repr
@@ -183,7 +208,8 @@ def load_episodes(path: str | Path) -> list[Episode]:
     if p.is_dir():
         raise DatasetError(f"episode file {short_repr(str(p))} is a directory")
     if not p.is_file():
-        raise DatasetError(f"episode file {short_repr(str(p))} does not exist")
+        raise DatasetError(f"episode file {short_repr(str(p))} "
+                           f"{'is not a regular file' if p.exists() else 'does not exist'}")
     episodes, seen = [], set()
     text = read_text(p, f"episode file {short_repr(str(p))}", DatasetError)
     for lineno, line in enumerate(text.split("\n"), 1):
@@ -191,7 +217,10 @@ def load_episodes(path: str | Path) -> list[Episode]:
             continue
         where = f"{p}:{lineno}"
         try:
-            d = json.loads(line)
+            d = json.loads(line, object_pairs_hook=_unique_keys)
+        except _DuplicateKey as exc:
+            raise DatasetError(f"{where}: key {_short(exc.key)} appears twice in one JSON object (which one "
+                               f"counts is ambiguous)") from None
         except json.JSONDecodeError as exc:
             raise DatasetError(f"{where}: not valid JSON ({exc.msg} at column {exc.colno}); "
                                f"the file may be truncated or corrupted") from None

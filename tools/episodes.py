@@ -33,15 +33,14 @@ def run(args: argparse.Namespace) -> int:
 
     from helios.schema import short_repr
     from tasks.episodes import generate_episodes, load_episodes, save_episodes
-    from tools.cli import CliError, check_output_file
+    from tools.cli import CliError, check_output_file, check_seed
 
     if args.action == "generate":
         if args.count <= 0:
             raise CliError(f"--count must be positive, got {args.count}")
         if args.count > 100_000:
             raise CliError(f"--count must be at most 100000, got {args.count}")
-        if args.seed < 0:
-            raise CliError(f"--seed must be >= 0, got {args.seed}")
+        check_seed(args.seed)
         if not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,80}", args.name):
             raise CliError(f"--name {short_repr(args.name, 80)} must be 1-81 letters, digits, '-', '_' or '.' "
                            f"(it starts every episode id)")
@@ -69,6 +68,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {len(episodes)} episodes to {args.out}")
         return 0
     episodes = load_episodes(args.file)
+    from tasks.episode_checks import check_episode_homes
+
+    check_episode_homes(episodes, args.file)    # the checks `trials --episodes-file` makes: episodes fit their homes
     scenes = {e.scene.seed for e in episodes}
     objects = Counter(e.object_category for e in episodes)
     print(f"{args.file}: {len(episodes)} valid episodes in {len(scenes)} homes")
