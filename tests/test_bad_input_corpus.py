@@ -107,6 +107,8 @@ def ws(tmp_path_factory):
     }
     for name, data in files.items():
         (eps / name).write_bytes(data)
+    for name, data in QA_FILES.items():
+        (root / name).write_bytes(data)
     cfg = root / "cfg"
     cfg.mkdir()
     configs = {
@@ -514,7 +516,78 @@ CASES: list[tuple[str, list[str], str]] = [
     ("report-out-not-utf8", [*REPORT, "--out", "{ws}/rep\udcff"], "not UTF-8"),
     ("report-run-not-utf8", ["report", R + "r\udcff", "--out", "{ws}/new_rep"], "not UTF-8"),
     ("diff-run-not-utf8", ["diff", R + "valid", R + "r\udcff"], "not UTF-8"),
+    # spot, bench, episodes, ray (QA 2026-12-04)
+    ("spot-demo-on-goal", [*SPOT, "--on-goal", "maybe"], "--on-goal is for task-episode agents"),
+    ("spot-demo-at-rest", [*SPOT, "--at-rest", "2"], "--at-rest is for task-episode agents"),
+    ("spot-demo-trial-id", [*SPOT, "--trial-id", "../../etc"], "--trial-id is for task-episode agents"),
+    ("spot-demo-models", [*SPOT, "--models", "/nonexistent.yaml"], "--models is for task-episode agents"),
+    ("spot-demo-detector", [*SPOT, "--detector-weights", "/nonexistent"], "--detector-weights is for task-episode"),
+    ("spot-demo-device", [*SPOT, "--device", "cuda"], "--device is for task-episode agents"),
+    ("spot-demo-max-time", [*SPOT, "--max-time", "5"], "--max-time is for task-episode agents"),
+    ("spot-demo-no-recording", [*SPOT, "--no-recording"], "--no-recording is for task-episode agents"),
+    ("spot-demo-robot-on-goal", ["spot", "10.0.0.3", "--task", TASK, "--on-goal", "yes"], "--on-goal is for"),
+    ("spot-fake-cert", [*SPOT, "--cert", "/nonexistent.pem"], "--cert is ignored with --fake"),
+    ("spot-fake-port", [*SPOT, "--port", "443"], "--port is ignored with --fake"),
+    ("spot-split-without-episode", [*SPOT, "--split", "smoke"], "without --episode it is ignored"),
+    ("spot-robot-cert-missing", ["spot", "10.0.0.3", "--task", TASK, "--cert", "{ws}/nope.pem"], "does not exist"),
+    ("spot-robot-cert-dev-null", ["spot", "10.0.0.3", "--task", TASK, "--cert", "/dev/null"], "is not a regular file"),
+    ("spot-robot-trial-id", ["spot", "10.0.0.3", "--agent", "helios", "--task", TASK, "--detector-weights", "{ws}/adir",
+                             "--scorer-weights", "{ws}/adir", "--trial-id", "../../etc"], "--trial-id '../../etc'"),
+    ("spot-robot-on-goal-value", ["spot", "10.0.0.3", "--agent", "helios", "--task", TASK, "--detector-weights",
+                                  "{ws}/adir", "--scorer-weights", "{ws}/adir", "--on-goal", "maybe", "--at-rest", "yes"],
+     "--on-goal must be yes or no"),
+    ("spot-episode-trial-id", ["spot", "--fake", "--episode", "smoke-00001", "--trial-id", "x"], "with --episode"),
+    ("spot-episode-models-sim", ["spot", "--fake", "--episode", "smoke-00001", "--models", "/nonexistent.yaml"],
+     "ignored with --perception sim"),
+    ("spot-episode-extra-collisions", ["spot", "--fake", "--episode", "smoke-00001", "--extra-collisions", "1"],
+     "ignored with --fake --episode"),
+    ("spot-seed-huge", [*SPOT, "--seed", "99999999999999"], "--seed must be within 0..4294967295"),
+    ("bench-seed-huge", ["bench", "sim", "--seed", "99999999999999"], "--seed must be within 0..4294967295"),
+    ("calibrate-seed-huge", ["calibrate-perception", "--seed", "99999999999999", "--out", "{ws}/new_cal"],
+     "--seed must be within 0..4294967295"),
+    ("gen-seed-huge", ["episodes", "generate", "--name", "x", "--seed", "99999999999999", "--count", "1",
+                       "--out", "{ws}/n.jsonl"], "--seed must be within 0..4294967295"),
+    ("bench-trials-agent", ["bench", "trials", "--trials-agent", "nope"], "--trials-agent: unknown agent 'nope'"),
+    ("bench-agent-name-late", ["bench", "sim", "agent", "--agent-name", "nope"], "--agent-name: unknown agent 'nope'"),
+    ("bench-trials-split", ["bench", "sim", "trials", "--trials-split", "nope"], "unknown split 'nope'"),
+    ("bench-trials-episodes-many", ["bench", "trials", "--trials-episodes", "21"], "--trials-episodes must be in 1..20"),
+    ("bench-trials-workers-twice", ["bench", "trials", "--trials-workers", "1,1"], "--trials-workers: 1 is given twice"),
+    ("bench-suite-twice", ["bench", "sim", "sim"], "suite 'sim' is given twice"),
+    ("bench-maps-recording-not-npz", ["bench", "maps", "--maps-recording", "{ws}/rec.txt"], "not a trajectory .npz"),
+    ("bench-maps-recording-no-arrays", ["bench", "maps", "--maps-recording", "{ws}/arrays.npz"], "lacks the arrays"),
+    ("ep-check-target-missing", ["episodes", "check", E + "target_missing.jsonl"], "'cup_99' is not in its home"),
+    ("ep-check-start-outside", ["episodes", "check", E + "start_outside.jsonl"], "outside its home"),
+    ("ep-check-difficulty", ["episodes", "check", E + "difficulty.jsonl"],
+     "difficulty.jsonl:1: difficulty 'insane' is not one of: easy, normal"),
+    ("ep-difficulty", [*T, "--episodes-file", E + "difficulty.jsonl"], "difficulty.jsonl:1: difficulty 'insane'"),
+    ("ep-check-duplicate-key", ["episodes", "check", E + "duplicate_key.jsonl"],
+     "duplicate_key.jsonl:1: key 'difficulty' appears twice"),
+    ("ep-duplicate-key", [*T, "--episodes-file", E + "duplicate_key.jsonl"], "key 'difficulty' appears twice"),
+    ("ep-duplicate-key-nested", [*T, "--episodes-file", E + "duplicate_key_scene.jsonl"], "key 'seed' appears twice"),
+    ("ep-check-goal-twice", ["episodes", "check", E + "goal_twice.jsonl"],
+     f"goal_twice.jsonl:1: goal receptacle {GOAL_1!r} is listed twice"),
+    ("ep-goal-twice", [*T, "--episodes-file", E + "goal_twice.jsonl"], "is listed twice"),
+    ("ep-check-goal-is-start", ["episodes", "check", E + "goal_is_start.jsonl"],
+     "goal_is_start.jsonl:1: the start receptacle"),
+    ("ep-goal-is-start", [*T, "--episodes-file", E + "goal_is_start.jsonl"], "is also a goal receptacle"),
+    ("ep-dev-null", [*T, "--episodes-file", "/dev/null"], "is not a regular file"),
+    ("cfg-dev-null", ["trials", "--config", "/dev/null", "--out", "{ws}/new_run"], "is not a regular file"),
+    ("spot-cfg-dev-null", [*SPOT, "--config", "/dev/null"], "is not a regular file"),
+    ("view-dev-null", ["view", "/dev/null"], "is not a regular file"),
+    ("view-random-bytes", ["view", "--print", "{ws}/random.rrd"], "does not start with a .rrd header"),
+    ("view-empty-rrd", ["view", "--print", "{ws}/empty.rrd"], "does not start with a .rrd header"),
 ]
+# Files the QA 2026-12-04 cases read, written into the workspace (path under it -> bytes)
+QA_FILES: dict[str, bytes] = {
+    "eps/difficulty.jsonl": _episode(difficulty="insane").encode(),
+    "eps/duplicate_key.jsonl": ('{"difficulty": "easy", ' + _episode()[1:]).encode(),
+    "eps/duplicate_key_scene.jsonl": _episode().replace('"scene": {', '"scene": {"seed": 1, ').encode(),
+    "eps/goal_twice.jsonl": _episode(goal_receptacles=[GOAL_1, GOAL_1]).encode(),
+    "eps/goal_is_start.jsonl": _episode(goal_receptacles=[GOAL_1, load_split("smoke")[1].start_receptacle]).encode(),
+    "random.rrd": bytes(range(256)) * 4,
+    "empty.rrd": b"",
+    "arrays.npz": b"PK\x05\x06" + b"\0" * 18,         # an empty zip: a .npz without any array
+}
 
 
 @pytest.fixture
