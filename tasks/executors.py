@@ -100,9 +100,12 @@ def find_auto_address() -> tuple[str, int] | None:
             return parse_address(env)
         except ExecutorError as exc:
             raise ExecutorError(f"--address auto takes the address from RAY_ADDRESS: {exc}") from None
-    from ray._private.services import find_bootstrap_address, find_gcs_addresses
+    try:        # private API (ray==2.60.0 is pinned); another Ray version: let ray.init do the lookup
+        from ray._private.services import find_bootstrap_address, find_gcs_addresses
 
-    found = find_bootstrap_address(None) or next(iter(sorted(find_gcs_addresses())), None)
+        found = find_bootstrap_address(None) or next(iter(sorted(find_gcs_addresses())), None)
+    except (ImportError, AttributeError, TypeError):
+        return None
     if not found:
         raise ExecutorError("--address auto: no running Ray cluster found on this machine (RAY_ADDRESS is not set "
                             "and no `ray start` cluster is running); start one with `ray start --head`, name its "
