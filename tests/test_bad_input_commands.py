@@ -126,3 +126,24 @@ def test_episodes_check_accepts_the_shipped_smoke_split(capsys):
 
     assert main(["episodes", "check", "tasks/data/smoke.jsonl"]) == 0
     assert "20 valid episodes in 20 homes" in capsys.readouterr().out
+
+
+def test_overrides_may_stand_among_the_flags_and_later_ones_win():
+    from tools.cli import build_parser, parse_arguments
+
+    parser = build_parser()
+    args = parse_arguments(parser, ["trials", "runner.max_commands=3", "--out", "X", "--episodes", "2",
+                                    "seed=4", "runner.max_commands=5"])
+    assert args.overrides == ["runner.max_commands=3", "seed=4", "runner.max_commands=5"]
+    assert (args.out, args.episodes) == ("X", 2)
+    args = parse_arguments(parser, ["tsdf", "smoke-00001", "--out", "X", "voxel_size=0.02"])
+    assert args.overrides == ["voxel_size=0.02"]
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["trials", "a=1", "--out", "X", "--bogus"], "unrecognized arguments: --bogus"),
+    (["trials", "a=1", "--out", "X", "notanoverride"], "unrecognized arguments: notanoverride"),
+    (["diff", "A", "B", "a=1"], "unrecognized arguments: a=1"),       # a command without overrides
+])
+def test_a_stray_argument_is_still_one_line(argv, fragment, tmp_path):
+    _one_line(argv, fragment, tmp_path)

@@ -162,6 +162,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def parse_arguments(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
+    """``parser.parse_args``, except that ``KEY=VALUE`` overrides may stand anywhere among the flags
+    (argparse gives a positional list only its first run: ``trials a=1 --out X b=2`` would refuse
+    ``b=2``). Later runs are appended in command-line order, so a later override still wins."""
+    args, extras = parser.parse_known_args(argv)
+    if extras:
+        overrides = getattr(args, "overrides", None)
+        if args.command == "spot" or not isinstance(overrides, list) or \
+                not all("=" in e and not e.startswith("-") for e in extras):
+            parser.error(f"unrecognized arguments: {' '.join(extras)}")
+        args.overrides = [*overrides, *extras]
+    return args
+
+
 def main(argv: list[str] | None = None) -> int:
     from helios.runtime import check_cpu_choice, configure_threads
 
@@ -172,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     configure_threads(1)  # see helios.runtime: one native thread per process is fastest here
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parse_arguments(parser, argv)
     try:
         return int(importlib.import_module(args._module).run(args) or 0)
     except KeyboardInterrupt:
