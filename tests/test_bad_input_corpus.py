@@ -516,6 +516,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("report-out-not-utf8", [*REPORT, "--out", "{ws}/rep\udcff"], "not UTF-8"),
     ("report-run-not-utf8", ["report", R + "r\udcff", "--out", "{ws}/new_rep"], "not UTF-8"),
     ("diff-run-not-utf8", ["diff", R + "valid", R + "r\udcff"], "not UTF-8"),
+    ("trials-out-not-utf8", [*T[:-2], "--out", "{ws}/run\udcff"], "not UTF-8"),      # report could not read it
+    ("tsdf-out-not-utf8", ["tsdf", "smoke-00001", "--out", "{ws}/ts\udcff"], "not UTF-8"),
     # spot, bench, episodes, ray (QA 2026-12-04)
     ("spot-demo-on-goal", [*SPOT, "--on-goal", "maybe"], "--on-goal is for task-episode agents"),
     ("spot-demo-at-rest", [*SPOT, "--at-rest", "2"], "--at-rest is for task-episode agents"),

@@ -82,6 +82,21 @@ def _nearest_existing(path: Path) -> tuple[Path, Path | None]:
     return Path("."), None
 
 
+def shown_path(path) -> str:
+    """A path as text that can always be printed: bytes that are not UTF-8 as ``\\xNN``."""
+    return os.fsencode(str(path)).decode("utf-8", "backslashreplace")
+
+
+def check_text_path(path, what: str) -> None:
+    """CliError when ``path`` is not UTF-8 text (a name made of other bytes): run folders are read
+    back by ``report`` and ``diff``, which write their paths into UTF-8 pages and tables."""
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        raise CliError(f"{what} '{shown_path(path)}': its name is not UTF-8 text, which the pages and tables "
+                       f"of reports cannot show; rename it to a UTF-8 name") from None
+
+
 def check_output_dir(path: str | Path, flag: str = "--out") -> Path:
     """``path`` can be (or already is) a folder we can write in; CliError naming ``flag`` otherwise.
     Reads only (a probe folder is made and removed again): call it before any work starts."""
@@ -92,6 +107,7 @@ def check_output_dir(path: str | Path, flag: str = "--out") -> Path:
         raise CliError(f"{flag} must not be empty")
     if "\0" in str(path):
         raise CliError(f"{flag} {short_repr(str(path))} contains a NUL character")
+    check_text_path(path, flag)
     existing, blocker = _nearest_existing(p)
     if blocker is not None:
         what = "is an existing file" if blocker == p else f"is inside {str(blocker)!r}, which is a file"

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tools.cli import check_text_path, shown_path
+
 PHASES = ("FindObj", "Pick", "FindRec", "Place", "SR")
 PHASE_COLORS = ("#c6dbef", "#9ecae1", "#6baed6", "#3182bd", "#08519c")
 MEMORY_SERIES = (("rss_mb", "resident memory (RSS)"), ("map_mb", "agent map"),
@@ -62,25 +64,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 MAX_LISTED_DAMAGE = 10     # damaged lines named one by one (FILE:LINE) per run folder; the rest are counted
 MAX_NAME_CHARS = 100       # a --names name (row labels, file and folder names of the episode pages)
-
-
-def shown_path(path) -> str:
-    """A path as text that can always be printed: bytes that are not UTF-8 as ``\\xNN``."""
-    import os
-
-    return os.fsencode(str(path)).decode("utf-8", "backslashreplace")
-
-
-def check_text_path(path, what: str) -> None:
-    """CliError when ``path`` is not UTF-8 text (a name made of other bytes): the report writes its
-    paths into UTF-8 pages and tables, and prints them."""
-    from tools.cli import CliError
-
-    try:
-        str(path).encode("utf-8")
-    except UnicodeEncodeError:
-        raise CliError(f"{what} '{shown_path(path)}': its name is not UTF-8 text, which the pages and tables "
-                       f"of reports cannot show; rename it to a UTF-8 name") from None
 
 
 def check_names(names: list[str]) -> None:
