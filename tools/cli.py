@@ -125,6 +125,7 @@ def check_output_file(path: str | Path, flag: str = "--out") -> Path:
     p = Path(path)
     if not str(path).strip():
         raise CliError(f"{flag} must not be empty")
+    check_text_path(path, flag)
     if p.is_dir():
         raise CliError(f"{flag} {short_repr(str(p))} is a folder; it must name a file")
     if str(path).endswith(("/", os.sep)):
