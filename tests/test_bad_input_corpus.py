@@ -512,7 +512,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("report-names-long", [*REPORT, "--names", "n" * 5000, "--out", "{ws}/new_rep"], "at most 100"),
     ("report-names-control", [*REPORT, "--names", "a\nb", "--out", "{ws}/new_rep"], "control character"),
     ("report-out-in-run", [*REPORT, "--out", R + "valid/episodes"], "is inside run folder"),
-    ("report-out-deep-in-run", [*REPORT, "--out", R + "valid/sub/rep"], "is inside run folder"),
+    ("report-out-deep-in-run", [*REPORT, "--out", R + "valid/episodes/sub/rep"], "own 'episodes'"),
+    ("report-out-in-run-file", [*REPORT, "--out", R + "valid/episodes.jsonl/rep"], "own 'episodes.jsonl'"),
     ("report-out-not-utf8", [*REPORT, "--out", "{ws}/rep\udcff"], "not UTF-8"),
     ("report-run-not-utf8", ["report", R + "r\udcff", "--out", "{ws}/new_rep"], "not UTF-8"),
     ("diff-run-not-utf8", ["diff", R + "valid", R + "r\udcff"], "not UTF-8"),
@@ -1062,6 +1063,15 @@ def test_diff_names_damage_report_names(clean_run, tmp_path):
     assert "episodes.jsonl:4: episode smoke-00000 has records that disagree" in err
     assert "invocations.jsonl is a directory" in err
     assert "only in A: 1 episode, smoke-00000" in out
+
+
+def test_a_report_folder_of_its_own_inside_the_run_folder_is_fine(clean_run, tmp_path):
+    """`make run` writes runs/smoke/report (README): only the run folder's own parts are refused."""
+    folder = tmp_path / "run"
+    shutil.copytree(clean_run, folder)
+    rc, out, err = run_cli(["report", str(folder), "--out", str(folder / "report"), "--no-episode-pages"])
+    assert rc == 0, err
+    assert (folder / "report" / "table.txt").is_file()
 
 
 def test_a_run_folder_whose_name_is_not_utf8_is_refused_before_writing(clean_run, tmp_path):

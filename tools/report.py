@@ -951,8 +951,10 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     ``pick_limits``: also the paper's "N picks" tables (:func:`pick_limit_tables`). ``budgets``:
     the simulated seconds of the time-budget table (:func:`budget_rows`; default fifths of the cap)."""
     from tasks.episode_trace import trace_path
-    from tasks.trials import MAX_PICK_LIMIT, is_pick_limit
+    from tasks.trials import FOLDER_FILES, MAX_PICK_LIMIT, is_pick_limit
     from tools.cli import CliError, check_output_dir, check_output_file
+
+    RUN_FOLDER_PARTS = {*FOLDER_FILES, "episodes", "recordings", "config.yaml.damaged"}
     from tools.tables import format_markdown, format_table
 
     pick_limits = tuple(pick_limits)
@@ -973,9 +975,12 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
         if target == run_dir:
             raise CliError(f"--out {str(out)!r} is a run folder given to report; write the report elsewhere "
                            f"(e.g. --out {Path(p).parent / (Path(p).name + '-report')})")
-        if target.is_relative_to(run_dir):
-            raise CliError(f"--out {str(out)!r} is inside run folder {str(p)!r}, which is given to report; "
-                           f"write the report elsewhere (e.g. --out {Path(p).parent / (Path(p).name + '-report')})")
+        # A report folder of its own inside the run folder (README: runs/smoke/report) is fine;
+        # one that is, or lies in, a part of the run folder (its picture data, recordings, files) is not.
+        if target.is_relative_to(run_dir) and target.relative_to(run_dir).parts[0] in RUN_FOLDER_PARTS:
+            raise CliError(f"--out {str(out)!r} is inside run folder {str(p)!r}'s own "
+                           f"{target.relative_to(run_dir).parts[0]!r}, which report reads; write the report "
+                           f"elsewhere (e.g. --out {Path(p) / 'report'})")
     check_output_dir(out)
     for fname in ("table.txt", "table.md", "index.html", "report.json", *FIGURES):
         check_output_file(out / fname, "--out")
