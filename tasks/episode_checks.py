@@ -10,18 +10,22 @@ traceback from inside a worker and never a scored result.
 
 from __future__ import annotations
 
-from typing import Iterable
+from typing import Callable, Iterable
 
 from tasks.episodes import DatasetError, Episode
 
 
-def check_episode_homes(episodes: Iterable[Episode], source: str = "") -> None:
-    """Raise DatasetError for the first episode that does not fit the home its scene seed makes."""
+def check_episode_homes(episodes: Iterable[Episode], source: str = "",
+                        progress: Callable[[int, int], None] | None = None) -> None:
+    """Raise DatasetError for the first episode that does not fit the home its scene seed makes.
+    ``progress(done, total)`` is called after each home generated (there are as many as scene seeds)."""
     from helios.schema import short_repr
     from sim.scenes.layout import generate_layout
 
     layouts: dict = {}
     where = f" in {source}" if source else ""
+    episodes = list(episodes)
+    homes = len({(ep.scene.seed, ep.scene.min_size, ep.scene.max_size) for ep in episodes})
     for ep in episodes:
         name = f"episode {short_repr(ep.episode_id, 60)}{where}"
         key = (ep.scene.seed, ep.scene.min_size, ep.scene.max_size)
@@ -31,6 +35,8 @@ def check_episode_homes(episodes: Iterable[Episode], source: str = "") -> None:
             except Exception as exc:  # noqa: BLE001 - any failure of the generator is this episode's fault
                 raise DatasetError(f"{name}: its home (scene seed {ep.scene.seed}) cannot be generated: "
                                    f"{type(exc).__name__}: {short_repr(str(exc), 120)}") from None
+            if progress is not None:
+                progress(len(layouts), homes)
         problem = episode_problem(ep, layouts[key])
         if problem:
             raise DatasetError(f"{name}: {problem}; the episode file does not match this version of the "
