@@ -2,12 +2,14 @@
 
 import numpy as np
 
-from tools.bench_maps import Trajectory, benchmark_frames, format_report, save_trajectory, synthetic_frames
+from tools.bench_maps import (Trajectory, benchmark_frames, check_trajectory, format_report, save_trajectory,
+                              synthetic_frames)
 
 
 def test_trajectory_file_round_trips_observations_detections_and_scores(tmp_path):
     frames = list(synthetic_frames(4, seed=1, width=80, height=60))
     path = save_trajectory(tmp_path / "t.npz", frames, ("cup", "table", "counter"), ("table", "counter"))
+    check_trajectory(path)          # what bench maps checks before replaying a recording: it passes
     loaded = Trajectory.load(path)
     assert len(loaded) == 4 and loaded.task_classes == ["cup", "table", "counter"]
     for (obs, dets, scores), (obs2, dets2, scores2) in zip(frames, loaded.frames()):
@@ -47,4 +49,5 @@ def test_simulator_recording_streams_frames_with_detections_and_scores(tmp_path)
         assert obs.depth.shape == (240, 320) and set(scores) == set(layers)
         assert all(d.class_name in classes and d.mask.shape == obs.depth.shape for d in detections)
     path = save_trajectory(tmp_path / "sim.npz", frames, classes, layers)
+    check_trajectory(path)
     assert len(list(Trajectory.load(path).frames())) == 12
