@@ -421,6 +421,8 @@ class ResultsScan:
     unused: list[dict] = field(default_factory=list)    # records among the damaged lines (disagreeing
     # with another record of their episode, or of an episode not the run's): their fingerprints still
     # say whether the folder mixes configurations
+    repeated_runs: dict[str, int] = field(default_factory=dict)   # robot runs (``tools spot``) of one
+    # episode id: how many; the first is in :attr:`records`
 
     def fingerprints(self) -> set:
         """The configuration fingerprints of every record in the file, damaged ones included (None:
@@ -559,7 +561,12 @@ def scan_results(path: Path, episode_ids: Iterable[str] | None = None,
     by_episode: dict[str, list[tuple[int, dict]]] = {}
     for lineno, _line, record in valid:
         by_episode.setdefault(record["episode_id"], []).append((lineno, record))
-    conflicts = {eid: _conflict(entries) for eid, entries in by_episode.items() if len(entries) > 1}
+    # Robot runs (records with a ``hardware`` section: `tools spot`) are not replays: two runs of one
+    # episode differ by nature (robot clock, operator's answers), so they never "disagree"; the first
+    # is used, as for simulated duplicates, and ``repeated_runs`` says how many there were.
+    robot = {eid for eid, entries in by_episode.items() if any("hardware" in r for _, r in entries)}
+    scan.repeated_runs = {eid: len(by_episode[eid]) for eid in sorted(robot) if len(by_episode[eid]) > 1}
+    conflicts = {eid: _conflict(entries) for eid, entries in by_episode.items() if len(entries) > 1 and eid not in robot}
     conflicts = {eid: fields for eid, fields in conflicts.items() if fields}
     allowed = None if episode_ids is None else set(episode_ids)
     for lineno, line, record in valid:

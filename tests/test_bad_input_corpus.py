@@ -1065,6 +1065,27 @@ def test_diff_names_damage_report_names(clean_run, tmp_path):
     assert "only in A: 1 episode, smoke-00000" in out
 
 
+def test_repeated_robot_runs_of_one_episode_are_not_a_disagreement(clean_run, tmp_path):
+    """`tools spot --fake --episode ID` appends a record per run to one folder; robot runs differ by
+    nature (robot clock), so they are not damaged lines: the first is used and report says so."""
+    from tasks.trials import scan_results
+
+    folder = tmp_path / "robot"
+    shutil.copytree(clean_run, folder)
+    path = folder / "episodes.jsonl"
+    records = [json.loads(line) for line in path.read_text().splitlines()]
+    for r in records:
+        r["hardware"] = {"setting": "fake"}
+    again = dict(records[0], sim_time=records[0]["sim_time"] + 7.5, success=not records[0]["success"])
+    path.write_text("".join(json.dumps(r) + "\n" for r in [*records, again]))
+    scan = scan_results(path)
+    assert not scan.damaged and scan.repeated_runs == {records[0]["episode_id"]: 2}
+    assert scan.records[records[0]["episode_id"]]["sim_time"] == records[0]["sim_time"]   # the first run
+    rc, out, err = run_cli(["report", str(folder), "--out", str(tmp_path / "rep"), "--no-episode-pages"])
+    assert rc == 0, err
+    assert f"{records[0]['episode_id']} (2 runs)" in err and "damaged" not in err
+
+
 def test_a_report_folder_of_its_own_inside_the_run_folder_is_fine(clean_run, tmp_path):
     """`make run` writes runs/smoke/report (README): only the run folder's own parts are refused."""
     folder = tmp_path / "run"

@@ -133,11 +133,16 @@ def load_run(path: str | Path, name: str | None = None, warnings: list[str] | No
         warnings.append(f"{results}:{d.lineno}: {d.reason}; skipped this line")
     if len(scan.damaged) > MAX_LISTED_DAMAGE:
         warnings.append(f"{results}: {len(scan.damaged) - MAX_LISTED_DAMAGE} more damaged line(s) skipped")
+    if scan.repeated_runs:
+        shown = ", ".join(f"{eid} ({n} runs)" for eid, n in list(scan.repeated_runs.items())[:5])
+        more = f" and {len(scan.repeated_runs) - 5} more" if len(scan.repeated_runs) > 5 else ""
+        warnings.append(f"{results}: robot runs repeated under one episode id, the first of each is in the tables: "
+                        f"{shown}{more} (on a robot, --trial-id gives each run its own id)")
     records = list(scan.records.values())
     if not records:
         what = "only damaged lines" if scan.damaged else "missing or empty"
         raise CliError(f"run folder {str(p)!r} has no finished episodes (episodes.jsonl {what}); "
-                       f"run `python -m tools trials --out {p}` first")
+                       f"run `python -m tools trials --out {p}` (or `tools spot`) first")
     records.sort(key=lambda r: r["episode_id"])
     warnings.extend(config_warnings)
     invocations = invocations_problem(p)
