@@ -71,6 +71,11 @@ FAULTS = {
 MEASURED: list[dict] = []   # filled by the tests; printed with -s (numbers for the README)
 
 
+def _active_commands(fake) -> list:
+    with fake._lock:
+        return [(c.kind, c.state) for c in fake.commands.values() if c.state in ("queued", "running", "hung")]
+
+
 def _base(fake) -> SE2Pose:
     with fake.sim_lock:
         return fake.sim.spot.base_pose()
@@ -204,6 +209,30 @@ def test_grasp_failure_mid_grasp_is_a_failed_grasp_result_and_mid_walk_leaves_th
         took = time.monotonic() - t0
     _check_after_close(fake, "grasp_failure", before)
     assert took < CLOSE_WITHIN
+
+
+def test_a_grasp_ended_by_a_slow_link_stops_the_pick():
+    """(QA 2026-12-04) A grasp that ends in an error sends a stop first, like every other command:
+    a pick left running would finish on its own once the link recovers (it did: the claw held the
+    mug 4 s later)."""
+    before = python_threads()
+    demo = start_fake(seed=0, time_scale=1.0)      # the pick takes ~1.7 s of wall time
+    backend = connect(demo)
+    fake = demo.fake
+    try:
+        obs, pixel = _grasp_setup(demo, backend)
+        fake.inject_on_call("ManipulationApiFeedback", 3, "slow", delay=1.5)   # > the 1 s RPC timeout
+        with pytest.raises(CommandTimeoutError):
+            backend.grasp(obs, pixel)
+        assert any(c.kind == "stop" for c in fake.commands.values()), "no stop was sent"
+        fake.clear()                                 # the link recovers: does the pick go on?
+        time.sleep(2.5)
+        with fake.sim_lock:
+            assert not fake.sim.holding, "the pick went on and grasped the mug after the error"
+        assert not [a for a in _active_commands(fake) if a[0] == "pick"]
+    finally:
+        backend.close()
+    _check_after_close(fake, "slow", before)
 
 
 def test_realtime_fake_takes_the_planned_time_and_state_is_fresh_while_moving():

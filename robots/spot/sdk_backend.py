@@ -1074,27 +1074,32 @@ class SdkSpotBackend:
                                    frame_name_image_sensor=sensor, camera_model=pinhole,
                                    walk_gaze_mode=M.PICK_NO_AUTO_WALK_OR_GAZE)
         t0 = time.monotonic()
-        resp = self._call(self._manip_client.manipulation_api_command,
-                          manipulation_api_request=M.ManipulationApiRequest(pick_object_in_image=pick),
-                          timeout=cfg.rpc_timeout, during="starting a grasp")
-        request = M.ManipulationApiFeedbackRequest(manipulation_cmd_id=resp.manipulation_cmd_id)
-        terminal = {M.MANIP_STATE_GRASP_SUCCEEDED, M.MANIP_STATE_GRASP_FAILED, M.MANIP_STATE_GRASP_PLANNING_NO_SOLUTION,
-                    M.MANIP_STATE_GRASP_FAILED_TO_RAYCAST_INTO_MAP, M.MANIP_STATE_DONE}
-        deadline = t0 + cfg.grasp_timeout
-        while True:
-            fb = self._call(self._manip_client.manipulation_api_feedback_command,
-                            manipulation_api_feedback_request=request, timeout=cfg.rpc_timeout, during="grasping")
-            if fb.current_state in terminal:
-                break
-            if self._fault is not None:
-                self._stop_quietly()
-                self._guard()
-            if time.monotonic() > deadline:
-                self._stop_quietly()
-                self._unresponsive = True
-                raise CommandTimeoutError(f"the grasp did not finish within {cfg.grasp_timeout:.0f} s; "
-                                          f"the robot was told to stop")
-            time.sleep(cfg.feedback_period)
+        try:
+            resp = self._call(self._manip_client.manipulation_api_command,
+                              manipulation_api_request=M.ManipulationApiRequest(pick_object_in_image=pick),
+                              timeout=cfg.rpc_timeout, during="starting a grasp")
+            request = M.ManipulationApiFeedbackRequest(manipulation_cmd_id=resp.manipulation_cmd_id)
+            terminal = {M.MANIP_STATE_GRASP_SUCCEEDED, M.MANIP_STATE_GRASP_FAILED,
+                        M.MANIP_STATE_GRASP_PLANNING_NO_SOLUTION, M.MANIP_STATE_GRASP_FAILED_TO_RAYCAST_INTO_MAP,
+                        M.MANIP_STATE_DONE}
+            deadline = t0 + cfg.grasp_timeout
+            while True:
+                fb = self._call(self._manip_client.manipulation_api_feedback_command,
+                                manipulation_api_feedback_request=request, timeout=cfg.rpc_timeout, during="grasping")
+                if fb.current_state in terminal:
+                    break
+                if self._fault is not None:
+                    self._stop_quietly()
+                    self._guard()
+                if time.monotonic() > deadline:
+                    self._stop_quietly()
+                    self._unresponsive = True
+                    raise CommandTimeoutError(f"the grasp did not finish within {cfg.grasp_timeout:.0f} s; "
+                                              f"the robot was told to stop")
+                time.sleep(cfg.feedback_period)
+        except HalError:
+            self._stop_quietly()      # whatever ended it, a stop goes out first: a pick left running
+            raise                     # finishes on its own once the link recovers (QA 2026-12-04)
         took = time.monotonic() - t0
         state_name = M.ManipulationFeedbackState.Name(fb.current_state)
         if fb.current_state != M.MANIP_STATE_GRASP_SUCCEEDED:
