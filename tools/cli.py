@@ -206,8 +206,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_arguments(parser, argv)
     try:
         return int(importlib.import_module(args._module).run(args) or 0)
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:       # Ctrl-C; SIGTERM/SIGHUP where a command turns them into one
+        print(f"interrupted ({exc})" if str(exc) else "interrupted", file=sys.stderr)
         return 130
     except user_error_types() as exc:
         print(f"error: {one_line(exc)}", file=sys.stderr)

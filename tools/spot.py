@@ -41,13 +41,16 @@ fake (scored by the simulator's judge) and records it the same way.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
 import secrets
 import shutil
+import signal
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -263,6 +266,36 @@ def _validate(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     _validate(args)
+    with _terminate_as_interrupt():
+        return _run(args)
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt():
+    """SIGTERM (systemd, Docker, kill) and SIGHUP (a closed terminal or SSH session) end a robot run
+    the way Ctrl-C does: through the shutdown path (stop, stow, sit, power off, return the lease).
+    By default they kill the process at once and leave the robot powered and standing, holding our
+    lease (QA 2026-12-04). Main thread only; the old handlers are restored after."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, _frame):
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    previous = {}
+    for name in ("SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None:
+            previous[sig] = signal.signal(sig, interrupt)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _run(args: argparse.Namespace) -> int:
     # grpc's C core prints its own TLS/connection diagnostics to stderr; our errors say it clearly.
     os.environ.setdefault("GRPC_VERBOSITY", "NONE")
     from helios.schema import dump_yaml, load_config, with_overrides

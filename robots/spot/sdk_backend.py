@@ -36,12 +36,15 @@ secure channels, checked against BD's root CA or ``cert_path``.
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import logging
 import math
 import os
+import signal
 import socket
 import ssl
+import sys
 import threading
 import time
 from collections import OrderedDict
@@ -360,6 +363,48 @@ class _StallWatch:
 # --------------------------------------------------------------------------------------------
 # The backend
 # --------------------------------------------------------------------------------------------
+DEFERRED_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+
+
+@contextlib.contextmanager
+def signals_deferred(names: Sequence[str] = DEFERRED_SIGNALS):
+    """Hold SIGINT, SIGTERM and SIGHUP while the robot is shut down, then deliver them.
+
+    A second Ctrl-C from an impatient operator, a TERM from systemd or Docker, or a HUP from a
+    dropped SSH session would otherwise cut ``close()`` short and leave the robot powered and
+    standing, holding our lease (QA 2026-12-04: exit 130 after 1.2 s, robot still standing 12 s
+    later). ``close()`` is bounded, so holding them costs at most a few seconds; each is delivered
+    again (``signal.raise_signal``) once the old handlers are back, so Ctrl-C still ends the program,
+    just after the robot is safe. Only on the main thread (where Python runs signal handlers)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+
+    def hold(signum, _frame) -> None:
+        if not held:
+            print(f"[spot] {signal.Signals(signum).name}: shutting the robot down first (a few seconds)",
+                  file=sys.stderr, flush=True)
+        held.append(signum)
+
+    previous = {}
+    for name in names:
+        sig = getattr(signal, name, None)
+        if sig is None:
+            continue
+        try:
+            previous[sig] = signal.signal(sig, hold)
+        except (ValueError, OSError):     # not settable here (e.g. an embedded interpreter)
+            pass
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        for signum in dict.fromkeys(held):           # each once, in arrival order
+            signal.raise_signal(signum)
+
+
 class SdkSpotBackend:
     """A real (or fake) Spot behind the :class:`robots.hal.RobotBackend` contract."""
 
@@ -1242,7 +1287,9 @@ class SdkSpotBackend:
     def close(self) -> None:
         """Safe shutdown, whatever happened before: stop; stow (healthy robot, nothing held); sit
         and power off; return the lease; deregister our e-stop endpoint; stop every keep-alive,
-        time-sync and token thread and close the connection. Never raises; safe to call twice.
+        time-sync and token thread and close the connection. Never raises (a SIGINT, SIGTERM or
+        SIGHUP that arrives meanwhile is held and delivered after it: :func:`signals_deferred`);
+        safe to call twice.
 
         Healthy robot: each step in turn, waiting for it. After a fault, a timed-out command or
         once a step goes unanswered, the remaining steps go out back to back without waiting for
@@ -1255,20 +1302,21 @@ class SdkSpotBackend:
             return
         self._closing = True
         t0 = time.monotonic()
-        try:
-            if self.robot is not None and hasattr(self, "_cmd_client"):
-                self._shutdown_robot(t0)
-        except Exception as exc:  # noqa: BLE001 - shutdown never raises
-            _LOG.warning("shutdown step failed: %s: %s", type(exc).__name__, str(exc).split("\n")[0])
-        finally:
-            self._closed = True
-            self._stop_threads(max(t0 + self.config.close_budget + 0.6, time.monotonic() + 0.5))
-            callbacks, self._on_close = self._on_close, []
-            for fn in callbacks:
-                try:
-                    fn()
-                except Exception:  # noqa: BLE001
-                    _LOG.exception("close callback failed")
+        with signals_deferred():
+            try:
+                if self.robot is not None and hasattr(self, "_cmd_client"):
+                    self._shutdown_robot(t0)
+            except Exception as exc:  # noqa: BLE001 - shutdown never raises
+                _LOG.warning("shutdown step failed: %s: %s", type(exc).__name__, str(exc).split("\n")[0])
+            finally:
+                self._closed = True
+                self._stop_threads(max(t0 + self.config.close_budget + 0.6, time.monotonic() + 0.5))
+                callbacks, self._on_close = self._on_close, []
+                for fn in callbacks:
+                    try:
+                        fn()
+                    except Exception:  # noqa: BLE001
+                        _LOG.exception("close callback failed")
 
     def _our_lease(self):
         if self._lease_keepalive is None or isinstance(self._fault, LeaseLostError):
