@@ -147,3 +147,24 @@ def test_overrides_may_stand_among_the_flags_and_later_ones_win():
 ])
 def test_a_stray_argument_is_still_one_line(argv, fragment, tmp_path):
     _one_line(argv, fragment, tmp_path)
+
+
+@pytest.mark.parametrize("fault, rc", [("estop", 1), ("lease", 1), ("connect", 2)])
+def test_a_robot_fault_during_bring_up_is_exit_1_and_not_reaching_the_robot_is_2(fault, rc, monkeypatch, tmp_path):
+    """(QA 2026-12-04) An e-stop at power-on or a lease lost at stand is a robot fault (exit 1, as
+    mid-run; it was 2, 'bad input'); a robot that cannot be reached stays bad input (2)."""
+    import robots.spot.sdk_backend as sdk
+    from robots.hal import EstopError, LeaseLostError
+
+    error = {"estop": EstopError("the robot is e-stopped (hardware e-stop pressed)"),
+             "lease": LeaseLostError("another client holds the body lease"),
+             "connect": sdk.SpotConnectError("cannot reach 127.0.0.1:1: connection refused")}[fault]
+
+    def fail(*_args, **_kwargs):
+        raise error
+
+    monkeypatch.setattr(sdk.SdkSpotBackend, "__init__", fail)
+    got, out, err = run_cli(["spot", "--fake", "--task", TASK, "--out", str(tmp_path / "o")])
+    assert got == rc, (got, out[-1500:], err[-1500:])
+    lines = err.strip().splitlines()
+    assert lines and lines[-1].startswith("error: ") and str(error) in lines[-1] and "Traceback" not in err

@@ -49,6 +49,16 @@ def user_error_types() -> tuple[type[BaseException], ...]:
             UnknownAgentError, RunFolderError, PerceptionError, ExecutorError)
 
 
+def is_robot_fault(exc: BaseException) -> bool:
+    """A fault of the robot (e-stop, lost lease, power, a command that timed out), not of the input:
+    exit status 1, as for a fault mid-run (README, real Spot). Not reaching the robot at all (wrong
+    host or port, untrusted certificate, nothing listening: ``SpotConnectError``) stays bad input, 2."""
+    from robots.hal import RobotFault
+    from robots.spot.sdk_backend import SpotConnectError
+
+    return isinstance(exc, RobotFault) and not isinstance(exc, SpotConnectError)
+
+
 class CliError(Exception):
     """A command-line usage problem detected after argument parsing."""
 
@@ -211,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except user_error_types() as exc:
         print(f"error: {one_line(exc)}", file=sys.stderr)
-        return 2
+        return 1 if is_robot_fault(exc) else 2
     except (OSError, UnicodeError) as exc:
         # The environment refused something (a file or folder that cannot be written, a full disk,
         # a file that is not text): one line, like bad input. HELIOS_DEBUG=1 shows the traceback.

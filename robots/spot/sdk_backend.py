@@ -641,8 +641,9 @@ class SdkSpotBackend:
             _LOG.warning("robot fault: %s: %s", type(fault).__name__, fault)
         return fault
 
-    def _translate(self, exc: BaseException, during: str) -> HalError:
-        """A bosdyn exception to the HAL's typed error (recording sticky faults)."""
+    def _translate(self, exc: BaseException, during: str, timeout: float | None = None) -> HalError:
+        """A bosdyn exception to the HAL's typed error (recording sticky faults). ``timeout``: the
+        RPC's own deadline when it was not ``rpc_timeout`` (an image request's), for the message."""
         bd = self._bd
         what = f"while {during}"
         if isinstance(exc, (bd.exc.LeaseUseError, bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease,
@@ -655,7 +656,8 @@ class SdkSpotBackend:
             return self._set_fault(TimeSyncLostError(f"time sync with the robot was lost {what}; timed commands "
                                                      f"cannot be sent safely"))
         if isinstance(exc, bd.exc.TimedOutError):
-            return CommandTimeoutError(f"the robot did not answer within {self.config.rpc_timeout} s {what}")
+            waited = self.config.rpc_timeout if timeout is None else timeout
+            return CommandTimeoutError(f"the robot did not answer within {waited:g} s {what}")
         if isinstance(exc, (bd.power.CommandTimedOutError, bd.rc.CommandTimedOutError)):
             return CommandTimeoutError(f"the robot did not finish {during} in time")
         if isinstance(exc, (bd.exc.UnableToConnectToRobotError, bd.exc.ProxyConnectionError,
@@ -774,7 +776,7 @@ class SdkSpotBackend:
         try:
             return fn(*args, **kwargs)
         except (self._bd.exc.Error, self._bd.lease.Error) as exc:
-            err = self._translate(exc, during)
+            err = self._translate(exc, during, kwargs.get("timeout"))
             self._unresponsive = isinstance(err, CommandTimeoutError)
             raise err from None
 
