@@ -168,3 +168,27 @@ def test_a_robot_fault_during_bring_up_is_exit_1_and_not_reaching_the_robot_is_2
     assert got == rc, (got, out[-1500:], err[-1500:])
     lines = err.strip().splitlines()
     assert lines and lines[-1].startswith("error: ") and str(error) in lines[-1] and "Traceback" not in err
+
+
+def test_an_agent_bug_on_the_demo_layout_is_one_line_after_a_full_shutdown(monkeypatch, tmp_path):
+    """(QA 2026-12-04) A bug in the agent (not a robot fault) on `spot --fake --task` printed a
+    traceback and wrote no outcome; now: the robot is shut down, one error line, exit 1, the
+    traceback in session.log, outcome.json says what failed."""
+    import json
+
+    import tasks.scripted_demo as demo_agent
+
+    def broken(*_args, **_kwargs):
+        raise RuntimeError("mug_pixel exploded")
+
+    monkeypatch.setattr(demo_agent.DemoHints, "mug_pixel", broken)
+    rc, out, err = run_cli(["spot", "--fake", "--task", TASK, "--out", str(tmp_path / "o"), "--name", "bug"])
+    assert rc == 1, (rc, out[-1500:], err[-1500:])
+    assert "Traceback" not in err and "Traceback" not in out
+    lines = err.strip().splitlines()
+    assert lines[-1].startswith("error: the agent failed (RuntimeError: mug_pixel exploded); the robot was shut down")
+    assert "shutting down: stop, stow, sit, power off, return the lease" in out
+    run = tmp_path / "o" / "bug"
+    assert json.loads((run / "outcome.json").read_text())["agent_error"] == "RuntimeError: mug_pixel exploded"
+    log = (run / "session.log").read_text()
+    assert "Traceback" in log and "sitting down and powering off" in log and "lease returned" in log

@@ -299,6 +299,7 @@ def _run(args: argparse.Namespace) -> int:
     # grpc's C core prints its own TLS/connection diagnostics to stderr; our errors say it clearly.
     os.environ.setdefault("GRPC_VERBOSITY", "NONE")
     from helios.schema import dump_yaml, load_config, with_overrides
+    from robots.hal import HalError
     from robots.spot.sdk_backend import PASSWORD_ENV, USERNAME_ENV, SdkBackendConfig, SdkSpotBackend
     from tools.cli import CliError
 
@@ -355,7 +356,7 @@ def _run(args: argparse.Namespace) -> int:
         hints = None
         print(f"[spot] connecting to {config.hostname}:{config.port}" + (" (fake Spot, dry run)" if demo else ""))
         backend = SdkSpotBackend(config)
-        outcome, physical = None, None
+        outcome, physical, agent_error = None, None, None
         try:
             run_dir.mkdir(parents=True, exist_ok=True)
             (run_dir / "config.yaml").write_text(dump_yaml(config))
@@ -375,9 +376,22 @@ def _run(args: argparse.Namespace) -> int:
         except KeyboardInterrupt:
             print("[spot] interrupted: stopping the robot", file=sys.stderr)
             raise
+        except HalError:
+            raise                     # robot faults and bad input: one line from the command line
+        except Exception as exc:      # noqa: BLE001 - a bug in the agent: the robot is shut down below
+            _LOG.exception("the agent failed")        # the traceback goes to session.log only
+            agent_error = f"{type(exc).__name__}: {exc}"
         finally:
             print("[spot] shutting down: stop, stow, sit, power off, return the lease")
             backend.close()
+        if agent_error is not None:
+            (run_dir / "outcome.json").write_text(json.dumps({"agent": args.agent, "task": args.task,
+                                                              "success": False, "agent_error": agent_error}, indent=2))
+            from tools.cli import one_line
+
+            print(f"error: the agent failed ({one_line(agent_error, 300)}); the robot was shut down; traceback "
+                  f"in {run_dir / 'session.log'}", file=sys.stderr)
+            return 1
         if demo is not None:
             with demo.fake.sim_lock:
                 physical = physical_outcome(demo.world, demo.scene, outcome.place_target)
