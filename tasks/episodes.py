@@ -57,6 +57,12 @@ def home_sizes_valid(lo: float, hi: float) -> bool:
 _ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
 
 
+def is_episode_id(text: object) -> bool:
+    """1-100 letters, digits, '-', '_' or '.', not starting with '-' or '.': an id that can name
+    files (picture data, episode pages, recordings), for episodes, records and robot trials alike."""
+    return isinstance(text, str) and _ID.fullmatch(text) is not None
+
+
 def _short(value) -> str:
     from helios.schema import short_repr
 
@@ -171,7 +177,7 @@ def episode_from_dict(d: dict, where: str) -> Episode:
                            f"(the episode would be over before it starts)")
     if d["difficulty"] not in DIFFICULTIES:
         raise DatasetError(f"{where}: difficulty {_short(d['difficulty'])} is not one of: {', '.join(DIFFICULTIES)}")
-    if not _ID.fullmatch(d["episode_id"]):
+    if not is_episode_id(d["episode_id"]):
         raise DatasetError(f"{where}: episode_id {_short(d['episode_id'])} must be 1-100 letters, digits, '-', '_' "
                            f"or '.' (it names files, e.g. recordings)")
     if d["split"] != "" and not d["episode_id"].startswith(d["split"]):

@@ -436,14 +436,14 @@ def record_problem(record) -> str | None:
     picture data, recordings) and those the episode pages draw (``collision_events``,
     ``extra.decisions``, ``extra.activity_time``) must have their shapes."""
     from helios.agents.activities import DECISION_COUNTS
-    from tasks.episodes import _ID as EPISODE_ID
+    from tasks.episodes import is_episode_id
 
     if not isinstance(record, dict):
         return f"a JSON {type(record).__name__}, not an episode record"
     eid = record.get("episode_id")
     if not isinstance(eid, str) or not eid:
         return "no episode_id"
-    if not EPISODE_ID.fullmatch(eid):
+    if not is_episode_id(eid):
         return (f"episode_id {shorten(repr(eid), 60)} is not an episode id (1-100 letters, digits, '-', '_' or '.'; "
                 f"it names files)")
 

@@ -81,7 +81,9 @@ def _check_options(args: argparse.Namespace) -> None:
     if recording and not Path(recording).is_file():
         raise CliError(f"--maps-recording {short_repr(recording)} is not a file")
     if "maps" in args.suites:
-        _check_maps(args)
+        from tools.bench_maps import check_inputs
+
+        check_inputs(args)
 
 
 def _first_repeat(values):
@@ -107,18 +109,3 @@ def _check_agents(args: argparse.Namespace) -> None:
                 raise CliError(f"--{flag.replace('_', '-')}: {exc}") from None
 
 
-def _check_maps(args: argparse.Namespace) -> None:
-    """The maps suite's device, thread count and recording (flag or environment), before any suite runs."""
-    import os
-
-    from tools.bench_maps import RECORDING_ENV, _env_threads, check_device, check_trajectory
-
-    check_device(getattr(args, "maps_device", "cpu") or "cpu")
-    if getattr(args, "maps_threads", None) is None:
-        _env_threads()
-    recording = getattr(args, "maps_recording", None)
-    where = "--maps-recording"
-    if not recording and os.environ.get(RECORDING_ENV):
-        recording, where = os.environ[RECORDING_ENV], RECORDING_ENV
-    if recording:
-        check_trajectory(recording, where)

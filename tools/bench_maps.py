@@ -473,9 +473,22 @@ def _env_threads() -> int:
     return threads
 
 
+def check_inputs(args: argparse.Namespace) -> None:
+    """The device, thread count and recording (flag or ``HELIOS_MAPS_RECORDING``): CliError before
+    any work (``tools bench`` calls it before its first suite; ``main`` before :func:`run`)."""
+    check_device(getattr(args, "maps_device", "cpu") or "cpu")   # before a recording that may take a minute
+    if getattr(args, "maps_threads", None) is None:
+        _env_threads()
+    recording = getattr(args, "maps_recording", None)
+    if recording:
+        check_trajectory(recording, "--maps-recording")
+    elif os.environ.get(RECORDING_ENV):
+        check_trajectory(os.environ[RECORDING_ENV], RECORDING_ENV)
+
+
 def run(args: argparse.Namespace) -> str:
+    """The benchmark, on inputs :func:`check_inputs` accepted."""
     device = getattr(args, "maps_device", "cpu") or "cpu"
-    check_device(device)                 # before a recording that may take a minute to make
     recording = getattr(args, "maps_recording", None) or os.environ.get(RECORDING_ENV)
     # One torch thread by default: on a 2-core machine that also runs the simulator, 2 threads
     # make the p90 erratic (oversubscription) while gaining little on the median.
@@ -483,7 +496,6 @@ def run(args: argparse.Namespace) -> str:
     limit = QUICK_FRAMES if getattr(args, "quick", False) else None
     if recording:
         path, source = Path(recording), f"recording {recording}"
-        check_trajectory(path, "--maps-recording" if getattr(args, "maps_recording", None) else RECORDING_ENV)
     elif getattr(args, "maps_synthetic", False):
         path = synthetic_trajectory_file(DEFAULT_FRAMES, getattr(args, "seed", 0))
         source = f"synthetic two-room flat ({path})"
@@ -507,7 +519,9 @@ def main(argv: list[str] | None = None) -> int:
     add_arguments(parser)
     parser.add_argument("--quick", action="store_true", help=f"first {QUICK_FRAMES} frames only")
     parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic trajectory")
-    print(run(parser.parse_args(argv)))
+    args = parser.parse_args(argv)
+    check_inputs(args)
+    print(run(args))
     return 0
 
 

@@ -54,9 +54,12 @@ def is_robot_fault(exc: BaseException) -> bool:
     exit status 1, as for a fault mid-run (README, real Spot). Not reaching the robot at all (wrong
     host or port, untrusted certificate, nothing listening: ``SpotConnectError``) stays bad input, 2."""
     from robots.hal import RobotFault
-    from robots.spot.sdk_backend import SpotConnectError
 
-    return isinstance(exc, RobotFault) and not isinstance(exc, SpotConnectError)
+    if not isinstance(exc, RobotFault):
+        return False
+    from robots.spot.sdk_backend import SpotConnectError      # only for robot faults: no import otherwise
+
+    return not isinstance(exc, SpotConnectError)
 
 
 class CliError(Exception):

@@ -50,7 +50,6 @@ import shutil
 import signal
 import sys
 import tempfile
-import threading
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -228,9 +227,9 @@ def _validate(args: argparse.Namespace):
         args.max_time = DEFAULT_MAX_TIME
     if args.trial_id is not None:
         from helios.schema import short_repr
-        from tasks.episodes import _ID
+        from tasks.episodes import is_episode_id
 
-        if not _ID.fullmatch(args.trial_id):
+        if not is_episode_id(args.trial_id):
             raise CliError(f"--trial-id {short_repr(args.trial_id, 80)} must be 1-100 letters, digits, '-', '_' or '.' "
                            f"(it names the run's recording)")
     if args.time_scale is not None:
@@ -276,23 +275,13 @@ def _terminate_as_interrupt():
     the way Ctrl-C does: through the shutdown path (stop, stow, sit, power off, return the lease).
     By default they kill the process at once and leave the robot powered and standing, holding our
     lease (QA 2026-12-04). Main thread only; the old handlers are restored after."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
+    from robots.spot.sdk_backend import handling_signals
 
     def interrupt(signum, _frame):
         raise KeyboardInterrupt(signal.Signals(signum).name)
 
-    previous = {}
-    for name in ("SIGTERM", "SIGHUP"):
-        sig = getattr(signal, name, None)
-        if sig is not None:
-            previous[sig] = signal.signal(sig, interrupt)
-    try:
+    with handling_signals(("SIGTERM", "SIGHUP"), interrupt):
         yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -367,6 +367,28 @@ DEFERRED_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 
 
 @contextlib.contextmanager
+def handling_signals(names: Sequence[str], handler: Callable):
+    """``handler`` for the named signals while the block runs, the old handlers back after it. Only
+    on the main thread (where Python runs signal handlers; elsewhere nothing changes); a signal the
+    platform lacks, or one that cannot be set here, is left alone."""
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for name in names:
+            sig = getattr(signal, name, None)
+            if sig is None:
+                continue
+            try:
+                previous[sig] = signal.signal(sig, handler)
+            except (ValueError, OSError):     # e.g. an embedded interpreter
+                pass
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+@contextlib.contextmanager
 def signals_deferred(names: Sequence[str] = DEFERRED_SIGNALS):
     """Hold SIGINT, SIGTERM and SIGHUP while the robot is shut down, then deliver them.
 
@@ -375,10 +397,7 @@ def signals_deferred(names: Sequence[str] = DEFERRED_SIGNALS):
     standing, holding our lease (QA 2026-12-04: exit 130 after 1.2 s, robot still standing 12 s
     later). ``close()`` is bounded, so holding them costs at most a few seconds; each is delivered
     again (``signal.raise_signal``) once the old handlers are back, so Ctrl-C still ends the program,
-    just after the robot is safe. Only on the main thread (where Python runs signal handlers)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
+    just after the robot is safe. Only on the main thread (:func:`handling_signals`)."""
     held: list[int] = []
 
     def hold(signum, _frame) -> None:
@@ -387,21 +406,11 @@ def signals_deferred(names: Sequence[str] = DEFERRED_SIGNALS):
                   file=sys.stderr, flush=True)
         held.append(signum)
 
-    previous = {}
-    for name in names:
-        sig = getattr(signal, name, None)
-        if sig is None:
-            continue
-        try:
-            previous[sig] = signal.signal(sig, hold)
-        except (ValueError, OSError):     # not settable here (e.g. an embedded interpreter)
-            pass
     try:
-        yield
+        with handling_signals(names, hold):
+            yield
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-        for signum in dict.fromkeys(held):           # each once, in arrival order
+        for signum in dict.fromkeys(held):       # each once, in arrival order, to the old handlers
             signal.raise_signal(signum)
 
 
