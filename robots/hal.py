@@ -39,6 +39,11 @@ class InvalidObservationError(HalError, ValueError):
     """A backend produced an observation that violates the contract (shape, dtype, NaN)."""
 
 
+class BackendClosedError(HalError, RuntimeError):
+    """The backend was closed (perhaps by another thread while this command ran): nothing more is
+    sent to the robot. Also a RuntimeError, what using a closed backend always raised."""
+
+
 class RobotFault(HalError):
     """The robot (or its link) failed in a way the agent cannot fix by choosing another action."""
 
@@ -344,7 +349,8 @@ class RobotBackend(Protocol):
         """Stop all motion now and hold position."""
 
     def close(self) -> None:
-        """Release the robot (leases, connections, simulator) — safe to call twice."""
+        """Release the robot (leases, connections, simulator) — safe to call twice. Every command
+        afterwards raises BackendClosedError without reaching the robot."""
 
 
 class CommandProxy(abc.ABC):

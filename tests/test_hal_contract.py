@@ -132,3 +132,19 @@ def test_grasp_and_place_cycle(backend_and_facts):
     assert not backend.observe().holding
     empty = backend.place([near_edge[0], near_edge[1], facts["table_height"]])
     assert not empty.success and empty.reason is Reason.NOT_HOLDING
+
+
+@pytest.mark.parametrize("name", sorted(BACKENDS))
+def test_every_command_after_close_raises_backend_closed(name):
+    from robots.hal import BackendClosedError, HalError
+
+    backend, _ = BACKENDS[name]()
+    backend.close()
+    backend.close()                                   # twice is fine
+    commands = [lambda: backend.observe(), lambda: backend.navigate_to(SE2Pose(0.1, 0.0, 0.0)),
+                lambda: backend.move_arm_joints(model.ARM_READY), lambda: backend.gaze_at([1.0, 0.0, 0.5]),
+                lambda: backend.stow_arm(), lambda: backend.stand(), lambda: backend.stop()]
+    for command in commands:
+        with pytest.raises(BackendClosedError, match="closed") as info:
+            command()
+        assert isinstance(info.value, HalError) and isinstance(info.value, RuntimeError)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import threading
 import time
 
+import numpy as np
 import pytest
 
 pytest.importorskip("bosdyn.client")
@@ -211,3 +212,107 @@ def test_stop_interrupts_a_running_command():
         assert not _active(demo.fake)
     finally:
         backend.close()
+
+
+@pytest.mark.parametrize("arm_move_timeout", [3.0, 10.0])
+def test_close_is_bounded_when_the_robot_accepts_commands_but_never_finishes_them(arm_move_timeout):
+    """A robot that takes commands and never carries them out, with no fault seen before close():
+    the stow at shutdown makes no progress, so close() gives up on it after ``stall_time`` instead
+    of waiting the stow's whole budget (``arm_move_timeout`` + ``command_margin``: 12 s with the
+    defaults), then powers off and returns the lease as after any fault."""
+    before = python_threads()
+    demo = start_fake(seed=0)
+    backend = connect(demo, arm_move_timeout=arm_move_timeout)
+    fake = demo.fake
+    try:
+        assert backend.move_arm_joints(model.ARM_READY).success      # the arm is out: close() stows it
+        fake.inject("command_timeout")                                # while idle: nothing to notice yet
+        assert backend.fault is None
+    finally:
+        t0 = time.monotonic()
+        backend.close()
+        closing = time.monotonic() - t0
+    assert closing < CLOSE_WITHIN, f"close() took {closing:.2f} s"
+    assert not fake.powered and fake.lease_owner is None
+    assert [c.kind for c in fake.commands.values() if c.kind == "arm_named"] == ["arm_named"]   # the stow
+    assert not _active(fake), _active(fake)
+    leaked = wait_for_threads_to_end(before)
+    assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
+
+
+@pytest.mark.parametrize("motion", ["walk", "arm"])
+def test_close_from_another_thread_mid_command_ends_that_command_typed_and_a_second_close_waits(motion):
+    """A library user's safety monitor closes the backend while the agent's thread is mid-command:
+    the agent's thread gets a HalError (BackendClosedError, also a RuntimeError), never gRPC's
+    'Cannot invoke RPC on closed channel' ValueError; its command sends no stop of its own over
+    close()'s stow and sit; a second close() from a third thread returns only once the robot is
+    safe; any later command raises BackendClosedError without reaching the robot."""
+    from robots.hal import BackendClosedError, HalError
+
+    before = python_threads()
+    demo = start_fake(seed=0, time_scale=0.5)
+    backend = connect(demo)
+    fake = demo.fake
+    outcome: dict = {}
+
+    def agent():
+        try:
+            if motion == "walk":
+                with fake.sim_lock:
+                    start = fake.sim.spot.base_pose()
+                res = backend.navigate_to(SE2Pose(start.x, start.y - 3.0, 0.0))
+            else:
+                res = backend.move_arm_joints(model.ARM_READY)
+            outcome["result"] = res
+            backend.observe()                           # the agent's next step, after close() began
+            outcome["next"] = "ran"
+        except BaseException as exc:  # noqa: BLE001 - recorded for the assertions
+            outcome["error"] = exc
+
+    worker = threading.Thread(target=agent, name="agent")
+    worker.start()
+    time.sleep(0.6)                                     # mid-command
+    second_done: list[float] = []
+    second = threading.Thread(target=lambda: (time.sleep(0.05), backend.close(),
+                                              second_done.append(time.monotonic())), name="second-close")
+    second.start()
+    t0 = time.monotonic()
+    backend.close()
+    first_done = time.monotonic()
+    second.join(5.0)
+    worker.join(5.0)
+    assert not worker.is_alive() and not second.is_alive()
+    assert first_done - t0 < CLOSE_WITHIN + 3.0          # a healthy shutdown: stop, stow, sit, lease, e-stop
+    assert second_done and second_done[0] >= first_done - 0.01, "the second close() returned before the robot was safe"
+    if "error" in outcome:
+        assert isinstance(outcome["error"], BackendClosedError), repr(outcome["error"])
+        assert isinstance(outcome["error"], (HalError, RuntimeError))
+        assert "\n" not in str(outcome["error"])
+    else:
+        pytest.fail(f"the agent's next command after close() ran: {outcome}")
+    with pytest.raises(BackendClosedError, match="closed"):
+        backend.navigate_to(SE2Pose(0.0, 0.0, 0.0))
+    assert not fake.powered and fake.lease_owner is None and not fake._endpoints
+    assert not _active(fake), _active(fake)
+    leaked = wait_for_threads_to_end(before)
+    assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
+
+
+def test_a_stow_is_stalled_only_while_still_and_not_stowed():
+    """The stall watch of a move the robot plans itself (stow): still for the whole window and the
+    robot does not report the arm stowed -> stalled; moving, or still but stowed -> not stalled."""
+    from robots.spot.sdk_backend import _StallWatch
+
+    def run(positions, stowed):
+        watch = _StallWatch((lambda s: s[0], None, lambda s: s[1]), window=1.0, expected=10.0)
+        for i, (q, st) in enumerate(zip(positions, stowed)):
+            watch.add(0.1 * i, (np.array(q, dtype=float), st))
+        return watch.stalled()
+
+    still = [[0.5, 1.0]] * 12
+    assert run(still, [False] * 12)
+    assert not run(still[:8], [False] * 8)                                  # not yet a whole window
+    assert not run(still, [False] * 11 + [True])                            # there
+    assert not run([[0.5 + 0.02 * i, 1.0] for i in range(12)], [False] * 12)  # slow but moving
+    with pytest.raises(ValueError):
+        _StallWatch((lambda s: s, None), window=1.0, expected=1.0)

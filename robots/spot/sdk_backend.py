@@ -37,6 +37,7 @@ secure channels, checked against BD's root CA or ``cert_path``.
 from __future__ import annotations
 
 import contextlib
+import functools
 import glob
 import logging
 import math
@@ -57,6 +58,7 @@ from robots.hal import (
     as_pixel,
     as_point,
     as_se2,
+    BackendClosedError,
     CommandResult,
     CommandTimeoutError,
     ConnectionLostError,
@@ -327,15 +329,22 @@ class _StallWatch:
     ``window`` s the robot moved less than ``tolerance`` (any coordinate: m, rad, or cos/sin of a
     heading) while it is more than four times that away from where its plan has it now (or at
     the plan's end, once the plan is over). A robot that keeps moving, slower or faster than
-    planned, is never stalled; nor is one that has arrived."""
+    planned, is never stalled; nor is one that has arrived.
+
+    A move the robot plans itself (stow) has no plan of ours: ``track`` is then (actual(state),
+    None, arrived(state) -> bool), and "away" is the robot's own word that it is not there yet."""
 
     period = 0.1            # s between state samples
     tolerance = 0.01
 
     def __init__(self, track, window: float, expected: float):
-        self.actual, self.planned = track
+        self.actual, self.planned = track[0], track[1]
+        self.arrived = track[2] if len(track) > 2 else None
+        if (self.planned is None) == (self.arrived is None):
+            raise ValueError("a stall watch needs either a plan or an arrival test")
         self.window, self.expected = float(window), float(expected)
         self.samples: list[tuple[float, np.ndarray]] = []
+        self._away = True
         self._next = time.monotonic() + self.period
 
     def due(self, now: float) -> bool:
@@ -348,6 +357,8 @@ class _StallWatch:
         self.samples.append((t, np.asarray(self.actual(state), dtype=float)))
         while len(self.samples) > 2 and self.samples[1][0] <= t - self.window:
             self.samples.pop(0)
+        if self.arrived is not None:
+            self._away = not self.arrived(state)
 
     def stalled(self) -> bool:
         if len(self.samples) < 2:
@@ -356,6 +367,8 @@ class _StallWatch:
         if t - t_old < self.window:
             return False
         moved = float(np.max(np.abs(x - x_old)))
+        if self.planned is None:
+            return moved < self.tolerance and self._away
         behind = float(np.max(np.abs(np.asarray(self.planned(min(t, self.expected)), dtype=float) - x)))
         return moved < self.tolerance and behind > 4 * self.tolerance
 
@@ -414,8 +427,33 @@ def signals_deferred(names: Sequence[str] = DEFERRED_SIGNALS):
             signal.raise_signal(signum)
 
 
+def _closing_aware(method):
+    """Public commands called while ``close()`` runs in another thread (or after it) end in one
+    typed :class:`BackendClosedError`, whatever the teardown does underneath them (channels closed
+    mid-RPC raise gRPC's ValueError, the robot handle becomes None, ...)."""
+
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        try:
+            return method(self, *args, **kwargs)
+        except BackendClosedError:
+            raise
+        except Exception:
+            if self._closed or self._closing_elsewhere():
+                raise BackendClosedError(f"{method.__name__}() was cut short: the backend was closed "
+                                         f"meanwhile (close() from another thread)") from None
+            raise
+
+    return wrapper
+
+
 class SdkSpotBackend:
-    """A real (or fake) Spot behind the :class:`robots.hal.RobotBackend` contract."""
+    """A real (or fake) Spot behind the :class:`robots.hal.RobotBackend` contract.
+
+    Threads: one thread drives the robot; ``stop()`` and ``close()`` may come from any other (a
+    safety monitor). While ``close()`` shuts the robot down, the other threads' commands end in
+    :class:`BackendClosedError` and send nothing more (no stop of their own over close()'s stow and
+    sit); a second ``close()`` waits for the first."""
 
     def __init__(self, config: SdkBackendConfig, *, connect: bool = True):
         if not isinstance(config, SdkBackendConfig):
@@ -430,6 +468,9 @@ class SdkSpotBackend:
         self._fault: RobotFault | None = None
         self._closed = False
         self._closing = False
+        self._close_lock = threading.Lock()
+        self._close_thread: threading.Thread | None = None
+        self._close_done = threading.Event()
         self._lease_keepalive = None
         self._estop_keepalive = None
         self._estop_endpoint = None
@@ -639,10 +680,17 @@ class SdkSpotBackend:
         """Refuse to work on a closed backend or after a sticky fault. Sensing (images, state)
         needs neither motor power nor the lease, so it goes on after an e-stop or a lost lease."""
         if self._closed:
-            raise RuntimeError("this backend has been closed")
+            raise BackendClosedError("this backend has been closed")
+        if self._closing_elsewhere():
+            raise BackendClosedError("this backend is shutting the robot down (close() was called); no more "
+                                     "commands")
         if self._fault is not None and not (sensing and isinstance(self._fault, (EstopError, PowerError,
                                                                                   LeaseLostError))):
             raise type(self._fault)(str(self._fault))
+
+    def _closing_elsewhere(self) -> bool:
+        """close() runs, in another thread than this one."""
+        return self._closing and self._close_thread is not threading.current_thread()
 
     def _set_fault(self, fault: RobotFault) -> RobotFault:
         if isinstance(fault, (*_FATAL, EstopError, PowerError)) and self._fault is None:
@@ -725,8 +773,10 @@ class SdkSpotBackend:
 
     def _stop_quietly(self, wait: float = 0.3) -> None:
         """Best-effort full-body stop after a failure: sent at once (a robot on a slow link acts on
-        it when it arrives), its reply awaited at most ``wait`` s; errors are ignored."""
-        if not hasattr(self, "_cmd_client"):
+        it when it arrives), its reply awaited at most ``wait`` s; errors are ignored. Not while
+        close() runs in another thread: it stops the robot itself, and a stop from here would cut
+        its stow or sit short."""
+        if not hasattr(self, "_cmd_client") or self._closed or self._closing_elsewhere():
             return
         try:
             fut = self._cmd_client.robot_command_async(self._bd.Builder.stop_command(),
@@ -781,22 +831,30 @@ class SdkSpotBackend:
 
     # ================================================================== command plumbing
     def _call(self, fn, *args, during: str, **kwargs):
-        """An SDK call with HAL error translation."""
+        """An SDK call with HAL error translation. Nothing is sent from another thread once close()
+        has begun."""
+        if self._closed or self._closing_elsewhere():
+            raise BackendClosedError(f"the backend was closed before {during}")
         try:
             return fn(*args, **kwargs)
-        except (self._bd.exc.Error, self._bd.lease.Error) as exc:
+        except Exception as exc:
+            if self._closed or self._closing_elsewhere():   # our own teardown, not the robot's fault
+                raise BackendClosedError(f"the backend was closed while {during}") from None
+            if not isinstance(exc, (self._bd.exc.Error, self._bd.lease.Error)):
+                raise
             err = self._translate(exc, during, kwargs.get("timeout"))
             self._unresponsive = isinstance(err, CommandTimeoutError)
             raise err from None
 
     def _run_command(self, command, *, during: str, expected: float, done: Callable, end_time_secs=None,
-                     track: "tuple[Callable, Callable] | None" = None):
+                     track: "tuple | None" = None):
         """Send a RobotCommand and poll its feedback until ``done(feedback) -> (finished, ok)``
         reports it finished. Returns (ok, feedback response, seconds); ok is None when the command
         was interrupted (overridden, e.g. by stop()). Abnormal endings are diagnosed first (the
         typed fault is raised when there is one); a command that overruns its planned duration +
-        margin, or (``track``: (actual(state) -> vector, planned(t) -> vector)) makes no progress for
-        ``stall_time`` while its plan moves, raises CommandTimeoutError. Whatever error ends the
+        margin, or (``track``: (actual(state) -> vector, planned(t) -> vector), or (actual, None,
+        arrived(state) -> bool) for a move the robot plans itself) makes no progress for
+        ``stall_time`` while it is not there yet, raises CommandTimeoutError. Whatever error ends the
         wait (a fault, a lost time sync, an unanswered RPC), a stop is sent first."""
         self._guard()
         cfg = self.config
@@ -840,7 +898,8 @@ class SdkSpotBackend:
                     if stall.stalled():
                         self._unresponsive = True
                         raise CommandTimeoutError(f"the robot stopped making progress {during} "
-                                                  f"({stall.window:.1f} s without motion while its plan moves); "
+                                                  f"({stall.window:.1f} s without motion while "
+                                                  f"{'not there yet' if stall.planned is None else 'its plan moves'}); "
                                                   f"it was told to stop")
                 if now > deadline:
                     self._unresponsive = True
@@ -873,6 +932,16 @@ class SdkSpotBackend:
     def _T(self, state, a: str, b: str) -> np.ndarray:
         return self._bd.cv.tform(self._tree(state), a, b)
 
+    @staticmethod
+    def _arm_stowed(state) -> bool:
+        ms = state.manipulator_state
+        return ms.stow_state == ms.STOWSTATE_STOWED
+
+    def _arm_and_gripper_q(self, state) -> np.ndarray:
+        """Arm joints and the gripper's: a stow that begins by closing the claw is making progress."""
+        gripper = [j.position.value for j in state.kinematic_state.joint_states if j.name == model.GRIPPER_JOINT]
+        return np.concatenate([self._arm_q(state), gripper])
+
     def _arm_q(self, state) -> np.ndarray:
         joints = {j.name: j.position.value for j in state.kinematic_state.joint_states}
         try:
@@ -885,6 +954,7 @@ class SdkSpotBackend:
         return cv.seconds_to_timestamp(time.time())
 
     # ================================================================== observation
+    @_closing_aware
     def observe(self) -> Observation:
         self._guard(sensing=True)
         cfg, bd = self.config, self._bd
@@ -932,6 +1002,7 @@ class SdkSpotBackend:
             raise self._set_fault(TimeSyncLostError("time sync with the robot was lost")) from None
 
     # ================================================================== base
+    @_closing_aware
     def navigate_to(self, goal: SE2Pose, via: Sequence[SE2Pose] = ()) -> NavigateResult:
         goal = as_se2(goal, "goal")
         via = [as_se2(v, f"via[{i}]") for i, v in enumerate(via)]
@@ -993,6 +1064,7 @@ class SdkSpotBackend:
         return float(sum(a.distance_to(b) for a, b in zip(poses[:k], poses[1:k + 1])))
 
     # ================================================================== arm
+    @_closing_aware
     def move_arm_joints(self, joints: Sequence[float]) -> CommandResult:
         q_goal = check_arm_target(joints)
         self._guard()
@@ -1021,6 +1093,7 @@ class SdkSpotBackend:
             return CommandResult(True, Reason.OK, duration=took)
         return CommandResult(False, Reason.COLLISION, "the arm stalled before reaching the joint target", duration=took)
 
+    @_closing_aware
     def move_hand(self, T_body_hand: np.ndarray) -> CommandResult:
         T = np.asarray(T_body_hand, dtype=float)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
@@ -1055,6 +1128,7 @@ class SdkSpotBackend:
             return CommandResult(False, Reason.STOPPED, "the hand move was cancelled", duration=took)
         return CommandResult(False, Reason.COLLISION, "the arm stalled before reaching the hand pose", duration=took)
 
+    @_closing_aware
     def gaze_at(self, point: Sequence[float]) -> CommandResult:
         p = as_point(point, "gaze point")
         self._guard()
@@ -1077,6 +1151,7 @@ class SdkSpotBackend:
                              f"cannot point the hand camera at ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}) from here; "
                              f"turn the body towards it", duration=took)
 
+    @_closing_aware
     def stow_arm(self) -> CommandResult:
         """Stow; with an object in the claw, go to the carry pose instead (Spot refuses to stow it)."""
         self._guard()
@@ -1089,8 +1164,13 @@ class SdkSpotBackend:
             st = fb.feedback.synchronized_feedback.arm_command_feedback.named_arm_position_feedback.status
             return st in (S.STATUS_COMPLETE, S.STATUS_STALLED_HOLDING_ITEM), st == S.STATUS_COMPLETE
 
+        # A stow that makes no progress (arm or claw) for stall_time while the robot does not report
+        # the arm stowed is given up: close() stows, and a robot that takes commands and never
+        # carries them out must not hold the shutdown for arm_move_timeout + command_margin (12 s).
+        # The carry pose has no arrival signal in robot state, so a carry waits its whole budget.
+        track = None if holding else (self._arm_and_gripper_q, None, self._arm_stowed)
         ok, _, took = self._run_command(command, during="carrying" if holding else "stowing the arm",
-                                        expected=self.config.arm_move_timeout, done=done)
+                                        expected=self.config.arm_move_timeout, done=done, track=track)
         if ok:
             return CommandResult(True, Reason.OK, duration=took)
         if ok is None:
@@ -1111,6 +1191,7 @@ class SdkSpotBackend:
         return CommandResult(bool(ok), Reason.OK if ok else Reason.STOPPED, duration=took)
 
     # ================================================================== grasp and place
+    @_closing_aware
     def grasp(self, observation: Observation, pixel: tuple[int, int]) -> GraspResult:
         if not isinstance(observation, Observation):
             raise InvalidCommandError(f"grasp needs the Observation the pixel refers to, got "
@@ -1202,6 +1283,7 @@ class SdkSpotBackend:
             T_world_grasp = self._T(state, cv.ODOM, cv.HAND)
         self._grip = (invert_transform(T_world_grasp) @ np.append(base, 1.0))[:3]
 
+    @_closing_aware
     def place(self, point: Sequence[float], release_height: float = 0.10) -> PlaceResult:
         p = as_point(point, "place point")
         if not (math.isfinite(release_height) and 0.0 <= release_height <= 1.0):
@@ -1252,10 +1334,11 @@ class SdkSpotBackend:
                            release_point=release)
 
     # ================================================================== misc
+    @_closing_aware
     def stand(self) -> CommandResult:
         """Power on (if needed) and stand. After an e-stop was released, this re-powers the robot."""
-        if self._closed:
-            raise RuntimeError("this backend has been closed")
+        if self._closed or self._closing_elsewhere():
+            self._guard()                 # BackendClosedError
         if isinstance(self._fault, (EstopError, PowerError)):
             self._fault = None            # retry: the checks below raise again if nothing changed
         self._guard()
@@ -1280,9 +1363,12 @@ class SdkSpotBackend:
         return CommandResult(ok, Reason.OK if ok else Reason.STOPPED, "standing" if ok else "stand was interrupted",
                              duration=took)
 
+    @_closing_aware
     def stop(self) -> CommandResult:
         if self._closed:
-            raise RuntimeError("this backend has been closed")
+            raise BackendClosedError("this backend has been closed")
+        if self._closing_elsewhere():
+            return CommandResult(True, Reason.OK, "close() is stopping the robot and shutting it down")
         if isinstance(self._fault, (EstopError, PowerError)):
             return CommandResult(True, Reason.OK, f"motion is already cut: {self._fault}")
         self._guard()
@@ -1308,10 +1394,32 @@ class SdkSpotBackend:
         awaited at most ``close_budget`` s in all; on a silent or dead link ``close()`` therefore
         returns within about ``close_budget`` + 0.5 s. After a lost lease no motion command is
         sent (it is not ours to command); the e-stop endpoint is deregistered whenever the robot
-        answers."""
-        if self._closed or self._closing:
+        answers.
+
+        From another thread while a command runs: that command ends in BackendClosedError (see the
+        class docstring). A second close() from another thread returns once the first is done."""
+        with self._close_lock:
+            first = not (self._closed or self._closing)
+            if first:
+                self._closing, self._close_thread = True, threading.current_thread()
+        if not first:
+            if self._close_thread is not threading.current_thread() and \
+                    not self._close_done.wait(self._close_bound()):
+                _LOG.warning("close() in another thread did not finish within %.0f s", self._close_bound())
             return
-        self._closing = True
+        try:
+            self._close_once()
+        finally:
+            self._close_done.set()
+
+    def _close_bound(self) -> float:
+        """The longest a close() can take (a healthy, slow shutdown of every step): how long a second
+        close() waits for the first."""
+        cfg = self.config
+        return (6 * cfg.rpc_timeout + cfg.arm_move_timeout + cfg.command_margin + cfg.stand_timeout
+                + cfg.close_budget + 2.0)
+
+    def _close_once(self) -> None:
         t0 = time.monotonic()
         with signals_deferred():
             try:

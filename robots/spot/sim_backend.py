@@ -21,6 +21,7 @@ from robots.hal import (
     as_pixel,
     as_point,
     as_se2,
+    BackendClosedError,
     CameraIntrinsics,
     CommandResult,
     GraspResult,
@@ -785,7 +786,7 @@ class SimSpotBackend:
 
     def _check_open(self) -> None:
         if self._closed:
-            raise RuntimeError("this backend has been closed")
+            raise BackendClosedError("this backend has been closed")
 
     # ================================================================== time
     def _physics_needed(self, held_is_kinematic: bool = False) -> bool:
