@@ -652,10 +652,16 @@ def read_results(path: Path, repair: bool = False) -> dict[str, dict]:
 
 
 def append_result(path: Path, record: dict) -> dict:
-    """Append one record as a JSON line (flushed and fsynced); returns it as read back from JSON."""
+    """Append one record as a JSON line (flushed and fsynced); returns it as read back from JSON.
+    After a torn last line (a kill mid-write) the record starts a line of its own, so the torn one
+    stays the only damaged line instead of swallowing this record too."""
     text = json.dumps(record, sort_keys=True, default=_json_default)
-    with Path(path).open("ab") as fh:
-        fh.write((text + "\n").encode())
+    with Path(path).open("ab+") as fh:
+        lead = b""
+        if fh.seek(0, os.SEEK_END) > 0:
+            fh.seek(-1, os.SEEK_END)
+            lead = b"" if fh.read(1) == b"\n" else b"\n"
+        fh.write(lead + (text + "\n").encode())
         fh.flush()
         os.fsync(fh.fileno())
     return json.loads(text)
@@ -1004,6 +1010,26 @@ def run_cpu_paths(out: Path) -> list[str]:
         if paths not in seen:
             seen.append(paths)
     return seen
+
+
+def invocation_damaged_lines(out: Path) -> list[int]:
+    """Line numbers (1-based) of ``invocations.jsonl`` that :func:`run_cpu_paths` skips: not JSON
+    (a torn last line after a kill, an edit) or not an object. The report names them."""
+    path = Path(out) / "invocations.jsonl"
+    if not path.is_file():
+        return []
+    bad = []
+    for number, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            entry = json.loads(line)
+        except ValueError:
+            bad.append(number)
+            continue
+        if not isinstance(entry, dict):
+            bad.append(number)
+    return bad
 
 
 def _log_invocation(out: Path, workers: int, executor: str, address: str, todo: int, commit: str) -> None:

@@ -889,6 +889,8 @@ DAMAGES = [
      ([], 0, "line 3: extra.activity_time"), None),
     ("invocations-directory", _to_directory("invocations.jsonl"), (0, "invocations.jsonl is a directory"),
      ([], 2, "invocations.jsonl is a directory"), _undo_directory("invocations.jsonl")),
+    ("invocations-torn-line", lambda f: (f / "invocations.jsonl").open("ab").write(b'{"episodes_to_run": 2, "cpu'),
+     (0, "invocations.jsonl:2: damaged line of the run's invocation log"), ([], 0, ""), None),
     ("picture-data-content-a", _trace_damage(TRACE_DAMAGE_A),
      (0, "smoke-00000.npz: the picture data is damaged (meta.grid"), ([], 0, ""), None),
     ("picture-data-content-b", _trace_damage(TRACE_DAMAGE_B),

@@ -159,7 +159,8 @@ def test_the_report_shows_each_runs_code_paths_and_warns_when_they_differ(tmp_pa
     _invocations(b, PINNED)
     result = make_report([a, b], tmp_path / "rep", episode_pages=False)
     assert "CPU code paths" in result["text"] and result["text"].count("x86-64-v3, numpy X86_V3") == 2
-    assert not [w for w in result["warnings"] if "CPU code paths" in w]
+    assert not [w for w in result["warnings"] if "different CPU code paths" in w]
+    assert any("invocations.jsonl:2: damaged line" in w for w in result["warnings"])   # _invocations' torn line
     _invocations(b, NATIVE)                           # the same experiment on another machine's fast paths
     result = make_report([a, b], tmp_path / "rep", episode_pages=False)
     assert any("runs compared ran on different CPU code paths" in w and "b: native (HELIOS_CPU=native)" in w
@@ -205,3 +206,24 @@ def test_a_bad_helios_cpu_is_one_error_line_for_every_command(monkeypatch, tmp_p
     assert rc == 2 and err.splitlines() == [f"error: {CPU_ENV_VAR} must be x86-64-v3 or native (or unset), "
                                             f"got 'avx512'"]
     assert not (tmp_path / "run").exists()
+
+
+def test_an_invocation_logged_after_a_torn_line_is_kept_and_the_torn_line_is_named(tmp_path):
+    """A kill mid-write leaves a torn last line; the next invocation starts a line of its own (it
+    was glued to the torn one and lost), and the report names the torn line."""
+    from tasks.trials import append_result, invocation_damaged_lines, run_cpu_paths
+    from tools.report import invocations_problem
+
+    path = tmp_path / "invocations.jsonl"
+    append_result(path, {"episodes_to_run": 1, "cpu": PINNED})
+    with path.open("ab") as fh:
+        fh.write(b'{"episodes_to_run": 2, "cpu": {"pin": "to')
+    append_result(path, {"episodes_to_run": 3, "cpu": NATIVE})
+    lines = path.read_text().splitlines()
+    assert len(lines) == 3 and json.loads(lines[2])["episodes_to_run"] == 3
+    assert invocation_damaged_lines(tmp_path) == [2]
+    assert len(run_cpu_paths(tmp_path)) == 2
+    problem = invocations_problem(tmp_path)
+    assert problem.startswith(f"{path}:2: damaged line") and "\n" not in problem
+    path.write_text(lines[0] + "\n")
+    assert invocations_problem(tmp_path) is None

@@ -83,14 +83,24 @@ def check_names(names: list[str]) -> None:
 
 
 def invocations_problem(run_path: Path) -> str | None:
-    """What is wrong with a run folder's invocations.jsonl (a directory in its place), or None. It
-    only says which code paths the episodes ran on: the report and diff read the records without
-    it, but say so (a resume refuses the folder). Its damaged lines are skipped without a word
-    (``tasks.trials.run_cpu_paths``: informative, never a reason to fail; a resume appends to it)."""
+    """What is wrong with a run folder's invocations.jsonl (a directory in its place, damaged
+    lines), or None. It only says which code paths the episodes ran on: the report and diff read
+    the records without it, but say so (a resume refuses a directory; it appends after damaged
+    lines, which ``tasks.trials.run_cpu_paths`` skips: informative, never a reason to fail)."""
+    from tasks.trials import invocation_damaged_lines
+
     path = run_path / "invocations.jsonl"
     if path.is_dir():
         return (f"{path} is a directory, where the log of the run's invocations belongs: the CPU code paths of its "
                 f"episodes are unknown (a resume refuses the folder until it is moved away)")
+    try:
+        bad = invocation_damaged_lines(run_path)
+    except OSError as exc:
+        return f"{path} cannot be read ({exc.strerror or exc}): the CPU code paths of its episodes are unknown"
+    if bad:
+        shown = ", ".join(f"{path}:{n}" for n in bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
+        return (f"{shown}: damaged line{'s' if len(bad) > 1 else ''} of the run's invocation log (torn by a kill, "
+                f"or edited), skipped: the CPU code paths shown come from the other lines")
     return None
 
 
