@@ -288,7 +288,7 @@ class SearchConfig:
     the objective's frontier term F(f) F0 - alpha_d dist(f) with F0 = 1 (our earlier reading)."""
 
     def __post_init__(self) -> None:
-        require(self.alpha_d >= 0, "alpha_d must be >= 0")
+        require_range(self, "alpha_d", 0.0, 1000.0)   # above ~1 per cell the distance term alone decides
         require_range(self, "min_frontier_value", 0.0, 1.0)
         require_range(self, "initial_frontier_ratio", 0.0, 1e9, lo_open=True)
         require(0 <= self.cs_start_receptacle <= 1, "cs_start_receptacle must be in [0, 1]")
@@ -344,7 +344,7 @@ class DecisionConfig:
         for name in ("tau_object", "tau_goal_receptacle", "cs_object", "cs_goal_receptacle"):
             value = getattr(self, name)
             require(0 <= value <= 1, f"{name} must be in [0, 1], got {value}")
-        require(self.tau_increase >= 0, "tau_increase must be >= 0")
+        require_range(self, "tau_increase", 0.0, 1.0)  # an increase of a probability
         require(self.candidate_class in ("most_likely", "score_only"),
                 "candidate_class must be 'most_likely' or 'score_only'")
         require(self.view_prediction in ("follow_information_gain", "optimistic"),

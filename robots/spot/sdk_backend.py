@@ -108,6 +108,9 @@ class CommandRejectedError(RobotFault):
 # --------------------------------------------------------------------------------------------
 # Configuration
 # --------------------------------------------------------------------------------------------
+MAX_WAIT_S = 600.0   # the longest any single wait on the robot may be configured to take
+
+
 @dataclass(frozen=True)
 class SdkBackendConfig:
     """How to reach and drive a Spot. Credentials are not part of it (environment only)."""
@@ -158,8 +161,11 @@ class SdkBackendConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number of seconds, got {v!r}")
-        if not (self.command_margin >= 0 and math.isfinite(self.command_margin)):
-            raise ValueError(f"command_margin must be >= 0, got {self.command_margin!r}")
+            if v > MAX_WAIT_S:
+                raise ValueError(f"{name} must be at most {MAX_WAIT_S:g} s (a wait on the robot longer than "
+                                 f"that is a hang, not a timeout), got {v!r}")
+        if not (0 <= self.command_margin <= MAX_WAIT_S and math.isfinite(self.command_margin)):
+            raise ValueError(f"command_margin must be within 0..{MAX_WAIT_S:g} s, got {self.command_margin!r}")
         if not 2 <= int(self.max_trajectory_points) <= 250:
             raise ValueError(f"max_trajectory_points must be within 2..250, got {self.max_trajectory_points}")
         if not 1 <= int(self.jpeg_quality) <= 100:
