@@ -204,3 +204,28 @@ def test_fault_switchboard_names():
 def test_unknown_fault_is_a_clear_error(demo):
     with pytest.raises(ValueError, match="unknown fault 'meteor'; known: estop, lease_revoked"):
         demo.fake.inject("meteor")
+
+
+def test_delay_calls_answers_one_rpc_late_after_acting_on_it(demo):
+    """``delay_calls``: the robot acts on the request at once, only its reply is late, and no other
+    RPC is held back (a caller with a shorter deadline times out on that call alone)."""
+    from bosdyn.client.exceptions import TimedOutError
+
+    sdk, robot = _robot(demo)
+    try:
+        robot.authenticate(TEST_USER, TEST_PASSWORD)
+        lease_client = robot.ensure_client(LeaseClient.default_service_name)
+        demo.fake.delay_calls("AcquireLease", 1, delay=1.0)
+        t0 = time.monotonic()
+        with pytest.raises(TimedOutError):
+            lease_client.acquire(timeout=0.3)
+        assert time.monotonic() - t0 < 0.8
+        assert demo.fake.lease_owner                       # granted although we never heard back
+        t1 = time.monotonic()
+        [body] = [r for r in lease_client.list_leases(timeout=0.3) if r.resource == "body"]
+        assert time.monotonic() - t1 < 0.3                 # other RPCs are answered promptly
+        assert body.lease_owner.client_name == demo.fake.lease_owner
+        with pytest.raises(ValueError, match="delay"):
+            demo.fake.delay_calls("AcquireLease", 1, delay=-1)
+    finally:
+        _teardown(sdk, robot)

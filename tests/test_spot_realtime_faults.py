@@ -5,7 +5,8 @@ backend must end the command with the HAL's typed error (a failed GraspResult fo
 grasp) within 2 s, the base must move less than 0.3 m after the error is raised, ``close()`` must
 return within 3 s of wall time, and afterwards the robot is powered off (as far as the link and
 the lease allow), our lease returned, our e-stop endpoint gone and no thread of ours left. A fake
-frozen with SIGSTOP or killed: ``close()`` within 3 s. A failed bring-up leaves no e-stop endpoint.
+frozen with SIGSTOP or killed: ``close()`` within 3 s. A failed bring-up leaves no e-stop endpoint,
+also when a bring-up call was answered too late (nor a lease).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import sys
 import threading
 import time
 
+import grpc
 import numpy as np
 import pytest
 
@@ -325,6 +327,85 @@ def test_failed_bring_up_leaves_no_estop_endpoint_registered():
         demo.stop()
     leaked = wait_for_threads_to_end(before)
     assert not leaked, sorted(t.name for t in leaked)
+
+
+# RPC -> its reply comes after rpc_timeout although the robot acted on it (a slow link at bring-up)
+LATE_AT_BRING_UP = {
+    "SetEstopConfig": {},                   # our endpoint is in the robot's e-stop configuration
+    "RegisterEstopEndpoint": {},            # ... and registered (a unique id we never heard of)
+    "AcquireLease": {},                     # the body lease is ours on the robot
+    "TakeLease": {"take_lease": True},      # ... taken from the tablet
+}
+
+
+@pytest.mark.parametrize("method", sorted(LATE_AT_BRING_UP))
+def test_bring_up_with_a_late_reply_leaves_nothing_of_ours_on_the_robot(method):
+    """QA probe: a bring-up whose SetEstopConfig, RegisterEstopEndpoint or Acquire/TakeLease is
+    answered after rpc_timeout left our e-stop endpoint (the robot at CUT once its check-ins stop)
+    or a granted lease behind, and the next session was refused. After the failed bring-up and
+    close(): no endpoint of ours, the lease free (a new session acquires it without take and
+    passes the external e-stop check), motors off, close() within 3 s, no thread left."""
+    before = python_threads()
+    demo = start_fake(seed=0)
+    fake = demo.fake
+    if method == "TakeLease":
+        fake.lease_owner = "tablet"
+    fake.delay_calls(method, 1, delay=1.8)         # > the 1 s RPC timeout; only this call
+    try:
+        with credentials_env():
+            backend = SdkSpotBackend(fast_config(demo.port, estop_mode="endpoint", estop_timeout=1.0,
+                                                 **LATE_AT_BRING_UP[method]), connect=False)
+        with credentials_env(), pytest.raises(CommandTimeoutError, match="did not answer"):
+            backend.connect()
+        t0 = time.monotonic()
+        backend.close()
+        closing = time.monotonic() - t0
+        assert closing < CLOSE_WITHIN, f"close() after a late {method} took {closing:.2f} s"
+        ours = [ep.proto.name for ep in fake._endpoints.values() if ep.proto.name == "helios-estop"]
+        assert not ours, f"our e-stop endpoint outlived a bring-up with a late {method}"
+        assert fake.lease_owner is None, f"the lease is still held by {fake.lease_owner!r} after a late {method}"
+        assert not fake.powered
+        time.sleep(1.2)                            # past our endpoint's timeout: nobody's power is cut
+        assert fake.stop_level()[0] == estop_pb2.ESTOP_LEVEL_NONE, fake.stop_level()
+        # The next session (external e-stop, no take) is not refused.
+        with credentials_env():
+            nxt = SdkSpotBackend(fast_config(demo.port, estop_mode="external", stand_on_connect=False))
+        nxt.close()
+    finally:
+        demo.stop()
+    leaked = wait_for_threads_to_end(before)
+    assert not leaked, sorted(t.name for t in leaked)
+
+
+@pytest.mark.parametrize("method", ["SetEstopConfig", "TakeLease"])
+def test_an_unanswered_bring_up_call_that_never_reached_the_robot_leaves_others_alone(method):
+    """The clean-up after an unanswered bring-up call only touches what that call left: a call that
+    failed before the robot acted on it leaves another client's lease and an older endpoint of the
+    same name where they were (close() asks the robot, finds nothing of ours, returns nothing)."""
+    from robots.spot.fake_spot.server import _Endpoint
+
+    demo = start_fake(seed=0)
+    fake = demo.fake
+    try:
+        if method == "SetEstopConfig":
+            proto = estop_pb2.EstopEndpoint(role="PDB_rooted", name="helios-estop", unique_id="endpoint-older")
+            fake._endpoints = {"endpoint-older": _Endpoint(proto, level=estop_pb2.ESTOP_LEVEL_NONE,
+                                                           last_checkin=time.monotonic() + 3600)}
+        else:
+            fake.lease_owner = "tablet"
+        fake.fail_calls(method, 1, code=grpc.StatusCode.UNAVAILABLE)   # refused before it is acted on
+        with credentials_env(), pytest.raises(ConnectionLostError):
+            SdkSpotBackend(fast_config(demo.port, estop_mode="endpoint", take_lease=True))
+        if method == "SetEstopConfig":
+            assert "GetEstopConfig" in fake.rpc_log[fake.rpc_log.index("SetEstopConfig") + 1:]   # asked at close
+            assert list(fake._endpoints) == ["endpoint-older"]
+            assert "DeregisterEstopEndpoint" not in fake.rpc_log
+        else:
+            assert "ListLeases" in fake.rpc_log
+            assert "ReturnLease" not in fake.rpc_log and fake.lease_owner == "tablet"
+            assert not fake._endpoints          # our (answered) registration was deregistered as before
+    finally:
+        demo.stop()
 
 
 def test_grpc_tracing_in_the_environment_is_refused_before_the_robot_is_touched(monkeypatch):

@@ -480,6 +480,9 @@ class SdkSpotBackend:
         self._lease_keepalive = None
         self._estop_keepalive = None
         self._estop_endpoint = None
+        # What a bring-up call that went unanswered may have left on the robot (asked about at close)
+        self._estop_unconfirmed: tuple[str, str, frozenset] | None = None   # (name, config id, ids) before
+        self._lease_unconfirmed = False
         self._token_manager_thread: threading.Thread | None = None
         self._frame_id = 0
         self._shots: OrderedDict[int, _Shot] = OrderedDict()
@@ -622,21 +625,31 @@ class SdkSpotBackend:
         return f"the robot at {where} accepted TLS but its API did not answer (is it a Spot?)"
 
     def _setup_estop(self) -> None:
+        """External e-stop: check it is released. Endpoint mode: the SDK's ``force_simple_setup()``
+        with bounded RPCs (our endpoint replaces the robot's e-stop configuration), a first check-in
+        and a keep-alive.
+
+        A SetEstopConfig or RegisterEstopEndpoint whose reply comes after ``rpc_timeout`` may have
+        put our endpoint on the robot (it acted on the request) under a unique id we never heard:
+        before those calls go out the endpoint's name and the configuration they replace are
+        remembered (``_estop_unconfirmed``), and ``close()`` asks the robot for its configuration
+        and deregisters what they left (:meth:`_clean_up_unanswered_bring_up`). Once registration
+        is answered the endpoint itself is remembered and deregistered by its unique id."""
         cfg, bd = self.config, self._bd
         try:
             if cfg.estop_mode == "endpoint":
-                # The SDK's force_simple_setup() with bounded RPCs, and the endpoint remembered as soon
-                # as the configuration names it: a bring-up failing after this point deregisters it.
                 client, t = self._estop_client, cfg.rpc_timeout
-                ep = bd.estop.EstopEndpoint(client, f"{cfg.client_name}-estop", cfg.estop_timeout)
+                name = f"{cfg.client_name}-estop"
+                ep = bd.estop.EstopEndpoint(client, name, cfg.estop_timeout)
                 config = bd.estop_pb2.EstopConfig()
                 config.endpoints.add().CopyFrom(ep.to_proto())
                 active = client.get_config(timeout=t)
+                self._estop_unconfirmed = (name, active.unique_id, frozenset(e.unique_id for e in active.endpoints))
                 active = client.set_config(config, active.unique_id, timeout=t)
                 ep._unique_id = active.endpoints[0].unique_id
                 ep._config_id = active.unique_id
-                self._estop_endpoint = ep
                 ep.from_proto(client.register(active.unique_id, ep, timeout=t))
+                self._estop_endpoint, self._estop_unconfirmed = ep, None
                 ep.stop(timeout=t)              # the first check-in seeds the challenge (as register() does)
                 self._estop_keepalive = bd.estop.EstopKeepAlive(ep, rpc_timeout_seconds=cfg.rpc_timeout,
                                                                rpc_interval_seconds=min(cfg.estop_timeout / 3.0, 2.0))
@@ -651,13 +664,23 @@ class SdkSpotBackend:
             raise EstopError(f"the robot is e-stopped: {level}{details}; release the e-stop before connecting")
 
     def _acquire_lease(self) -> None:
+        """Acquire (``take_lease``: take) the body lease and keep it alive.
+
+        An AcquireLease or TakeLease whose reply comes after ``rpc_timeout`` may have given us the
+        lease on the robot with no keep-alive or wallet entry here: from the request until the
+        keep-alive holds the lease, ``_lease_unconfirmed`` says so, and ``close()`` asks the robot
+        who holds the lease and returns it if the holder is this client
+        (:meth:`_clean_up_unanswered_bring_up`). A refusal (another client holds it) is an answer:
+        nothing to return."""
         cfg, bd = self.config, self._bd
+        self._lease_unconfirmed = True
         try:
             if cfg.take_lease:
                 self._lease_client.take(timeout=cfg.rpc_timeout)
             else:
                 self._lease_client.acquire(timeout=cfg.rpc_timeout)
         except bd.lease.ResourceAlreadyClaimedError:
+            self._lease_unconfirmed = False
             raise LeaseLostError("another client holds the body lease (the tablet?); release it, or take it with "
                                  "take_lease=true") from None
         except bd.exc.Error as exc:
@@ -667,6 +690,7 @@ class SdkSpotBackend:
         self._lease_keepalive = cls(self._lease_client, must_acquire=True, return_at_exit=False,
                                     rpc_interval_seconds=cfg.lease_retain_period,
                                     on_failure_callback=self._on_lease_keepalive_error, warnings=False)
+        self._lease_unconfirmed = False
         _LOG.info("body lease acquired")
 
     def _on_lease_keepalive_error(self, exc) -> None:
@@ -1496,7 +1520,8 @@ class SdkSpotBackend:
     def _shutdown_in_flight(self, lease, deadline: float) -> None:
         """Degraded robot or link: stop and safe power off (with our lease), then return the lease
         and deregister the e-stop endpoint, each sent without waiting for the one before; replies
-        awaited until ``deadline``."""
+        awaited until ``deadline``. After a bring-up call that went unanswered, the robot is asked
+        what it left and that is returned / deregistered too (:meth:`_clean_up_unanswered_bring_up`)."""
         cfg, bd = self.config, self._bd
         pending = []
 
@@ -1515,6 +1540,7 @@ class SdkSpotBackend:
         if self._estop_endpoint is not None:
             ep = self._estop_endpoint
             send("e-stop deregistration", self._estop_client.deregister_async, ep._config_id, ep)
+        self._clean_up_unanswered_bring_up(send, deadline)
         done = self._await(pending, deadline)
         for name, fut in pending:
             if name in done:
@@ -1524,6 +1550,117 @@ class SdkSpotBackend:
                 _LOG.warning("shutdown: %s not confirmed by the robot", name)
         if "e-stop deregistration" in done:
             self._estop_endpoint = None
+        if "left e-stop endpoint deregistration" in done:
+            self._estop_unconfirmed = None
+        if "left lease return" in done:
+            self._lease_unconfirmed = False
+
+    def _clean_up_unanswered_bring_up(self, send, deadline: float) -> None:
+        """What a bring-up call answered too late (the robot acted on it, our call had timed out)
+        left on the robot: ask the robot, then ``send`` the return / deregistration (the replies
+        are awaited with the other shutdown steps). Every RPC is bounded by ``deadline``; a robot
+        that does not answer the question leaves nothing to do but warn.
+
+        * Lease (``_lease_unconfirmed``): ListLeases; the body lease is ours when its owner's
+          ``client_name`` is the client name this SDK puts in every request header (the SDK's
+          ``generate_client_name``: prefix, host, program and process id, so unique to this
+          process). Assumes, as the LeaseService documents, that the robot names the client that
+          acquired or took a lease in ``lease_owner.client_name``, and that ReturnLease accepts the
+          active lease as ListLeases reports it (``include_full_lease_info``).
+        * E-stop (``_estop_unconfirmed``): GetEstopConfig; an endpoint is ours when it has our
+          endpoint's name and either the configuration is no longer the one our SetEstopConfig
+          replaced or its unique id is new since then (so an endpoint of that name that was there
+          before us is left alone). Assumes, as for the healthy shutdown, that
+          DeregisterEstopEndpoint with the active configuration's id removes it.
+
+        Both questions go out on the same connection as the late calls, after them, so they reach
+        the robot after the late calls did (a robot that handles requests in parallel could in
+        principle answer before acting on a late call that it received just before; not seen in
+        practice, and not coverable without an answer to wait for). The body lease is returned
+        without a stop or power off: an unanswered acquire comes before power-on."""
+        if self._lease_keepalive is not None:
+            self._lease_unconfirmed = False
+        if not self._lease_unconfirmed and self._estop_unconfirmed is None:
+            return
+
+        def left(seconds: float = 0.05) -> float:
+            return max(seconds, deadline - time.monotonic())
+
+        asks = []
+        for what, wanted, ask in (
+                ("lease", self._lease_unconfirmed,
+                 lambda: self._lease_client.list_leases_async(include_full_lease_info=True, timeout=left())),
+                ("e-stop", self._estop_unconfirmed is not None,
+                 lambda: self._estop_client.get_config_async(timeout=left()))):
+            if not wanted:
+                continue
+            try:
+                asks.append((what, ask()))
+            except Exception as exc:  # noqa: BLE001 - e.g. the channel is already gone
+                _LOG.warning("shutdown: could not ask the robot what an unanswered bring-up call left (%s): %s",
+                             what, type(exc).__name__)
+        for what, fut in asks:
+            try:
+                answer = _future_result(fut, left(0.0))
+            except Exception as exc:  # noqa: BLE001
+                _cancel(fut)
+                _LOG.warning("shutdown: a bring-up call went unanswered and the robot did not say whether "
+                             "it left %s of ours (%s)", "the body lease" if what == "lease" else
+                             "an e-stop endpoint", type(exc).__name__)
+                continue
+            if what == "lease":
+                lease = self._lease_left_with_us(answer)
+                if lease is not None:
+                    _LOG.warning("shutdown: the robot gave us the body lease although our request went "
+                                 "unanswered; returning it")
+                    send("left lease return", self._return_lease_async, lease)
+                else:
+                    self._lease_unconfirmed = False
+            else:
+                ours = self._endpoints_left_by_us(answer)
+                for ep in ours:
+                    _LOG.warning("shutdown: e-stop endpoint %r is on the robot although our request went "
+                                 "unanswered; deregistering it", ep.name)
+                    send("left e-stop endpoint deregistration", self._estop_client.deregister_async,
+                         answer.unique_id, ep)
+                if not ours:
+                    self._estop_unconfirmed = None
+
+    def _client_name_in_headers(self) -> str | None:
+        """The client name the SDK puts in our request headers (``create_standard_sdk``'s
+        ``AddRequestHeader``), which the robot records as a lease's owner."""
+        for proc in getattr(self._sdk, "request_processors", ()):
+            get = getattr(proc, "get_client_name", None)
+            if callable(get):
+                try:
+                    name = get()
+                except Exception:  # noqa: BLE001
+                    continue
+                if name:
+                    return str(name)
+        return None
+
+    def _lease_left_with_us(self, resources):
+        """The body lease from a ListLeases answer when this client holds it, else None."""
+        bd = self._bd
+        ours = self._client_name_in_headers()
+        if ours is None:
+            _LOG.warning("shutdown: cannot tell which client name the robot knows us by; an unanswered "
+                         "lease request may have left the body lease with us")
+            return None
+        for res in resources:
+            if res.resource == "body" and res.lease_owner.client_name == ours and \
+                    bd.lease.Lease.is_valid_proto(res.lease):
+                return bd.lease.Lease(res.lease)
+        return None
+
+    def _endpoints_left_by_us(self, active) -> list:
+        """Endpoints in the robot's active e-stop configuration that our unanswered
+        SetEstopConfig / RegisterEstopEndpoint put there (see :meth:`_clean_up_unanswered_bring_up`)."""
+        name, config_before, ids_before = self._estop_unconfirmed
+        replaced = active.unique_id != config_before
+        return [ep for ep in active.endpoints
+                if ep.name == name and ep.unique_id and (replaced or ep.unique_id not in ids_before)]
 
     def _return_lease_async(self, lease, **kwargs):
         """ReturnLease without waiting (bosdyn 5.2's ``return_lease_async`` blocks: it uses ``call``)."""

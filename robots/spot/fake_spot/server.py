@@ -20,7 +20,8 @@ robot clock is the wall clock plus a fixed skew that the client's time sync must
 
 Faults (``FakeSpot.inject``) model what goes wrong on real hardware; each persists until
 ``clear``: see ``FAULTS``. Scripted faults: ``inject_at`` (at a time), ``inject_on_call`` (on
-the Nth call of an RPC), ``fail_calls`` (an RPC fails N times, then recovers).
+the Nth call of an RPC), ``fail_calls`` (an RPC fails N times, then recovers), ``delay_calls``
+(N calls of one RPC are acted on at once but answered late, the other RPCs promptly).
 """
 
 from __future__ import annotations
@@ -356,9 +357,22 @@ class FakeSpot:
             first = self._calls.get(method, 0) + int(after) + 1
             self._call_rules.append({"method": method, "fail": (first, first + int(times) - 1), "code": code})
 
-    def on_call(self, method: str, context) -> None:
-        """Count a call of ``method`` and apply the scripted faults due on it (RPC threads)."""
-        fire, fail = [], None
+    def delay_calls(self, method: str, times: int, delay: float, after: int = 0) -> None:
+        """The next ``times`` calls of RPC ``method`` (after ``after`` more answered promptly) are
+        processed when they arrive but answered ``delay`` seconds late (ended early by ``clear`` or
+        ``stop``): the robot acts on the request, a caller with a shorter deadline gives up. Unlike
+        the 'slow' fault, no other RPC is delayed."""
+        if not (isinstance(delay, (int, float)) and math.isfinite(delay) and delay >= 0):
+            raise ValueError(f"delay must be a non-negative number of seconds, got {delay!r}")
+        with self._lock:
+            first = self._calls.get(method, 0) + int(after) + 1
+            self._call_rules.append({"method": method, "delay_calls": (first, first + int(times) - 1),
+                                     "delay": float(delay)})
+
+    def on_call(self, method: str, context) -> float:
+        """Count a call of ``method`` and apply the scripted faults due on it (RPC threads). Returns
+        how long its reply is to be held back (``delay_calls``; 0 for none)."""
+        fire, fail, delay = [], None, 0.0
         with self._lock:
             self.rpc_log.append(method)
             n = self._calls[method] = self._calls.get(method, 0) + 1
@@ -369,10 +383,13 @@ class FakeSpot:
                     fire.append(rule)
                 elif "fail" in rule and rule["fail"][0] <= n <= rule["fail"][1]:
                     fail = rule["code"]
+                elif "delay_calls" in rule and rule["delay_calls"][0] <= n <= rule["delay_calls"][1]:
+                    delay = max(delay, rule["delay"])
         for rule in fire:
             self.inject(rule["fault"], **rule["params"])
         if fail is not None:
             context.abort(fail, f"scripted failure of {method} (call {n})")
+        return delay
 
     # ================================================================== helpers used by servicers
     def robot_now(self) -> float:
@@ -409,14 +426,16 @@ class FakeSpot:
         return hmac.compare_digest(username.encode(), self._username.encode()) and \
             hmac.compare_digest(password.encode(), self._password.encode())
 
-    def slow_delay(self, context) -> None:
+    def slow_delay(self, context, extra: float = 0.0) -> None:
         """Apply the 'slow' fault to a reply: hold it back ``delay`` seconds (ended early by
-        ``clear`` or ``stop``)."""
+        ``clear`` or ``stop``); ``extra``: this call's own delay (``delay_calls``), whichever is
+        longer."""
         with self._lock:
             params = self.faults.get("slow")
             event = self._fault_event
-        if params is not None:
-            event.wait(float(params.get("delay", 3.0)))
+        wait = max(float(params.get("delay", 3.0)) if params is not None else 0.0, float(extra))
+        if wait > 0:
+            event.wait(wait)
 
     # ---------------------------------------------------------------- e-stop
     def stop_level(self) -> tuple[int, str]:
@@ -981,7 +1000,8 @@ def _feedback(cmd: _Command) -> robot_command_pb2.RobotCommandFeedback:
 # ====================================================================== the servicer
 class _Gate(grpc.ServerInterceptor):
     """Every RPC: record it, apply scripted faults, require a valid user token (except for the
-    auth and robot-id services, as on the robot), and hold the reply back under the 'slow' fault."""
+    auth and robot-id services, as on the robot), and hold the reply back under the 'slow' fault
+    or a ``delay_calls`` rule."""
 
     def __init__(self, fake: FakeSpot):
         self._fake = fake
@@ -997,11 +1017,11 @@ class _Gate(grpc.ServerInterceptor):
         service = method.strip("/").split("/")[0]
 
         def gated(request, context):
-            fake.on_call(method.rsplit("/", 1)[-1], context)
+            delay = fake.on_call(method.rsplit("/", 1)[-1], context)
             if service not in _UNAUTHENTICATED_SERVICES and not fake.check_token(metadata):
                 context.abort(grpc.StatusCode.UNAUTHENTICATED, "missing or invalid user token")
             response = inner(request, context)
-            fake.slow_delay(context)
+            fake.slow_delay(context, delay)
             return response
 
         return grpc.unary_unary_rpc_method_handler(gated, request_deserializer=handler.request_deserializer,
