@@ -361,7 +361,7 @@ def test_bring_up_with_a_late_reply_leaves_nothing_of_ours_on_the_robot(method):
         backend.close()
         closing = time.monotonic() - t0
         assert closing < CLOSE_WITHIN, f"close() after a late {method} took {closing:.2f} s"
-        ours = [ep.proto.name for ep in fake._endpoints.values() if ep.proto.name == "helios-estop"]
+        ours = [ep.proto.name for ep in fake._endpoints.values() if ep.proto.name.startswith("helios-estop")]
         assert not ours, f"our e-stop endpoint outlived a bring-up with a late {method}"
         assert fake.lease_owner is None, f"the lease is still held by {fake.lease_owner!r} after a late {method}"
         assert not fake.powered
@@ -406,6 +406,53 @@ def test_an_unanswered_bring_up_call_that_never_reached_the_robot_leaves_others_
             assert not fake._endpoints          # our (answered) registration was deregistered as before
     finally:
         demo.stop()
+
+
+def test_a_failed_bring_up_leaves_another_sessions_lease_and_endpoint_alone():
+    """(QA 2026-12-04) Two sessions of one client_name in one process. B reads the e-stop
+    configuration, A comes up meanwhile (its own endpoint replaces that configuration, lease,
+    standing), so B's SetEstopConfig is refused; a second B finds the lease held and hears so
+    late. B's clean-up used to deregister A's live endpoint (same name) and return A's lease (same
+    header client name): A drove on with no e-stop and ended powered and standing with no lease
+    holder. Each session's names now carry its own token."""
+    before = python_threads()
+    demo = start_fake(seed=0)
+    fake = demo.fake
+    try:
+        fake.delay_calls("GetEstopConfig", 1, delay=0.6)      # B's first call: answered in time, but late
+        failed: list = []
+
+        def session_b():
+            try:
+                with credentials_env():
+                    SdkSpotBackend(fast_config(demo.port, estop_mode="endpoint", stand_on_connect=False))
+            except HalError as exc:
+                failed.append(exc)
+
+        b = threading.Thread(target=session_b, name="session-B")
+        b.start()
+        while "GetEstopConfig" not in fake.rpc_log:
+            time.sleep(0.005)
+        with credentials_env():
+            a = SdkSpotBackend(fast_config(demo.port, estop_mode="endpoint", take_lease=True))
+        b.join(10.0)
+        assert failed, "B's bring-up should have been refused (A replaced the e-stop configuration)"
+        a_endpoint, a_owner = a._estop_endpoint.unique_id, fake.lease_owner
+        assert a_endpoint in fake._endpoints, "B's clean-up deregistered A's live e-stop endpoint"
+        fake.delay_calls("AcquireLease", 1, delay=1.5)         # a second B: refused, and told so late
+        with credentials_env(), pytest.raises(HalError):
+            SdkSpotBackend(fast_config(demo.port, estop_mode="external", stand_on_connect=False))
+        assert fake.lease_owner == a_owner, "B's clean-up returned A's lease"
+        with fake.sim_lock:
+            start = fake.sim.spot.base_pose()
+        assert a.navigate_to(SE2Pose(start.x + 0.2, start.y, 0.0)).success
+        assert fake.stop_level()[0] == estop_pb2.ESTOP_LEVEL_NONE and a_endpoint in fake._endpoints
+        a.close()
+        assert not fake.powered and fake.lease_owner is None and not fake._endpoints
+    finally:
+        demo.stop()
+    leaked = wait_for_threads_to_end(before)
+    assert not leaked, sorted(t.name for t in leaked)
 
 
 def test_grpc_tracing_in_the_environment_is_refused_before_the_robot_is_touched(monkeypatch):

@@ -314,5 +314,9 @@ def test_a_stow_is_stalled_only_while_still_and_not_stowed():
     assert not run(still[:8], [False] * 8)                                  # not yet a whole window
     assert not run(still, [False] * 11 + [True])                            # there
     assert not run([[0.5 + 0.02 * i, 1.0] for i in range(12)], [False] * 12)  # slow but moving
+    # (QA 2026-12-04) out to the tuck pose and back within the window: moving, though it ends
+    # where it began (a stow from stowed); net displacement alone called it stalled
+    out_and_back = [0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.5]
+    assert not run([[q, 1.0] for q in out_and_back], [False] * 12)
     with pytest.raises(ValueError):
         _StallWatch((lambda s: s, None), window=1.0, expected=1.0)

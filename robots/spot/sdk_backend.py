@@ -42,6 +42,7 @@ import glob
 import logging
 import math
 import os
+import secrets
 import signal
 import socket
 import ssl
@@ -369,10 +370,12 @@ class _StallWatch:
     def stalled(self) -> bool:
         if len(self.samples) < 2:
             return False
-        (t_old, x_old), (t, x) = self.samples[0], self.samples[-1]
+        (t_old, _), (t, x) = self.samples[0], self.samples[-1]
         if t - t_old < self.window:
             return False
-        moved = float(np.max(np.abs(x - x_old)))
+        # how far any sample in the window lies from the latest: a move out and back within the
+        # window (a stow from stowed passes its tuck pose) is motion, though it ends where it began
+        moved = max(float(np.max(np.abs(xi - x))) for _, xi in self.samples)
         if self.planned is None:
             return moved < self.tolerance and self._away
         behind = float(np.max(np.abs(np.asarray(self.planned(min(t, self.expected)), dtype=float) - x)))
@@ -480,6 +483,10 @@ class SdkSpotBackend:
         self._lease_keepalive = None
         self._estop_keepalive = None
         self._estop_endpoint = None
+        # Names this session goes by on the robot, unique to it (also among backends in one process):
+        # the SDK's request-header client name (a lease's owner) and our e-stop endpoint's name. The
+        # clean-up after an unanswered bring-up call recognises what is ours by them alone.
+        self._session = secrets.token_hex(3)
         # What a bring-up call that went unanswered may have left on the robot (asked about at close)
         self._estop_unconfirmed: tuple[str, str, frozenset] | None = None   # (name, config id, ids) before
         self._lease_unconfirmed = False
@@ -519,7 +526,8 @@ class SdkSpotBackend:
                 raise SpotConnectError(f"certificate file {cfg.cert_path!r} does not exist")
             cert_glob = glob.escape(os.path.abspath(cfg.cert_path))
         try:
-            self._sdk = bd.client.create_standard_sdk(cfg.client_name, cert_resource_glob=cert_glob)
+            self._sdk = bd.client.create_standard_sdk(f"{cfg.client_name}-{self._session}-",
+                                                      cert_resource_glob=cert_glob)
         except OSError as exc:
             raise SpotConnectError(f"cannot load the CA certificate: {exc}") from None
         robot = self._sdk.create_robot(cfg.hostname)
@@ -639,7 +647,7 @@ class SdkSpotBackend:
         try:
             if cfg.estop_mode == "endpoint":
                 client, t = self._estop_client, cfg.rpc_timeout
-                name = f"{cfg.client_name}-estop"
+                name = f"{cfg.client_name}-estop-{self._session}"
                 ep = bd.estop.EstopEndpoint(client, name, cfg.estop_timeout)
                 config = bd.estop_pb2.EstopConfig()
                 config.endpoints.add().CopyFrom(ep.to_proto())
@@ -653,8 +661,7 @@ class SdkSpotBackend:
                 ep.stop(timeout=t)              # the first check-in seeds the challenge (as register() does)
                 self._estop_keepalive = bd.estop.EstopKeepAlive(ep, rpc_timeout_seconds=cfg.rpc_timeout,
                                                                rpc_interval_seconds=min(cfg.estop_timeout / 3.0, 2.0))
-                _LOG.info("registered software e-stop endpoint %r (timeout %.1f s)", f"{cfg.client_name}-estop",
-                          cfg.estop_timeout)
+                _LOG.info("registered software e-stop endpoint %r (timeout %.1f s)", name, cfg.estop_timeout)
             status = self._estop_client.get_status(timeout=cfg.rpc_timeout)
         except bd.exc.Error as exc:
             raise self._translate(exc, "setting up the e-stop") from None
@@ -775,7 +782,10 @@ class SdkSpotBackend:
         return self._set_fault(PowerError(f"motor power is off {what}"))
 
     def _diagnose(self, what: str) -> RobotFault | None:
-        """After a command ended abnormally: the fault that explains it, if there is one."""
+        """After a command ended abnormally: the fault that explains it, if there is one. Ended by
+        close() from another thread: BackendClosedError, without asking the robot anything."""
+        if self._closed or self._closing_elsewhere():
+            raise BackendClosedError(f"the backend was closed (close() from another thread; {what})")
         if self._fault is not None:
             return self._fault
         bd = self._bd
@@ -1563,14 +1573,16 @@ class SdkSpotBackend:
 
         * Lease (``_lease_unconfirmed``): ListLeases; the body lease is ours when its owner's
           ``client_name`` is the client name this SDK puts in every request header (the SDK's
-          ``generate_client_name``: prefix, host, program and process id, so unique to this
-          process). Assumes, as the LeaseService documents, that the robot names the client that
+          ``generate_client_name``: prefix, host, program and process id; the prefix carries this
+          session's random token, so it is unique also among backends in one process: QA found
+          one session's clean-up returning another's lease when they shared it). Assumes, as the LeaseService documents, that the robot names the client that
           acquired or took a lease in ``lease_owner.client_name``, and that ReturnLease accepts the
           active lease as ListLeases reports it (``include_full_lease_info``).
         * E-stop (``_estop_unconfirmed``): GetEstopConfig; an endpoint is ours when it has our
-          endpoint's name and either the configuration is no longer the one our SetEstopConfig
-          replaced or its unique id is new since then (so an endpoint of that name that was there
-          before us is left alone). Assumes, as for the healthy shutdown, that
+          endpoint's name, which carries this session's random token (another session's endpoint,
+          even one of the same ``client_name`` started at the same moment, is left alone: with a
+          shared name, a refused SetEstopConfig once deregistered a live session's endpoint) and
+          its unique id is new since our SetEstopConfig. Assumes, as for the healthy shutdown, that
           DeregisterEstopEndpoint with the active configuration's id removes it.
 
         Both questions go out on the same connection as the late calls, after them, so they reach
@@ -1657,10 +1669,8 @@ class SdkSpotBackend:
     def _endpoints_left_by_us(self, active) -> list:
         """Endpoints in the robot's active e-stop configuration that our unanswered
         SetEstopConfig / RegisterEstopEndpoint put there (see :meth:`_clean_up_unanswered_bring_up`)."""
-        name, config_before, ids_before = self._estop_unconfirmed
-        replaced = active.unique_id != config_before
-        return [ep for ep in active.endpoints
-                if ep.name == name and ep.unique_id and (replaced or ep.unique_id not in ids_before)]
+        name, _config_before, ids_before = self._estop_unconfirmed
+        return [ep for ep in active.endpoints if ep.name == name and ep.unique_id and ep.unique_id not in ids_before]
 
     def _return_lease_async(self, lease, **kwargs):
         """ReturnLease without waiting (bosdyn 5.2's ``return_lease_async`` blocks: it uses ``call``)."""
