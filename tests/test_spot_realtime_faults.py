@@ -19,6 +19,7 @@ import subprocess
 import sys
 import threading
 import time
+import traceback
 
 import grpc
 import numpy as np
@@ -40,7 +41,7 @@ from robots.hal import (  # noqa: E402
 )
 from robots.spot import model  # noqa: E402
 from robots.spot.motion import MotionConfig, plan_arm, plan_base  # noqa: E402
-from robots.spot.sdk_backend import GrpcTracingError, SdkSpotBackend  # noqa: E402
+from robots.spot.sdk_backend import GrpcTracingError, SdkSpotBackend, handling_signals, outside_grpc  # noqa: E402
 from spot_fake_fixtures import (  # noqa: E402
     TEST_PASSWORD,
     TEST_USER,
@@ -525,8 +526,71 @@ def test_report_measurements(capsys):
                 print(" ".join(f"{k}={v:.2f}" if isinstance(v, float) else f"{k}={v}" for k, v in m.items()))
 
 
-@pytest.mark.slow     # 1 run in ~10 under load the --fake process crashed or hung at exit after the shutdown
-@pytest.mark.parametrize("signals", [                        # (session 24 note): kept out of the default run
+class _Interrupted(Exception):
+    """What the test's signal handler raises (a KeyboardInterrupt gone astray would end pytest)."""
+
+
+def _raise_interrupted(signum, _frame):
+    raise _Interrupted(signal.Signals(signum).name)
+
+
+def test_a_signal_during_an_rpc_is_raised_once_the_rpc_has_returned():
+    """A signal handler's exception raised while the main thread waits in a blocking RPC abandoned
+    the call inside gRPC's C extension (the call freed, its completion queue destroyed in flight,
+    or the channel's lock left held): ``tools spot --fake`` interrupted mid-task crashed with
+    "malloc(): unsorted double linked list corrupted" or hung in the shutdown, 7 runs in 45 under
+    load. ``outside_grpc`` holds it until the RPC returns: raised in the caller, outside gRPC, and
+    the shutdown that follows completes on the same channels."""
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("Python runs signal handlers on the main thread only")
+    import grpc
+
+    grpc_dir = os.path.dirname(os.path.abspath(grpc.__file__)) + os.sep
+    before = python_threads()
+    demo = start_fake(seed=0)
+    backend = connect(demo)
+    fake = demo.fake
+    try:
+        fake.inject("slow", delay=0.3)            # every reply 0.3 s late: the main thread waits in gRPC
+        with handling_signals(("SIGUSR1",), outside_grpc(_raise_interrupted)):
+            timer = threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGUSR1))
+            timer.start()
+            try:
+                with pytest.raises(_Interrupted) as info:
+                    for _ in range(20):           # the signal lands in one of these RPCs
+                        backend.observe()
+            finally:
+                timer.cancel()
+                timer.join()
+        fake.clear("slow")
+        assert str(info.value) == "SIGUSR1"
+        inside = [f"{f.filename}:{f.lineno}" for f in traceback.extract_tb(info.tb) if f.filename.startswith(grpc_dir)]
+        assert not inside, f"raised inside gRPC: {inside}"
+        assert sys.getprofile() is None
+        assert backend.observe().rgb.size          # the channel still works
+    finally:
+        backend.close()                            # stops the fake too
+    _check_after_close(fake, "signal", before)
+
+
+def test_tools_spot_holds_its_signals_outside_grpc():
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers are installed on the main thread only")
+    from tools.spot import _terminate_as_interrupt
+
+    old = {name: signal.getsignal(getattr(signal, name)) for name in ("SIGINT", "SIGTERM", "SIGHUP")}
+    with _terminate_as_interrupt():
+        for name in old:
+            handler = signal.getsignal(getattr(signal, name))
+            assert getattr(handler, "__wrapped__", None) is not None, name
+            with pytest.raises(KeyboardInterrupt) as info:   # outside gRPC: at once, as before
+                handler(getattr(signal, name), sys._getframe())
+            assert str(info.value) == ("" if name == "SIGINT" else name)
+    assert {name: signal.getsignal(getattr(signal, name)) for name in old} == old
+
+
+@pytest.mark.slow     # ~6 s a case. Crashed/hung 8 cases in 36 under load while signals were raised inside gRPC;
+@pytest.mark.parametrize("signals", [                        # 0 in 36 since (outside_grpc). Marker: pending review
     ("SIGINT", "SIGINT"),                                    # an impatient operator presses Ctrl-C twice
     ("SIGTERM",),                                            # systemd, Docker, kill
     ("SIGHUP",),                                             # a closed terminal or SSH session

@@ -274,13 +274,21 @@ def _terminate_as_interrupt():
     """SIGTERM (systemd, Docker, kill) and SIGHUP (a closed terminal or SSH session) end a robot run
     the way Ctrl-C does: through the shutdown path (stop, stow, sit, power off, return the lease).
     By default they kill the process at once and leave the robot powered and standing, holding our
-    lease (QA 2026-12-04). Main thread only; the old handlers are restored after."""
-    from robots.spot.sdk_backend import handling_signals
+    lease (QA 2026-12-04). All three raise KeyboardInterrupt only outside gRPC (held while an RPC
+    is in flight, raised once it returns: ``sdk_backend.outside_grpc``); raised inside a blocking
+    RPC it corrupted the heap or left the channel's lock held, and the shutdown that followed
+    crashed (SIGABRT) or hung. Main thread only; the old handlers are restored after."""
+    from robots.spot.sdk_backend import handling_signals, outside_grpc
 
-    def interrupt(signum, _frame):
+    ctrl_c = signal.getsignal(signal.SIGINT)        # Python's KeyboardInterrupt, unless SIGINT is ignored
+
+    def interrupt(signum, frame):
+        if signum == signal.SIGINT:
+            return ctrl_c(signum, frame)
         raise KeyboardInterrupt(signal.Signals(signum).name)
 
-    with handling_signals(("SIGTERM", "SIGHUP"), interrupt):
+    names = ("SIGINT", "SIGTERM", "SIGHUP") if callable(ctrl_c) else ("SIGTERM", "SIGHUP")
+    with handling_signals(names, outside_grpc(interrupt)):
         yield
 
 
