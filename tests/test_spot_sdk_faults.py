@@ -320,3 +320,103 @@ def test_a_stow_is_stalled_only_while_still_and_not_stowed():
     assert not run([[q, 1.0] for q in out_and_back], [False] * 12)
     with pytest.raises(ValueError):
         _StallWatch((lambda s: s, None), window=1.0, expected=1.0)
+
+
+@pytest.mark.parametrize("step", ["GetAuthToken", "SetEstopConfig", "RegisterEstopEndpoint", "AcquireLease",
+                                  "PowerCommand", "RobotCommand"])
+def test_close_from_another_thread_during_the_bring_up_leaves_nothing_on_the_robot(step):
+    """(QA 2026-12-04) close() from another thread while connect() brings the robot up (a safety
+    monitor, an abort button): the bring-up went on after close() had shut down and left the lease
+    or our e-stop endpoint on the robot, keep-alive threads running, or ended in gRPC's ValueError.
+    Now the bring-up stops at its next step with BackendClosedError and close() shuts down what it
+    had brought up. Each step's reply is held 0.6 s (inside rpc_timeout) and close() comes then."""
+    from robots.hal import BackendClosedError
+    from robots.spot.sdk_backend import SdkSpotBackend
+    from spot_fake_fixtures import credentials_env, fast_config
+
+    before = python_threads()
+    demo = start_fake(seed=0)
+    fake = demo.fake
+    try:
+        with credentials_env():
+            backend = SdkSpotBackend(fast_config(demo.port, estop_mode="endpoint"), connect=False)
+        fake.delay_calls(step, 1, delay=0.6)
+        outcome: dict = {}
+
+        def bring_up():
+            try:
+                with credentials_env():
+                    backend.connect()
+                outcome["connected"] = True
+            except BaseException as exc:  # noqa: BLE001 - recorded for the assertions
+                outcome["error"] = exc
+
+        worker = threading.Thread(target=bring_up, name="bring-up")
+        worker.start()
+        deadline = time.monotonic() + 5.0
+        while step not in fake.rpc_log and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert step in fake.rpc_log, f"the bring-up never sent {step}"
+        t0 = time.monotonic()
+        backend.close()
+        closing = time.monotonic() - t0
+        worker.join(5.0)
+        assert not worker.is_alive()
+        assert isinstance(outcome.get("error"), BackendClosedError), outcome
+        assert closing < CLOSE_WITHIN, f"close() during {step} took {closing:.2f} s"
+        assert fake.lease_owner is None, f"lease left with {fake.lease_owner!r}"
+        assert not fake._endpoints, "our e-stop endpoint was left on the robot"
+        assert not fake.powered
+    finally:
+        demo.stop()
+    leaked = wait_for_threads_to_end(before)
+    assert not leaked, f"threads left: {sorted(t.name for t in leaked)}"
+
+
+def test_a_command_that_passed_its_check_just_before_close_does_not_cut_closes_stow_short(monkeypatch):
+    """(QA 2026-12-04) A motion command whose 'is close() running?' check passed a moment before
+    close() began reached the robot after close()'s stop: it could override the stow (the robot
+    sat with the arm out) or move the stowed arm out again before the sit. The check and the send
+    are now one step that close() waits for: the stop, stow and sit come after it. The window is
+    widened here by holding the send 0.4 s."""
+    from robots.hal import BackendClosedError
+
+    demo = start_fake(seed=0, time_scale=0.3)            # a stow takes ~1.6 s: long enough to be cut short
+    backend = connect(demo, arm_move_timeout=10.0)
+    fake = demo.fake
+    try:
+        assert backend.move_arm_joints(model.ARM_READY).success
+        client = backend._cmd_client
+        real_send = client.robot_command
+        entered = threading.Event()
+
+        def slow_send(*args, **kwargs):
+            entered.set()
+            time.sleep(0.4)                     # the thread is descheduled between check and send
+            return real_send(*args, **kwargs)
+
+        monkeypatch.setattr(client, "robot_command", slow_send)
+        outcome: dict = {}
+
+        def agent():
+            try:
+                outcome["result"] = backend.move_arm_joints(model.ARM_STOW)
+            except BaseException as exc:  # noqa: BLE001
+                outcome["error"] = exc
+
+        worker = threading.Thread(target=agent, name="agent")
+        worker.start()
+        assert entered.wait(2.0)
+        monkeypatch.setattr(client, "robot_command", real_send)   # close()'s own commands go out at once
+        backend.close()
+        worker.join(5.0)
+        assert not worker.is_alive()
+        assert "result" in outcome or isinstance(outcome.get("error"), BackendClosedError), outcome
+        kinds = [c.kind for _, c in sorted(fake.commands.items())]
+        first_stop = kinds.index("stop")                 # close()'s: nothing of the agent's after it
+        assert "arm_joint" not in kinds[first_stop:], f"the agent's arm move reached the robot during close(): {kinds}"
+        stows = [c.state for c in fake.commands.values() if c.kind == "arm_named"]
+        assert stows == ["done"], f"close()'s stow was cut short: {stows}"
+        assert not fake.powered and fake.lease_owner is None
+    finally:
+        demo.stop()

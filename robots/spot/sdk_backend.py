@@ -538,6 +538,15 @@ class SdkSpotBackend:
         self._close_lock = threading.Lock()
         self._close_thread: threading.Thread | None = None
         self._close_done = threading.Event()
+        # Motion commands other threads are sending right now: close() lets them reach the robot
+        # before its own stop, so none can arrive after it and cut its stow or sit short.
+        self._sends = threading.Condition(self._close_lock)
+        self._sending = 0
+        # A bring-up in progress (connect()): close() from another thread waits for it to stop at
+        # its next step, then shuts down whatever it had brought up.
+        self._connecting: threading.Thread | None = None
+        self._connect_done = threading.Event()
+        self._connect_done.set()
         self._lease_keepalive = None
         self._estop_keepalive = None
         self._estop_endpoint = None
@@ -564,7 +573,33 @@ class SdkSpotBackend:
 
     # ================================================================== bring-up
     def connect(self) -> None:
-        """Authenticate, time sync, e-stop, lease, and (``stand_on_connect``) power on and stand."""
+        """Authenticate, time sync, e-stop, lease, and (``stand_on_connect``) power on and stand.
+
+        close() from another thread meanwhile: the bring-up stops at its next step (each is
+        bounded by its RPC timeout; a power-on by ``power_on_timeout``) with BackendClosedError,
+        and close() then shuts down what it had brought up (lease, e-stop endpoint, power)."""
+        with self._close_lock:
+            if self._closed or self._closing:
+                raise BackendClosedError("this backend has been closed")
+            self._connecting = threading.current_thread()
+            self._connect_done.clear()
+        try:
+            self._bring_up()
+        except Exception:
+            if self._closing_elsewhere():
+                raise BackendClosedError("the bring-up was cut short: close() was called from another thread") \
+                    from None
+            raise
+        finally:
+            self._connecting = None
+            self._connect_done.set()
+
+    def _bring_up_step(self) -> None:
+        """Between bring-up steps: stop here when close() runs in another thread."""
+        if self._closing_elsewhere():
+            raise BackendClosedError("the bring-up was cut short: close() was called from another thread")
+
+    def _bring_up(self) -> None:
         cfg, bd = self.config, self._bd
         hazard = grpc_tracing_hazard()
         if hazard is not None:
@@ -605,6 +640,7 @@ class SdkSpotBackend:
             del password
         self._token_manager_thread = getattr(getattr(robot, "_token_manager", None), "th", None)
         self._bound_time_sync_rpcs(robot)
+        self._bring_up_step()
         try:
             self.robot_id = robot.ensure_client("robot-id").get_id(timeout=cfg.rpc_timeout)
             robot.time_sync.time_sync_interval_sec = cfg.time_sync_interval
@@ -622,8 +658,11 @@ class SdkSpotBackend:
             raise self._translate(exc, "connecting") from None
         _LOG.info("connected to %s (serial %s), time sync established", self.robot_id.nickname or "robot",
                   self.robot_id.serial_number)
+        self._bring_up_step()
         self._setup_estop()
+        self._bring_up_step()
         self._acquire_lease()
+        self._bring_up_step()
         if cfg.stand_on_connect:
             res = self.stand()
             if not res:
@@ -877,8 +916,9 @@ class SdkSpotBackend:
         if not hasattr(self, "_cmd_client") or self._closed or self._closing_elsewhere():
             return
         try:
-            fut = self._cmd_client.robot_command_async(self._bd.Builder.stop_command(),
-                                                       timeout=self.config.rpc_timeout)
+            with self._motion_send("stopping"):
+                fut = self._cmd_client.robot_command_async(self._bd.Builder.stop_command(),
+                                                           timeout=self.config.rpc_timeout)
             _future_result(fut, wait)
         except Exception as exc:  # noqa: BLE001 - best effort on an already failing link
             _LOG.debug("stop after a failure not confirmed: %s", type(exc).__name__)
@@ -928,13 +968,35 @@ class SdkSpotBackend:
                                                 f"cannot be sent safely"))
 
     # ================================================================== command plumbing
-    def _call(self, fn, *args, during: str, **kwargs):
+    @contextlib.contextmanager
+    def _motion_send(self, during: str):
+        """Around sending a motion command from a thread other than close()'s: refused once close()
+        has begun; counted while in flight, so close() sends its own stop only after it (the
+        check and the count are one step under close()'s lock: no command slips in between)."""
+        with self._sends:
+            if self._closed or self._closing_elsewhere():
+                raise BackendClosedError(f"the backend was closed before {during}")
+            mine = self._close_thread is not threading.current_thread()
+            self._sending += mine
+        try:
+            yield
+        finally:
+            with self._sends:
+                self._sending -= mine
+                self._sends.notify_all()
+
+    def _call(self, fn, *args, during: str, moves: bool = False, **kwargs):
         """An SDK call with HAL error translation. Nothing is sent from another thread once close()
-        has begun."""
+        has begun; ``moves``: a motion command (see :meth:`_motion_send`)."""
         if self._closed or self._closing_elsewhere():
             raise BackendClosedError(f"the backend was closed before {during}")
         try:
+            if moves:
+                with self._motion_send(during):
+                    return fn(*args, **kwargs)
             return fn(*args, **kwargs)
+        except BackendClosedError:
+            raise
         except Exception as exc:
             if self._closed or self._closing_elsewhere():   # our own teardown, not the robot's fault
                 raise BackendClosedError(f"the backend was closed while {during}") from None
@@ -963,7 +1025,7 @@ class SdkSpotBackend:
             raise
         t0 = time.monotonic()
         try:
-            cmd_id = self._call(self._cmd_client.robot_command, command, end_time_secs=end_time_secs,
+            cmd_id = self._call(self._cmd_client.robot_command, command, end_time_secs=end_time_secs, moves=True,
                                 timeout=cfg.rpc_timeout, during=during)
         except CommandTimeoutError:
             self._stop_quietly()                # the robot may have accepted it and be moving
@@ -1310,7 +1372,7 @@ class SdkSpotBackend:
                                    walk_gaze_mode=M.PICK_NO_AUTO_WALK_OR_GAZE)
         t0 = time.monotonic()
         try:
-            resp = self._call(self._manip_client.manipulation_api_command,
+            resp = self._call(self._manip_client.manipulation_api_command, moves=True,
                               manipulation_api_request=M.ManipulationApiRequest(pick_object_in_image=pick),
                               timeout=cfg.rpc_timeout, during="starting a grasp")
             request = M.ManipulationApiFeedbackRequest(manipulation_cmd_id=resp.manipulation_cmd_id)
@@ -1471,7 +1533,8 @@ class SdkSpotBackend:
             return CommandResult(True, Reason.OK, f"motion is already cut: {self._fault}")
         self._guard()
         t0 = time.monotonic()
-        self._call(self._cmd_client.robot_command, self._bd.Builder.stop_command(), timeout=self.config.rpc_timeout,
+        self._call(self._cmd_client.robot_command, self._bd.Builder.stop_command(), moves=True,
+                   timeout=self.config.rpc_timeout,
                    during="stopping")
         return CommandResult(True, Reason.OK, "holding position", duration=time.monotonic() - t0)
 
@@ -1506,9 +1569,25 @@ class SdkSpotBackend:
                 _LOG.warning("close() in another thread did not finish within %.0f s", self._close_bound())
             return
         try:
+            self._let_other_threads_finish()
             self._close_once()
         finally:
             self._close_done.set()
+
+    def _let_other_threads_finish(self) -> None:
+        """Before the shutdown: a bring-up in another thread stops at its next step (bounded by
+        that step's timeout), and motion commands other threads are sending reach the robot
+        (bounded by ``rpc_timeout``), so close()'s stop comes after them."""
+        cfg, me = self.config, threading.current_thread()
+        connecting = self._connecting
+        if connecting is not None and connecting is not me:
+            bound = max(cfg.connect_timeout, cfg.power_on_timeout) + cfg.rpc_timeout + 0.5
+            if not self._connect_done.wait(bound):
+                _LOG.warning("the bring-up in another thread did not stop within %.0f s; shutting down anyway", bound)
+        with self._sends:
+            if not self._sends.wait_for(lambda: self._sending == 0, timeout=cfg.rpc_timeout + 0.5):
+                _LOG.warning("a motion command from another thread was still being sent after %.1f s",
+                             cfg.rpc_timeout + 0.5)
 
     def _close_bound(self) -> float:
         """The longest a close() can take (a healthy, slow shutdown of every step): how long a second
