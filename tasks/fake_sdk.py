@@ -75,33 +75,37 @@ def run_fake_sdk_episode(agent_name: str, episode: Episode, seed: int | None = N
     to ``FakeSpot`` (e.g. ``time_scale``). Always shuts the robot down, stops the fake and every
     thread it started, also after an error or Ctrl-C.
     """
-    from robots.spot.sdk_backend import SdkBackendConfig, SdkSpotBackend, credentials_from_env
+    from robots.spot.sdk_backend import SdkBackendConfig, SdkSpotBackend, credentials_from_env, signals_deferred
 
     user, password = credentials_from_env()
     tmp = tempfile.mkdtemp(prefix="helios-fake-spot-") if pki is None else None
     pki = pki if pki is not None else tmp
+    ep = None
     try:
         ep = start_episode_fake(pki, episode, user, password, sim_config=sim_config, metrics=config.metrics,
                                 **(fake_options or {}))
+        backend = SdkSpotBackend(replace(backend_config or SdkBackendConfig(), hostname="127.0.0.1",
+                                         port=ep.port, cert_path=str(ep.pki.ca_cert)))
         try:
-            backend = SdkSpotBackend(replace(backend_config or SdkBackendConfig(), hostname="127.0.0.1",
-                                             port=ep.port, cert_path=str(ep.pki.ca_cert)))
-            try:
-                if on_connected is not None:
-                    on_connected(backend)
-                # simulated perception is seeded by the episode's own seed; ``seed`` seeds the agent's generator
-                agent = make_agent(agent_name, RunContext.for_episode(ep), **(agent_options or {}))
-                if wrap_agent is not None:
-                    agent = wrap_agent(agent, ep)
-                result = run_episode(agent, ep.backend.watch(backend), episode, config, ep.judge,
-                                     start_time=time.time(), seed=seed)
-                result.extra["collision_events"] = [asdict(e) for e in ep.backend.collision_events]
-                result.extra["transport"] = "sdk-fake"
-                return result
-            finally:
-                backend.close()
+            if on_connected is not None:
+                on_connected(backend)
+            # simulated perception is seeded by the episode's own seed; ``seed`` seeds the agent's generator
+            agent = make_agent(agent_name, RunContext.for_episode(ep), **(agent_options or {}))
+            if wrap_agent is not None:
+                agent = wrap_agent(agent, ep)
+            result = run_episode(agent, ep.backend.watch(backend), episode, config, ep.judge,
+                                 start_time=time.time(), seed=seed)
+            result.extra["collision_events"] = [asdict(e) for e in ep.backend.collision_events]
+            result.extra["transport"] = "sdk-fake"
+            return result
         finally:
-            ep.stop()
+            backend.close()
     finally:
-        if tmp is not None:
-            shutil.rmtree(Path(tmp), ignore_errors=True)   # the throwaway CA and server key
+        # a further Ctrl-C/TERM/HUP is held until the fake is stopped and its CA removed (main thread)
+        with signals_deferred(message="stopping the fake Spot and removing its throwaway CA first (a few seconds)"):
+            try:
+                if ep is not None:
+                    ep.stop()
+            finally:
+                if tmp is not None:
+                    shutil.rmtree(Path(tmp), ignore_errors=True)   # the throwaway CA and server key

@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
+import logging
 import math
+import threading
 import time
 
 import numpy as np
@@ -229,3 +231,56 @@ def test_delay_calls_answers_one_rpc_late_after_acting_on_it(demo):
             demo.fake.delay_calls("AcquireLease", 1, delay=-1)
     finally:
         _teardown(sdk, robot)
+
+
+def test_stop_is_bounded_when_a_command_hangs_in_the_simulator(caplog, monkeypatch):
+    """(Review 2026-12-04) ``FakeSpot.stop()`` waited without bound: ``executor.shutdown(wait=True)``
+    on an RPC blocked on ``sim_lock``, and ``with sim_lock: sim.close()`` forever once the robot
+    thread outlived its 10 s join (a command hung in the simulator). Now every wait is bounded by
+    ``STOP_TIMEOUT_S`` and what is left behind is named in a warning."""
+    from robots.spot.fake_spot import server
+
+    monkeypatch.setattr(server, "STOP_TIMEOUT_S", 1.0, raising=False)
+    demo = start_fake(seed=0)
+    fake = demo.fake
+    started, release = threading.Event(), threading.Event()
+
+    def hung_command():                       # runs on the robot thread, sim_lock held
+        started.set()
+        release.wait(30.0)
+
+    sdk, robot = _robot(demo)
+    stopper = None
+    try:
+        robot.authenticate(TEST_USER, TEST_PASSWORD, timeout=3)
+        images = robot.ensure_client(ImageClient.default_service_name)
+        fake._jobs.put(hung_command)
+        assert started.wait(5.0), "the robot thread did not start the job"
+        # an RPC thread blocked on sim_lock behind the hung command (its client gives up after 5 s)
+        pending = images.get_image_async([build_image_request(cv.HAND_COLOR_SOURCE)], timeout=5.0)
+        deadline = time.monotonic() + 5.0
+        while "GetImage" not in fake.rpc_log and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert "GetImage" in fake.rpc_log
+        caplog.set_level(logging.WARNING, logger="helios.fake_spot")
+        t0 = time.monotonic()
+        stopper = threading.Thread(target=demo.stop, name="test-fake-stop", daemon=True)
+        stopper.start()
+        stopper.join(5.0)
+        took = time.monotonic() - t0
+        assert not stopper.is_alive(), "FakeSpot.stop() still waiting 5 s after a command hung in the simulator"
+        assert took < 2.5, f"stop() took {took:.2f} s with a 1 s budget"
+        warnings = " ".join(r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING)
+        assert "fake-spot-robot" in warnings and "left behind" in warnings, warnings
+        assert "fake-spot-rpc" in warnings, warnings
+        assert "simulator is still in use" in warnings, warnings
+        with pytest.raises(RpcError):
+            pending.result(timeout=6.0)           # cancelled by the server's stop
+    finally:
+        release.set()
+        if stopper is not None:
+            stopper.join(15.0)
+        if fake._robot_thread is not None:
+            fake._robot_thread.join(5.0)
+        _teardown(sdk, robot)
+        fake.sim.close()                          # stop() could not: the hung command held it (idempotent)

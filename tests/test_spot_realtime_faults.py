@@ -11,6 +11,7 @@ also when a bring-up call was answered too late (nor a lease).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import random
@@ -579,7 +580,7 @@ def test_tools_spot_holds_its_signals_outside_grpc():
     from tools.spot import _terminate_as_interrupt
 
     old = {name: signal.getsignal(getattr(signal, name)) for name in ("SIGINT", "SIGTERM", "SIGHUP")}
-    with _terminate_as_interrupt():
+    with _default_dispositions("SIGTERM", "SIGHUP"), _terminate_as_interrupt():
         for name in old:
             handler = signal.getsignal(getattr(signal, name))
             assert getattr(handler, "__wrapped__", None) is not None, name
@@ -587,6 +588,181 @@ def test_tools_spot_holds_its_signals_outside_grpc():
                 handler(getattr(signal, name), sys._getframe())
             assert str(info.value) == ("" if name == "SIGINT" else name)
     assert {name: signal.getsignal(getattr(signal, name)) for name in old} == old
+
+
+@contextlib.contextmanager
+def _default_dispositions(*names):
+    """The named signals at SIG_DFL meanwhile (a test run under nohup starts with SIGHUP ignored)."""
+    old = {getattr(signal, n): signal.getsignal(getattr(signal, n)) for n in names}
+    try:
+        for sig in old:
+            signal.signal(sig, signal.SIG_DFL)
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def _default_hangup() -> None:
+    """preexec_fn: the child takes SIGHUP as a terminal does, also when the tests run under nohup."""
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def test_tools_spot_leaves_a_signal_ignored_at_start_alone():
+    """(Review 2026-12-04) ``nohup python -m tools spot ...`` starts with SIGHUP ignored, and
+    ``_terminate_as_interrupt`` replaced it with its Ctrl-C handler: the closed terminal that nohup
+    is there for shut the robot down. A signal ignored at start stays ignored (as SIGINT already
+    did), also while ``close()`` holds signals; one at its default disposition is taken over."""
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers are installed on the main thread only")
+    from robots.spot.sdk_backend import signals_deferred
+    from tools.spot import _terminate_as_interrupt
+
+    with _default_dispositions("SIGTERM", "SIGHUP"):
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+        with _terminate_as_interrupt():
+            assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
+            assert getattr(signal.getsignal(signal.SIGTERM), "__wrapped__", None) is not None
+            with signals_deferred():
+                assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
+                assert signal.getsignal(signal.SIGTERM) not in (signal.SIG_IGN, signal.SIG_DFL)
+        assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)
+        with _terminate_as_interrupt():
+            handler = signal.getsignal(signal.SIGHUP)
+            assert getattr(handler, "__wrapped__", None) is not None, handler
+        assert signal.getsignal(signal.SIGHUP) == signal.SIG_DFL
+
+
+def test_the_held_signal_message_is_written_safely_while_stderr_is_mid_write(capfd, monkeypatch):
+    """(Review 2026-12-04) ``signals_deferred`` printed its message to ``sys.stderr`` from the
+    signal handler: a signal landing while the main thread was inside a write to stderr (the
+    buffered writer's lock held) raised "RuntimeError: reentrant call inside
+    <_io.BufferedWriter ...>" out of that write. It writes to fd 2 with ``os.write`` now."""
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("Python runs signal handlers on the main thread only")
+    import io
+
+    from robots.spot.sdk_backend import signals_deferred
+
+    class SignalMidWrite(io.RawIOBase):
+        """stderr's file: the signal lands while the buffered writer above is writing to it."""
+
+        def __init__(self):
+            super().__init__()
+            self.fire, self.data = True, bytearray()
+
+        def writable(self) -> bool:
+            return True
+
+        def write(self, b) -> int:
+            if self.fire:
+                self.fire = False
+                signal.raise_signal(signal.SIGTERM)      # its handler runs here, the writer's lock held
+            self.data += bytes(b)
+            return len(b)
+
+    raw = SignalMidWrite()
+    monkeypatch.setattr(sys, "stderr", io.TextIOWrapper(io.BufferedWriter(raw), encoding="utf-8"))
+    delivered = []
+    with handling_signals(("SIGTERM",), lambda signum, _frame: delivered.append(signum)):
+        with signals_deferred():
+            print("[spot] shutting down: stop, stow, sit, power off, return the lease", file=sys.stderr,
+                  flush=True)
+            assert not delivered                     # held until the block ends
+    assert delivered == [signal.SIGTERM]
+    assert raw.data == b"[spot] shutting down: stop, stow, sit, power off, return the lease\n"
+    assert "[spot] SIGTERM: shutting the robot down first (a few seconds)\n" in capfd.readouterr().err
+
+
+def test_a_signal_during_the_fakes_teardown_is_held_until_it_is_stopped_and_its_ca_removed(
+        tmp_path, monkeypatch, capfd):
+    """(Review 2026-12-04) ``tools spot --fake``: the fake's stop and the removal of its throwaway
+    CA ran after ``close()`` had delivered the signals it held, with nothing holding a further one:
+    a third Ctrl-C there left the fake half-stopped and the CA's private key in the temp folder.
+    Now that teardown holds Ctrl-C/TERM/HUP too and delivers them after: exit 130 (the interrupt),
+    the fake stopped, the CA gone, the credentials it made removed from the environment."""
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("Python runs signal handlers on the main thread only")
+    import tempfile
+
+    import tools.spot
+    from robots.spot.fake_spot import launch
+    from robots.spot.sdk_backend import PASSWORD_ENV, USERNAME_ENV
+    from tools.cli import main
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))      # the throwaway CA's folder goes here
+    monkeypatch.delenv(USERNAME_ENV, raising=False)
+    monkeypatch.delenv(PASSWORD_ENV, raising=False)
+
+    class CtrlCMidTask:
+        def run(self, backend):
+            signal.raise_signal(signal.SIGINT)           # the operator's first Ctrl-C
+            raise AssertionError("the Ctrl-C did not interrupt the agent")
+
+    monkeypatch.setattr(tools.spot, "make_agent", lambda *a, **k: CtrlCMidTask())
+    stopping, stopped = [], []
+    real_stop = launch._RunningFake.stop
+
+    def stop_with_a_ctrl_c(self):
+        stopping.append(self)
+        signal.raise_signal(signal.SIGINT)               # the third Ctrl-C, while the fake stops
+        real_stop(self)
+        stopped.append(self)
+
+    monkeypatch.setattr(launch._RunningFake, "stop", stop_with_a_ctrl_c)
+    try:
+        try:
+            code = main(["spot", "--fake", "--task", "Move the mug from the stool to the table",
+                         "--out", str(tmp_path / "out"), "--name", "teardown"])
+        except KeyboardInterrupt:                        # must not end the test session
+            pytest.fail("a KeyboardInterrupt escaped tools spot")
+        err = capfd.readouterr().err
+        assert code == 130, err
+        assert stopping and stopped == stopping, "the fake was left half-stopped"
+        assert [p.name for p in tmp_path.iterdir()] == ["out"], "the fake's throwaway CA was left behind"
+        assert "SIGINT: stopping the fake Spot and removing its throwaway CA first" in err, err
+        assert err.strip().splitlines()[-1] == "interrupted", err
+        assert USERNAME_ENV not in os.environ and PASSWORD_ENV not in os.environ
+    finally:
+        for demo in stopping:
+            demo.fake.stop()                             # a half-stopped fake (before the fix)
+
+
+def test_a_signal_while_an_episode_fake_stops_is_held_until_it_is_stopped(tmp_path, monkeypatch):
+    """The same for ``tools spot --fake --episode`` (``tasks.fake_sdk.run_fake_sdk_episode``)."""
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("Python runs signal handlers on the main thread only")
+    import tempfile
+
+    import robots.spot.sdk_backend as sdk_backend
+    import tasks.fake_sdk as fake_sdk
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    events = []
+
+    class Ep:
+        port = 1
+
+        def __init__(self, pki_dir):
+            self.pki = type("Pki", (), {"ca_cert": os.path.join(pki_dir, "ca.pem")})()
+
+        def stop(self):
+            events.append("stop")
+            signal.raise_signal(signal.SIGINT)       # Ctrl-C while the fake stops
+            events.append("stopped")
+
+    def no_robot(*_a, **_k):
+        raise sdk_backend.SpotConnectError("no robot here (test)")
+
+    monkeypatch.setattr(fake_sdk, "start_episode_fake", lambda pki, *a, **k: Ep(pki))
+    monkeypatch.setattr(sdk_backend, "SdkSpotBackend", no_robot)
+    with credentials_env(), handling_signals(("SIGINT",), _raise_interrupted):
+        with pytest.raises(_Interrupted, match="SIGINT"):
+            fake_sdk.run_fake_sdk_episode("helios", episode=None)
+    assert events == ["stop", "stopped"]
+    assert list(tmp_path.iterdir()) == [], "the fake's throwaway CA was left behind"
 
 
 # ~6 s a case, in the fast suite since 2026-12-04: it crashed or hung 8 cases in 36 under load while
@@ -606,7 +782,7 @@ def test_a_signal_mid_task_or_during_shutdown_still_shuts_the_robot_down(tmp_pat
     proc = subprocess.Popen([sys.executable, "-m", "tools", "spot", "--fake", "--task",
                              "Move the mug from the stool to the table", "--time-scale", "1.0",
                              "--out", str(tmp_path / "out")], cwd=root, env=env, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=_default_hangup)
     try:
         lines = []
         for line in proc.stdout:                  # mid-task: the arm is out for the grasp next

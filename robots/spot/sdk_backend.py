@@ -469,7 +469,8 @@ def outside_grpc(handler: Callable) -> Callable:
 
 
 @contextlib.contextmanager
-def signals_deferred(names: Sequence[str] = DEFERRED_SIGNALS):
+def signals_deferred(names: Sequence[str] = DEFERRED_SIGNALS,
+                     message: str = "shutting the robot down first (a few seconds)"):
     """Hold SIGINT, SIGTERM and SIGHUP while the robot is shut down, then deliver them.
 
     A second Ctrl-C from an impatient operator, a TERM from systemd or Docker, or a HUP from a
@@ -477,17 +478,31 @@ def signals_deferred(names: Sequence[str] = DEFERRED_SIGNALS):
     standing, holding our lease (QA 2026-12-04: exit 130 after 1.2 s, robot still standing 12 s
     later). ``close()`` is bounded, so holding them costs at most a few seconds; each is delivered
     again (``signal.raise_signal``) once the old handlers are back, so Ctrl-C still ends the program,
-    just after the robot is safe. Only on the main thread (:func:`handling_signals`)."""
+    just after the robot is safe. The first one held prints ``[spot] SIGNAME: <message>`` to stderr.
+    A signal ignored when the block starts (SIG_IGN, e.g. SIGHUP under ``nohup``) stays ignored.
+    Only on the main thread (:func:`handling_signals`)."""
     held: list[int] = []
 
     def hold(signum, _frame) -> None:
         if not held:
-            print(f"[spot] {signal.Signals(signum).name}: shutting the robot down first (a few seconds)",
-                  file=sys.stderr, flush=True)
+            # os.write, not print: a handler that lands while the main thread is inside
+            # sys.stderr's write raised "RuntimeError: reentrant call inside <_io.BufferedWriter>"
+            text = f"[spot] {signal.Signals(signum).name}: {message}\n"
+            try:
+                os.write(2, text.encode(getattr(sys.stderr, "encoding", None) or "utf-8", errors="ignore"))
+            except (OSError, LookupError):      # no stderr (closed, a broken pipe): hold the signal anyway
+                pass
         held.append(signum)
 
+    def ignored(name: str) -> bool:
+        sig = getattr(signal, name, None)
+        try:
+            return sig is not None and signal.getsignal(sig) == signal.SIG_IGN
+        except ValueError:
+            return False
+
     try:
-        with handling_signals(names, hold):
+        with handling_signals([name for name in names if not ignored(name)], hold):
             yield
     finally:
         for signum in dict.fromkeys(held):       # each once, in arrival order, to the old handlers

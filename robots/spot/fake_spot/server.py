@@ -141,6 +141,7 @@ class _Command:
 
 
 START_TIMEOUT_S = 10.0       # for a started fake Spot to accept connections
+STOP_TIMEOUT_S = 15.0        # for stop(): the server, the robot thread, the RPC threads, the simulator
 
 
 class FakeSpotStartError(HalError):
@@ -259,24 +260,53 @@ class FakeSpot:
                                              f"within {timeout:g} s ({exc.strerror or exc})") from None
                 time.sleep(0.05)
 
-    def stop(self) -> None:
-        """Stop serving, end the robot thread, close the simulation. Safe to call twice."""
+    def stop(self, timeout: float | None = None) -> None:
+        """Stop serving, end the robot thread and the RPC threads, close the simulation. Safe to
+        call twice. Bounded: returns within ``timeout`` s (default ``STOP_TIMEOUT_S``), also when a
+        command hangs in the simulator; what has not ended by then (the robot thread, an RPC thread,
+        the simulator still in use) is left behind with a warning saying so."""
         if self._stopped:
             return
         self._stopped = True
+        t0 = time.monotonic()
+        deadline = t0 + (STOP_TIMEOUT_S if timeout is None else float(timeout))
+
+        def left(cap: float) -> float:
+            return max(0.0, min(cap, deadline - time.monotonic()))
+
         self._fault_event.set()
         with self._lock:
             timers, self._timers = self._timers, []
         for t in timers:
             t.cancel()
-        if self._server is not None:
-            self._server.stop(grace=None).wait(5.0)
+        if self._server is not None:                     # grace=None: RPCs in flight are cancelled now
+            wait = left(5.0)
+            if not self._server.stop(grace=None).wait(wait):
+                _LOG.warning("fake Spot: the gRPC server did not shut down within %.1f s", wait)
         self._jobs.put(None)
+        stuck: list[str] = []
         if self._robot_thread is not None:
-            self._robot_thread.join(10.0)
-        self._executor.shutdown(wait=True, cancel_futures=True)
-        with self.sim_lock:
-            self.sim.close()
+            self._robot_thread.join(left(10.0))
+            if self._robot_thread.is_alive():
+                stuck.append(self._robot_thread.name)
+        # the RPC threads: no wait=True (a handler blocked on sim_lock behind a hung command would
+        # never end); queued calls are cancelled, running ones get what is left of the budget
+        self._executor.shutdown(wait=False, cancel_futures=True)
+        for t in list(getattr(self._executor, "_threads", ())):
+            t.join(left(5.0))
+            if t.is_alive():
+                stuck.append(t.name)
+        if stuck:
+            _LOG.warning("fake Spot: %s still running %.1f s after stop() began (a command hung in the "
+                         "simulator?); left behind", ", ".join(stuck), time.monotonic() - t0)
+        if self.sim_lock.acquire(timeout=left(5.0)):
+            try:
+                self.sim.close()
+            finally:
+                self.sim_lock.release()
+        else:
+            _LOG.warning("fake Spot: the simulator is still in use (sim_lock held) %.1f s after stop() began; "
+                         "not closed", time.monotonic() - t0)
 
     def __enter__(self) -> "FakeSpot":
         return self.start() if self._server is None else self
