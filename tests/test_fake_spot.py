@@ -276,6 +276,15 @@ def test_stop_is_bounded_when_a_command_hangs_in_the_simulator(caplog, monkeypat
         assert "simulator is still in use" in warnings, warnings
         with pytest.raises(RpcError):
             pending.result(timeout=6.0)           # cancelled by the server's stop
+        # The RPC thread gives up on the simulator once stop() began (it is no daemon: blocked for
+        # good it would hold up the process's exit), while the hung command still holds it.
+        deadline = time.monotonic() + 2.0
+        rpc_threads = lambda: [t for t in threading.enumerate()  # noqa: E731
+                               if t.name.startswith("fake-spot-rpc") and t.is_alive()]
+        while rpc_threads() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not rpc_threads(), f"RPC threads still blocked after stop(): {[t.name for t in rpc_threads()]}"
+        assert not release.is_set()
     finally:
         release.set()
         if stopper is not None:

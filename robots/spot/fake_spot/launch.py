@@ -75,8 +75,17 @@ def start_demo_fake(pki: TestPKI | str | Path, username: str | None = None, pass
     except Exception:
         world.close()
         raise
-    fake = FakeSpot(sim, pki, username or "helios", password or secrets.token_urlsafe(16), **fake_kwargs)
-    fake.start()
+    try:
+        fake = FakeSpot(sim, pki, username or "helios", password or secrets.token_urlsafe(16), **fake_kwargs)
+    except BaseException:
+        world.close()
+        raise
+    try:
+        fake.start()
+    except BaseException:           # e.g. not listening within START_TIMEOUT_S: nothing half-started is left
+        fake.stop()
+        world.close()
+        raise
     return DemoFake(fake, pki, scene, scene_facts(world, scene))
 
 

@@ -26,6 +26,7 @@ the Nth call of an RPC), ``fail_calls`` (an RPC fails N times, then recovers), `
 
 from __future__ import annotations
 
+import contextlib
 import hmac
 import logging
 import math
@@ -142,6 +143,11 @@ class _Command:
 
 START_TIMEOUT_S = 10.0       # for a started fake Spot to accept connections
 STOP_TIMEOUT_S = 15.0        # for stop(): the server, the robot thread, the RPC threads, the simulator
+RPC_SIM_WAIT_S = 30.0        # for an RPC handler waiting for the simulator (a command holds it); at once after stop()
+
+
+class SimulatorBusy(Exception):
+    """An RPC handler could not get the simulator (stopped, or held by a hung command)."""
 
 
 class FakeSpotStartError(HalError):
@@ -259,6 +265,21 @@ class FakeSpot:
                     raise FakeSpotStartError(f"the fake Spot did not accept connections on 127.0.0.1:{self.port} "
                                              f"within {timeout:g} s ({exc.strerror or exc})") from None
                 time.sleep(0.05)
+
+    @contextlib.contextmanager
+    def sim_for_rpc(self, what: str):
+        """``sim_lock`` for an RPC handler, bounded: given up (SimulatorBusy, answered UNAVAILABLE)
+        after ``RPC_SIM_WAIT_S``, or within 0.1 s once stop() began. Handler threads are not
+        daemons: one blocked on the lock for good would hold up the process's exit."""
+        deadline = time.monotonic() + RPC_SIM_WAIT_S
+        while not self.sim_lock.acquire(timeout=0.1):
+            if self._stopped or time.monotonic() > deadline:
+                raise SimulatorBusy(f"the fake Spot's simulator is {'stopped' if self._stopped else 'busy'} "
+                                    f"({what})")
+        try:
+            yield
+        finally:
+            self.sim_lock.release()
 
     def stop(self, timeout: float | None = None) -> None:
         """Stop serving, end the robot thread and the RPC threads, close the simulation. Safe to
@@ -905,7 +926,7 @@ def _parse_command(fake: FakeSpot, cmd: robot_command_pb2.RobotCommand, request)
         times = [cv.duration_to_seconds(p.time_since_reference) for p in pts]
         if any(b <= a for a, b in zip(times[:-1], times[1:])):
             raise _Reject(R.STATUS_INVALID_REQUEST, "arm trajectory times must increase strictly")
-        with fake.sim_lock:
+        with fake.sim_for_rpc("reading the arm"):
             current = fake.sim.spot.arm_q()
         goal = current.copy()
         last = pts[-1].position
@@ -924,7 +945,7 @@ def _parse_command(fake: FakeSpot, cmd: robot_command_pb2.RobotCommand, request)
         T_root_task = cv.se3_to_matrix(c.root_tform_task) if c.HasField("root_tform_task") else np.eye(4)
         if c.HasField("wrist_tform_tool"):
             raise _Reject(R.STATUS_UNSUPPORTED, "the fake supports the default tool frame (hand) only")
-        with fake.sim_lock:
+        with fake.sim_for_rpc("reading the hand frame"):
             T_world_hand = _world_from(fake, c.root_frame_name, T_root_task @ T_task_hand)
             T_body_hand = invert_transform(fake.sim.spot.T_world_body()) @ T_world_hand
         return "arm_cartesian", {"T_body_hand": T_body_hand}
@@ -933,7 +954,7 @@ def _parse_command(fake: FakeSpot, cmd: robot_command_pb2.RobotCommand, request)
         if not g.target_trajectory_in_frame1.points:
             raise _Reject(R.STATUS_INVALID_REQUEST, "empty gaze target trajectory")
         p = g.target_trajectory_in_frame1.points[-1].point
-        with fake.sim_lock:
+        with fake.sim_for_rpc("reading the gaze frame"):
             T = _world_from(fake, g.frame1_name, make_transform(None, (p.x, p.y, p.z)))
         return "arm_gaze", {"point": T[:3, 3].copy()}
     if which == "named_arm_position_command":
@@ -1050,7 +1071,10 @@ class _Gate(grpc.ServerInterceptor):
             delay = fake.on_call(method.rsplit("/", 1)[-1], context)
             if service not in _UNAUTHENTICATED_SERVICES and not fake.check_token(metadata):
                 context.abort(grpc.StatusCode.UNAUTHENTICATED, "missing or invalid user token")
-            response = inner(request, context)
+            try:
+                response = inner(request, context)
+            except SimulatorBusy as exc:
+                context.abort(grpc.StatusCode.UNAVAILABLE, str(exc))
             fake.slow_delay(context, delay)
             return response
 
@@ -1403,7 +1427,7 @@ class _SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         known = (cv.HAND_COLOR_SOURCE, cv.HAND_DEPTH_SOURCE)
         obs = snapshot = None
         if any(n in known for n in names):
-            with f.sim_lock:
+            with f.sim_for_rpc("rendering the hand camera"):
                 obs = f.sim.observe()
                 f.remember_frame(obs)
                 snapshot = cv.frame_tree(_kinematic_tree(f.sim))
