@@ -75,7 +75,8 @@ def run_fake_sdk_episode(agent_name: str, episode: Episode, seed: int | None = N
     to ``FakeSpot`` (e.g. ``time_scale``). Always shuts the robot down, stops the fake and every
     thread it started, also after an error or Ctrl-C.
     """
-    from robots.spot.sdk_backend import SdkBackendConfig, SdkSpotBackend, credentials_from_env, signals_deferred
+    from robots.spot.sdk_backend import SdkBackendConfig, SdkSpotBackend, credentials_from_env
+    from robots.spot.signals import signals_deferred
 
     user, password = credentials_from_env()
     tmp = tempfile.mkdtemp(prefix="helios-fake-spot-") if pki is None else None

@@ -42,7 +42,8 @@ from robots.hal import (  # noqa: E402
 )
 from robots.spot import model  # noqa: E402
 from robots.spot.motion import MotionConfig, plan_arm, plan_base  # noqa: E402
-from robots.spot.sdk_backend import GrpcTracingError, SdkSpotBackend, handling_signals, outside_grpc  # noqa: E402
+from robots.spot.sdk_backend import GrpcTracingError, SdkSpotBackend  # noqa: E402
+from robots.spot.signals import handling_signals, outside_grpc  # noqa: E402
 from spot_fake_fixtures import (  # noqa: E402
     TEST_PASSWORD,
     TEST_USER,
@@ -616,7 +617,7 @@ def test_tools_spot_leaves_a_signal_ignored_at_start_alone():
     did), also while ``close()`` holds signals; one at its default disposition is taken over."""
     if threading.current_thread() is not threading.main_thread():
         pytest.skip("signal handlers are installed on the main thread only")
-    from robots.spot.sdk_backend import signals_deferred
+    from robots.spot.signals import signals_deferred
     from tools.spot import _terminate_as_interrupt
 
     with _default_dispositions("SIGTERM", "SIGHUP"):
@@ -644,7 +645,7 @@ def test_the_held_signal_message_is_written_safely_while_stderr_is_mid_write(cap
         pytest.skip("Python runs signal handlers on the main thread only")
     import io
 
-    from robots.spot.sdk_backend import signals_deferred
+    from robots.spot.signals import signals_deferred
 
     class SignalMidWrite(io.RawIOBase):
         """stderr's file: the signal lands while the buffered writer above is writing to it."""

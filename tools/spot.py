@@ -275,12 +275,12 @@ def _terminate_as_interrupt():
     the way Ctrl-C does: through the shutdown path (stop, stow, sit, power off, return the lease).
     By default they kill the process at once and leave the robot powered and standing, holding our
     lease (QA 2026-12-04). All three raise KeyboardInterrupt only outside gRPC (held while an RPC
-    is in flight, raised once it returns: ``sdk_backend.outside_grpc``); raised inside a blocking
+    is in flight, raised once it returns: ``robots.spot.signals.outside_grpc``); raised inside a blocking
     RPC it corrupted the heap or left the channel's lock held, and the shutdown that followed
     crashed (SIGABRT) or hung. A signal the process was started with ignored (SIG_IGN: SIGHUP
     under ``nohup``, SIGINT in a background job) stays ignored. Main thread only; the old handlers
     are restored after."""
-    from robots.spot.sdk_backend import handling_signals, outside_grpc
+    from robots.spot.signals import handling_signals, outside_grpc
 
     ctrl_c = signal.getsignal(signal.SIGINT)        # Python's KeyboardInterrupt, unless SIGINT is ignored
 
@@ -706,10 +706,10 @@ def _start_fake(args, config, user_env: str, password_env: str):
 
 def _teardown_deferred(fake: bool = True):
     """Ctrl-C, SIGTERM and SIGHUP held while the fake Spot is stopped and its throwaway CA removed
-    (and the run's log closed), delivered after (``sdk_backend.signals_deferred``): a further Ctrl-C
+    (and the run's log closed), delivered after (``robots.spot.signals.signals_deferred``): a further Ctrl-C
     there left the fake half-stopped and the CA's private key in the temp folder (review
     2026-12-04). Bounded: ``FakeSpot.stop()`` is."""
-    from robots.spot.sdk_backend import signals_deferred
+    from robots.spot.signals import signals_deferred
 
     return signals_deferred(message="stopping the fake Spot and removing its throwaway CA first (a few seconds)"
                             if fake else "closing the session log first")
