@@ -630,15 +630,21 @@ def run_episode_ids(config: "TrialConfig | dict") -> tuple[list[str], str] | Non
 
 def quarantine(path: Path, scan: ResultsScan) -> None:
     """Move the damaged lines of ``path`` to ``episodes.damaged.jsonl`` next to it (appended, with
-    their bytes unchanged; fsynced first) and rewrite ``path`` with the valid lines in order."""
+    their bytes unchanged; fsynced first) and rewrite ``path`` with the valid lines in order.
+
+    A repair killed between the two steps left the lines in both files; the next one finds the
+    side file already ending with exactly these lines and does not append them again (QA
+    2026-12-04: three kills at the rename left one damaged line three times)."""
     if not scan.damaged:
         return
     side = Path(path).with_name(DAMAGED_FILE)
-    with side.open("ab") as fh:
-        for d in scan.damaged:
-            fh.write(d.data if d.data.endswith(b"\n") else d.data + b"\n")
-        fh.flush()
-        os.fsync(fh.fileno())
+    block = b"".join(d.data if d.data.endswith(b"\n") else d.data + b"\n" for d in scan.damaged)
+    kept = side.read_bytes() if side.is_file() else b""
+    if not (kept.endswith(block) and (len(kept) == len(block) or kept[-len(block) - 1:-len(block)] == b"\n")):
+        with side.open("ab") as fh:
+            fh.write((b"" if not kept or kept.endswith(b"\n") else b"\n") + block)
+            fh.flush()
+            os.fsync(fh.fileno())
     _write_bytes_atomic(Path(path), b"".join(scan.good_lines))
 
 

@@ -187,3 +187,32 @@ def test_view_prints_how_to_view_without_a_display(tmp_path, capsys, monkeypatch
     assert "no viewer can be shown here" in out and f"rerun {f.name}" in out and "--web-viewer" in out
     (tmp_path / "x.txt").write_text("x")
     assert main(["view", str(tmp_path / "x.txt")]) == 2
+
+
+def test_a_repair_killed_before_its_rename_does_not_copy_the_damaged_lines_again(tmp_path, monkeypatch):
+    """(QA 2026-12-04) quarantine() appends the damaged lines to episodes.damaged.jsonl, then
+    renames the cleaned episodes.jsonl into place; a resume killed between the two left the lines
+    in both files, and every later repair appended them again (3 copies after 2 kills)."""
+    from tasks import trials
+
+    path = tmp_path / "episodes.jsonl"
+    torn = b'{"episode_id": "smoke-00002", "succ'
+    path.write_bytes(b"#not a record\n" + torn)
+    side = tmp_path / trials.DAMAGED_FILE
+    real_write = trials._write_bytes_atomic
+
+    def killed(*_args, **_kwargs):
+        raise KeyboardInterrupt("killed at the rename")
+
+    monkeypatch.setattr(trials, "_write_bytes_atomic", killed)
+    for _ in range(2):                                  # two resumes killed at the same place
+        with pytest.raises(KeyboardInterrupt):
+            trials.quarantine(path, trials.scan_results(path))
+    monkeypatch.setattr(trials, "_write_bytes_atomic", real_write)
+    trials.quarantine(path, trials.scan_results(path))
+    assert side.read_bytes() == b"#not a record\n" + torn + b"\n"
+    assert path.read_bytes() == b""
+    # a later, different damage is still appended after it
+    path.write_bytes(b"#garbage\n")
+    trials.quarantine(path, trials.scan_results(path))
+    assert side.read_bytes() == b"#not a record\n" + torn + b"\n#garbage\n"
