@@ -21,6 +21,7 @@ from its executor (``tasks.executors``: in-process, local processes, Ray) and ap
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
@@ -641,7 +642,7 @@ def quarantine(path: Path, scan: ResultsScan) -> None:
     block = b"".join(d.data if d.data.endswith(b"\n") else d.data + b"\n" for d in scan.damaged)
     kept = side.read_bytes() if side.is_file() else b""
     if not (kept.endswith(block) and (len(kept) == len(block) or kept[-len(block) - 1:-len(block)] == b"\n")):
-        with side.open("ab") as fh:
+        with naming_the_file(side), side.open("ab") as fh:
             fh.write((b"" if not kept or kept.endswith(b"\n") else b"\n") + block)
             fh.flush()
             os.fsync(fh.fileno())
@@ -662,7 +663,7 @@ def append_result(path: Path, record: dict) -> dict:
     After a torn last line (a kill mid-write) the record starts a line of its own, so the torn one
     stays the only damaged line instead of swallowing this record too."""
     text = json.dumps(record, sort_keys=True, default=_json_default)
-    with Path(path).open("ab+") as fh:
+    with naming_the_file(path), Path(path).open("ab+") as fh:
         lead = b""
         if fh.seek(0, os.SEEK_END) > 0:
             fh.seek(-1, os.SEEK_END)
@@ -971,14 +972,27 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
     return ordered
 
 
+@contextlib.contextmanager
+def naming_the_file(path: Path):
+    """An OSError from writing to an open file (a full disk, an I/O error) carries no file name,
+    so the one error line said only "[Errno 28] No space left on device" (QA 2026-12-04): name it."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is not None or exc.errno is None:
+            raise
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
+
+
 def _write_bytes_atomic(path: Path, data: bytes) -> None:
     """Write to a temporary file, fsync, rename: a kill leaves the old file or the new one."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
-    with tmp.open("wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
+    with naming_the_file(tmp):
+        with tmp.open("wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
     tmp.replace(path)
 
 

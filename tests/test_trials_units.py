@@ -216,3 +216,26 @@ def test_a_repair_killed_before_its_rename_does_not_copy_the_damaged_lines_again
     path.write_bytes(b"#garbage\n")
     trials.quarantine(path, trials.scan_results(path))
     assert side.read_bytes() == b"#not a record\n" + torn + b"\n#garbage\n"
+
+
+def test_a_write_error_names_the_file(tmp_path, monkeypatch):
+    """(QA 2026-12-04) A full disk while a record or a summary was written said only "error:
+    [Errno 28] No space left on device"; the error now carries the file's name, which the CLI's
+    one error line prints."""
+    import errno
+
+    from tasks import trials
+
+    real_fsync = os.fsync
+
+    def full(_fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(trials.os, "fsync", full)
+    with pytest.raises(OSError) as info:
+        trials.append_result(tmp_path / "episodes.jsonl", {"episode_id": "smoke-00000"})
+    assert info.value.errno == errno.ENOSPC and info.value.filename == str(tmp_path / "episodes.jsonl")
+    with pytest.raises(OSError) as info:
+        trials._write_bytes_atomic(tmp_path / "summary.json", b"{}")
+    assert info.value.filename == str(tmp_path / "summary.json.tmp")
+    monkeypatch.setattr(trials.os, "fsync", real_fsync)
