@@ -192,3 +192,18 @@ def test_an_agent_bug_on_the_demo_layout_is_one_line_after_a_full_shutdown(monke
     assert json.loads((run / "outcome.json").read_text())["agent_error"] == "RuntimeError: mug_pixel exploded"
     log = (run / "session.log").read_text()
     assert "Traceback" in log and "sitting down and powering off" in log and "lease returned" in log
+
+
+def test_ctrl_c_while_the_command_line_loads_is_one_line_and_130(monkeypatch, capsys):
+    """(QA 2026-12-04) A Ctrl-C in the first few tenths of a second, while build_parser() imports
+    every command's module, printed a KeyboardInterrupt traceback: it is now the same one line
+    ("interrupted", exit 130) as a Ctrl-C during the command."""
+    from tools import cli
+
+    def interrupted_import():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted_import)
+    assert cli.main(["trials", "--episodes", "1"]) == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "interrupted" and "Traceback" not in err

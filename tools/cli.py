@@ -215,9 +215,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {one_line(exc)}", file=sys.stderr)
         return 2
     configure_threads(1)  # see helios.runtime: one native thread per process is fastest here
-    parser = build_parser()
-    args = parse_arguments(parser, argv)
     try:
+        parser = build_parser()          # imports every command's module: a Ctrl-C may land here too
+        args = parse_arguments(parser, argv)
         return int(importlib.import_module(args._module).run(args) or 0)
     except KeyboardInterrupt as exc:       # Ctrl-C; SIGTERM/SIGHUP where a command turns them into one
         print(f"interrupted ({exc})" if str(exc) else "interrupted", file=sys.stderr)
