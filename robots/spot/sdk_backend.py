@@ -384,6 +384,9 @@ class _StallWatch:
 # --------------------------------------------------------------------------------------------
 # The backend
 # --------------------------------------------------------------------------------------------
+_BRING_UP_CUT_SHORT = "the bring-up was cut short: close() was called from another thread"
+
+
 def _closing_aware(method):
     """Public commands called while ``close()`` runs in another thread (or after it) end in one
     typed :class:`BackendClosedError`, whatever the teardown does underneath them (channels closed
@@ -396,7 +399,7 @@ def _closing_aware(method):
         except BackendClosedError:
             raise
         except Exception:
-            if self._closed or self._closing_elsewhere():
+            if self._closed_to_this_thread():
                 raise BackendClosedError(f"{method.__name__}() was cut short: the backend was closed "
                                          f"meanwhile (close() from another thread)") from None
             raise
@@ -445,7 +448,7 @@ class SdkSpotBackend:
         # clean-up after an unanswered bring-up call recognises what is ours by them alone.
         self._session = secrets.token_hex(3)
         # What a bring-up call that went unanswered may have left on the robot (asked about at close)
-        self._estop_unconfirmed: tuple[str, str, frozenset] | None = None   # (name, config id, ids) before
+        self._estop_unconfirmed: tuple[str, frozenset] | None = None   # (our name, endpoint ids before)
         self._lease_unconfirmed = False
         self._token_manager_thread: threading.Thread | None = None
         self._frame_id = 0
@@ -477,8 +480,7 @@ class SdkSpotBackend:
             self._bring_up()
         except Exception:
             if self._closing_elsewhere():
-                raise BackendClosedError("the bring-up was cut short: close() was called from another thread") \
-                    from None
+                raise BackendClosedError(_BRING_UP_CUT_SHORT) from None
             raise
         finally:
             self._connecting = None
@@ -487,7 +489,7 @@ class SdkSpotBackend:
     def _bring_up_step(self) -> None:
         """Between bring-up steps: stop here when close() runs in another thread."""
         if self._closing_elsewhere():
-            raise BackendClosedError("the bring-up was cut short: close() was called from another thread")
+            raise BackendClosedError(_BRING_UP_CUT_SHORT)
 
     def _bring_up(self) -> None:
         cfg, bd = self.config, self._bd
@@ -626,7 +628,7 @@ class SdkSpotBackend:
 
         A SetEstopConfig or RegisterEstopEndpoint whose reply comes after ``rpc_timeout`` may have
         put our endpoint on the robot (it acted on the request) under a unique id we never heard:
-        before those calls go out the endpoint's name and the configuration they replace are
+        before those calls go out the endpoint's name and the endpoints already there are
         remembered (``_estop_unconfirmed``), and ``close()`` asks the robot for its configuration
         and deregisters what they left (:meth:`_clean_up_unanswered_bring_up`). Once registration
         is answered the endpoint itself is remembered and deregistered by its unique id."""
@@ -639,7 +641,7 @@ class SdkSpotBackend:
                 config = bd.estop_pb2.EstopConfig()
                 config.endpoints.add().CopyFrom(ep.to_proto())
                 active = client.get_config(timeout=t)
-                self._estop_unconfirmed = (name, active.unique_id, frozenset(e.unique_id for e in active.endpoints))
+                self._estop_unconfirmed = (name, frozenset(e.unique_id for e in active.endpoints))
                 active = client.set_config(config, active.unique_id, timeout=t)
                 ep._unique_id = active.endpoints[0].unique_id
                 ep._config_id = active.unique_id
@@ -703,18 +705,26 @@ class SdkSpotBackend:
     def _guard(self, sensing: bool = False) -> None:
         """Refuse to work on a closed backend or after a sticky fault. Sensing (images, state)
         needs neither motor power nor the lease, so it goes on after an e-stop or a lost lease."""
-        if self._closed:
-            raise BackendClosedError("this backend has been closed")
-        if self._closing_elsewhere():
-            raise BackendClosedError("this backend is shutting the robot down (close() was called); no more "
-                                     "commands")
+        self._check_open()
         if self._fault is not None and not (sensing and isinstance(self._fault, (EstopError, PowerError,
                                                                                   LeaseLostError))):
             raise type(self._fault)(str(self._fault))
 
     def _closing_elsewhere(self) -> bool:
-        """close() runs, in another thread than this one."""
+        """close() runs (or ran), in another thread than this one."""
         return self._closing and self._close_thread is not threading.current_thread()
+
+    def _closed_to_this_thread(self) -> bool:
+        """Nothing more may be sent from this thread: closed, or close() runs in another one."""
+        return self._closed or self._closing_elsewhere()
+
+    def _check_open(self) -> None:
+        """BackendClosedError when :meth:`_closed_to_this_thread`."""
+        if self._closed:
+            raise BackendClosedError("this backend has been closed")
+        if self._closing_elsewhere():
+            raise BackendClosedError("this backend is shutting the robot down (close() was called); no more "
+                                     "commands")
 
     def _set_fault(self, fault: RobotFault) -> RobotFault:
         if isinstance(fault, (*_FATAL, EstopError, PowerError)) and self._fault is None:
@@ -771,7 +781,7 @@ class SdkSpotBackend:
     def _diagnose(self, what: str) -> RobotFault | None:
         """After a command ended abnormally: the fault that explains it, if there is one. Ended by
         close() from another thread: BackendClosedError, without asking the robot anything."""
-        if self._closed or self._closing_elsewhere():
+        if self._closed_to_this_thread():
             raise BackendClosedError(f"the backend was closed (close() from another thread; {what})")
         if self._fault is not None:
             return self._fault
@@ -803,10 +813,10 @@ class SdkSpotBackend:
         it when it arrives), its reply awaited at most ``wait`` s; errors are ignored. Not while
         close() runs in another thread: it stops the robot itself, and a stop from here would cut
         its stow or sit short."""
-        if not hasattr(self, "_cmd_client") or self._closed or self._closing_elsewhere():
+        if not hasattr(self, "_cmd_client") or self._closed_to_this_thread():
             return
         try:
-            with self._motion_send("stopping"):
+            with self._sending_to_robot("stopping"):
                 fut = self._cmd_client.robot_command_async(self._bd.Builder.stop_command(),
                                                            timeout=self.config.rpc_timeout)
             _future_result(fut, wait)
@@ -859,36 +869,34 @@ class SdkSpotBackend:
 
     # ================================================================== command plumbing
     @contextlib.contextmanager
-    def _motion_send(self, during: str):
-        """Around sending a motion command from a thread other than close()'s: refused once close()
-        has begun; counted while in flight, so close() sends its own stop only after it (the
-        check and the count are one step under close()'s lock: no command slips in between)."""
+    def _sending_to_robot(self, during: str, moves: bool = True):
+        """Around sending a call to the robot: refused once close() has begun in another thread.
+        A motion command (``moves``) from a thread other than close()'s is counted while in
+        flight, so close() sends its own stop only after it (the check and the count are one step
+        under close()'s lock: no command slips in between)."""
         with self._sends:
-            if self._closed or self._closing_elsewhere():
+            if self._closed_to_this_thread():
                 raise BackendClosedError(f"the backend was closed before {during}")
-            mine = self._close_thread is not threading.current_thread()
-            self._sending += mine
+            counted = moves and self._close_thread is not threading.current_thread()
+            self._sending += counted
         try:
             yield
         finally:
-            with self._sends:
-                self._sending -= mine
-                self._sends.notify_all()
+            if counted:
+                with self._sends:
+                    self._sending -= 1
+                    self._sends.notify_all()
 
     def _call(self, fn, *args, during: str, moves: bool = False, **kwargs):
         """An SDK call with HAL error translation. Nothing is sent from another thread once close()
-        has begun; ``moves``: a motion command (see :meth:`_motion_send`)."""
-        if self._closed or self._closing_elsewhere():
-            raise BackendClosedError(f"the backend was closed before {during}")
+        has begun; ``moves``: a motion command (see :meth:`_sending_to_robot`)."""
         try:
-            if moves:
-                with self._motion_send(during):
-                    return fn(*args, **kwargs)
-            return fn(*args, **kwargs)
+            with self._sending_to_robot(during, moves):
+                return fn(*args, **kwargs)
         except BackendClosedError:
             raise
         except Exception as exc:
-            if self._closed or self._closing_elsewhere():   # our own teardown, not the robot's fault
+            if self._closed_to_this_thread():   # our own teardown, not the robot's fault
                 raise BackendClosedError(f"the backend was closed while {during}") from None
             if not isinstance(exc, (self._bd.exc.Error, self._bd.lease.Error)):
                 raise
@@ -1275,11 +1283,8 @@ class SdkSpotBackend:
                                 manipulation_api_feedback_request=request, timeout=cfg.rpc_timeout, during="grasping")
                 if fb.current_state in terminal:
                     break
-                if self._fault is not None:
-                    self._stop_quietly()
-                    self._guard()
+                self._guard()                 # a sticky fault (the keep-alive's lost lease, ...)
                 if time.monotonic() > deadline:
-                    self._stop_quietly()
                     self._unresponsive = True
                     raise CommandTimeoutError(f"the grasp did not finish within {cfg.grasp_timeout:.0f} s; "
                                               f"the robot was told to stop")
@@ -1387,8 +1392,7 @@ class SdkSpotBackend:
     @_closing_aware
     def stand(self) -> CommandResult:
         """Power on (if needed) and stand. After an e-stop was released, this re-powers the robot."""
-        if self._closed or self._closing_elsewhere():
-            self._guard()                 # BackendClosedError
+        self._check_open()
         if isinstance(self._fault, (EstopError, PowerError)):
             self._fault = None            # retry: the checks below raise again if nothing changed
         self._guard()
@@ -1415,10 +1419,9 @@ class SdkSpotBackend:
 
     @_closing_aware
     def stop(self) -> CommandResult:
-        if self._closed:
-            raise BackendClosedError("this backend has been closed")
-        if self._closing_elsewhere():
+        if self._closing_elsewhere() and not self._closed:
             return CommandResult(True, Reason.OK, "close() is stopping the robot and shutting it down")
+        self._check_open()
         if isinstance(self._fault, (EstopError, PowerError)):
             return CommandResult(True, Reason.OK, f"motion is already cut: {self._fault}")
         self._guard()
@@ -1602,9 +1605,10 @@ class SdkSpotBackend:
           ``client_name`` is the client name this SDK puts in every request header (the SDK's
           ``generate_client_name``: prefix, host, program and process id; the prefix carries this
           session's random token, so it is unique also among backends in one process: QA found
-          one session's clean-up returning another's lease when they shared it). Assumes, as the LeaseService documents, that the robot names the client that
-          acquired or took a lease in ``lease_owner.client_name``, and that ReturnLease accepts the
-          active lease as ListLeases reports it (``include_full_lease_info``).
+          one session's clean-up returning another's lease when they shared it). Assumes, as the
+          LeaseService documents, that the robot names the client that acquired or took a lease
+          in ``lease_owner.client_name``, and that ReturnLease accepts the active lease as
+          ListLeases reports it (``include_full_lease_info``).
         * E-stop (``_estop_unconfirmed``): GetEstopConfig; an endpoint is ours when it has our
           endpoint's name, which carries this session's random token (another session's endpoint,
           even one of the same ``client_name`` started at the same moment, is left alone: with a
@@ -1696,7 +1700,7 @@ class SdkSpotBackend:
     def _endpoints_left_by_us(self, active) -> list:
         """Endpoints in the robot's active e-stop configuration that our unanswered
         SetEstopConfig / RegisterEstopEndpoint put there (see :meth:`_clean_up_unanswered_bring_up`)."""
-        name, _config_before, ids_before = self._estop_unconfirmed
+        name, ids_before = self._estop_unconfirmed
         return [ep for ep in active.endpoints if ep.name == name and ep.unique_id and ep.unique_id not in ids_before]
 
     def _return_lease_async(self, lease, **kwargs):
