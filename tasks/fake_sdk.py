@@ -10,11 +10,9 @@ on a robot; the fake accepts exactly them. Times in the result are the robot's (
 
 from __future__ import annotations
 
-import shutil
 import tempfile
 import time
 from dataclasses import asdict, replace
-from pathlib import Path
 from typing import Callable
 
 from tasks.episodes import Episode
@@ -75,8 +73,8 @@ def run_fake_sdk_episode(agent_name: str, episode: Episode, seed: int | None = N
     to ``FakeSpot`` (e.g. ``time_scale``). Always shuts the robot down, stops the fake and every
     thread it started, also after an error or Ctrl-C.
     """
+    from robots.spot.fake_spot.launch import stop_fake
     from robots.spot.sdk_backend import SdkBackendConfig, SdkSpotBackend, credentials_from_env
-    from robots.spot.signals import signals_deferred
 
     user, password = credentials_from_env()
     tmp = tempfile.mkdtemp(prefix="helios-fake-spot-") if pki is None else None
@@ -102,11 +100,4 @@ def run_fake_sdk_episode(agent_name: str, episode: Episode, seed: int | None = N
         finally:
             backend.close()
     finally:
-        # a further Ctrl-C/TERM/HUP is held until the fake is stopped and its CA removed (main thread)
-        with signals_deferred(message="stopping the fake Spot and removing its throwaway CA first (a few seconds)"):
-            try:
-                if ep is not None:
-                    ep.stop()
-            finally:
-                if tmp is not None:
-                    shutil.rmtree(Path(tmp), ignore_errors=True)   # the throwaway CA and server key
+        stop_fake(ep, tmp)              # a further Ctrl-C/TERM/HUP is held until both are done

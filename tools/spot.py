@@ -46,7 +46,6 @@ import json
 import logging
 import os
 import secrets
-import shutil
 import signal
 import sys
 import tempfile
@@ -289,12 +288,8 @@ def _terminate_as_interrupt():
             return ctrl_c(signum, frame)
         raise KeyboardInterrupt(signal.Signals(signum).name)
 
-    names = ["SIGINT"] if callable(ctrl_c) else []
-    for name in ("SIGTERM", "SIGHUP"):
-        sig = getattr(signal, name, None)
-        if sig is not None and signal.getsignal(sig) != signal.SIG_IGN:     # nohup: a HUP must not end the run
-            names.append(name)
-    with handling_signals(names, outside_grpc(interrupt)):
+    names = ("SIGINT", "SIGTERM", "SIGHUP") if callable(ctrl_c) else ("SIGTERM", "SIGHUP")
+    with handling_signals(names, outside_grpc(interrupt)):     # one ignored at start stays ignored (nohup)
         yield
 
 
@@ -410,7 +405,9 @@ def _run(args: argparse.Namespace) -> int:
         with _teardown_deferred(demo is not None):   # a further Ctrl-C/TERM/HUP is held, raised after
             try:
                 if demo is not None:
-                    _stop_fake(demo, demo.pki.ca_cert.parent)
+                    from robots.spot.fake_spot.launch import stop_fake
+
+                    stop_fake(demo, demo.pki.ca_cert.parent)
             finally:
                 _restore_env(saved_env)
                 root.removeHandler(handler)
@@ -681,7 +678,7 @@ def _start_fake(args, config, user_env: str, password_env: str):
     """Start the fake Spot (demo scene) and point the config at it. Without credentials in the
     environment, a throwaway pair is made for this process only (never written anywhere)."""
     _check_fake_available()
-    from robots.spot.fake_spot.launch import start_demo_fake
+    from robots.spot.fake_spot.launch import start_demo_fake, stop_fake
 
     saved = _dry_run_credentials(user_env, password_env)
     user, password = os.environ[user_env], os.environ[password_env]
@@ -697,7 +694,7 @@ def _start_fake(args, config, user_env: str, password_env: str):
     except BaseException:                # also Ctrl-C before _run holds the fake: stop it, remove the CA
         with _teardown_deferred():
             try:
-                _stop_fake(demo, pki_dir)
+                stop_fake(demo, pki_dir)
             finally:
                 _restore_env(saved)
         raise
@@ -705,24 +702,16 @@ def _start_fake(args, config, user_env: str, password_env: str):
 
 
 def _teardown_deferred(fake: bool = True):
-    """Ctrl-C, SIGTERM and SIGHUP held while the fake Spot is stopped and its throwaway CA removed
-    (and the run's log closed), delivered after (``robots.spot.signals.signals_deferred``): a further Ctrl-C
-    there left the fake half-stopped and the CA's private key in the temp folder (review
-    2026-12-04). Bounded: ``FakeSpot.stop()`` is."""
+    """Ctrl-C, SIGTERM and SIGHUP held while the run's log is closed and (``fake``) the fake Spot
+    stopped (``robots.spot.fake_spot.launch.stop_fake``), delivered after
+    (``robots.spot.signals.signals_deferred``)."""
     from robots.spot.signals import signals_deferred
 
-    return signals_deferred(message="stopping the fake Spot and removing its throwaway CA first (a few seconds)"
-                            if fake else "closing the session log first")
+    if fake:
+        from robots.spot.fake_spot.launch import TEARDOWN_MESSAGE
 
-
-def _stop_fake(demo, pki_dir) -> None:
-    """Stop the fake Spot (if it started) and remove its throwaway CA and server key, also when
-    stopping it fails."""
-    try:
-        if demo is not None:
-            demo.stop()
-    finally:
-        shutil.rmtree(pki_dir, ignore_errors=True)   # the throwaway CA and server key
+        return signals_deferred(message=TEARDOWN_MESSAGE)
+    return signals_deferred(message="closing the session log first")
 
 
 def _format(result: dict, run_dir: Path) -> str:

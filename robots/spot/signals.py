@@ -22,12 +22,13 @@ DEFERRED_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 def handling_signals(names: Sequence[str], handler: Callable):
     """``handler`` for the named signals while the block runs, the old handlers back after it. Only
     on the main thread (where Python runs signal handlers; elsewhere nothing changes); a signal the
-    platform lacks, or one that cannot be set here, is left alone."""
+    platform lacks, one that cannot be set here, and one the process ignores (SIG_IGN: SIGHUP
+    under ``nohup``, SIGINT in a background job) are left alone."""
     previous = {}
     if threading.current_thread() is threading.main_thread():
         for name in names:
             sig = getattr(signal, name, None)
-            if sig is None:
+            if sig is None or signal.getsignal(sig) == signal.SIG_IGN:
                 continue
             try:
                 previous[sig] = signal.signal(sig, handler)
@@ -110,7 +111,7 @@ def signals_deferred(names: Sequence[str] = DEFERRED_SIGNALS,
     again (``signal.raise_signal``) once the old handlers are back, so Ctrl-C still ends the program,
     just after the robot is safe. The first one held prints ``[spot] SIGNAME: <message>`` to stderr.
     A signal ignored when the block starts (SIG_IGN, e.g. SIGHUP under ``nohup``) stays ignored.
-    Only on the main thread (:func:`handling_signals`)."""
+    Only on the main thread (both: :func:`handling_signals`)."""
     held: list[int] = []
 
     def hold(signum, _frame) -> None:
@@ -124,15 +125,8 @@ def signals_deferred(names: Sequence[str] = DEFERRED_SIGNALS,
                 pass
         held.append(signum)
 
-    def ignored(name: str) -> bool:
-        sig = getattr(signal, name, None)
-        try:
-            return sig is not None and signal.getsignal(sig) == signal.SIG_IGN
-        except ValueError:
-            return False
-
     try:
-        with handling_signals([name for name in names if not ignored(name)], hold):
+        with handling_signals(names, hold):
             yield
     finally:
         for signum in dict.fromkeys(held):       # each once, in arrival order, to the old handlers

@@ -5,6 +5,7 @@ A fake in a task episode's procedural home (:class:`EpisodeFake`) is started by
 from __future__ import annotations
 
 import secrets
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -14,7 +15,10 @@ from robots.spot.fake_spot.certs import TestPKI, make_test_pki
 from robots.spot.fake_spot.server import FakeSpot
 from robots.spot.fake_spot.sim_robot import FakeRobotSim
 from robots.spot.fake_spot.sim_view import FakeSimView, LockedJudge
+from robots.spot.signals import signals_deferred
 from robots.spot.sim_backend import SimBackendConfig
+
+TEARDOWN_MESSAGE = "stopping the fake Spot and removing its throwaway CA first (a few seconds)"
 
 
 class _RunningFake:
@@ -42,6 +46,21 @@ class DemoFake(_RunningFake):
     pki: TestPKI
     scene: dict                      # sim.scenes.demo.build_demo_scene's facts
     facts: dict = field(default_factory=dict)   # ground truth: mug position, table poses, sizes
+
+
+def stop_fake(fake: "_RunningFake | None", pki_dir: str | Path | None) -> None:
+    """Stop a fake Spot (if it started) and remove its throwaway CA and server key (``pki_dir``;
+    None: a PKI the caller keeps), also when stopping fails. Ctrl-C, SIGTERM and SIGHUP are held
+    until both are done, then delivered (main thread): a further Ctrl-C there left the fake
+    half-stopped and the CA's private key in the temp folder (review 2026-12-04). Bounded:
+    ``FakeSpot.stop()`` is."""
+    with signals_deferred(message=TEARDOWN_MESSAGE):
+        try:
+            if fake is not None:
+                fake.stop()
+        finally:
+            if pki_dir is not None:
+                shutil.rmtree(pki_dir, ignore_errors=True)
 
 
 def scene_facts(world, scene: dict) -> dict:
