@@ -29,7 +29,7 @@ def start_episode_fake(pki, episode: Episode, username: str, password: str, sim_
     a ``TestPKI`` or a folder to make one in; ``sim_config``: a ``SimBackendConfig``; ``metrics``
     configures the judge."""
     from robots.spot.fake_spot.certs import TestPKI, make_test_pki
-    from robots.spot.fake_spot.launch import EpisodeFake
+    from robots.spot.fake_spot.launch import EpisodeFake, start_serving
     from robots.spot.fake_spot.server import FakeSpot
     from robots.spot.fake_spot.sim_robot import FakeRobotSim
     from robots.spot.fake_spot.sim_view import FakeSimView, LockedJudge
@@ -47,12 +47,7 @@ def start_episode_fake(pki, episode: Episode, username: str, password: str, sim_
     except Exception:
         world.close()
         raise
-    try:
-        fake.start()
-    except BaseException:
-        fake.stop()
-        world.close()
-        raise
+    start_serving(fake, world)
     return EpisodeFake(fake, pki, episode, scene, view, judge)
 
 

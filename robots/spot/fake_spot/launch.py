@@ -48,6 +48,17 @@ class DemoFake(_RunningFake):
     facts: dict = field(default_factory=dict)   # ground truth: mug position, table poses, sizes
 
 
+def start_serving(fake: FakeSpot, world) -> None:
+    """``fake.start()``; when it fails (e.g. not listening within ``START_TIMEOUT_S``) the fake is
+    stopped and its world closed, so nothing half-started is left."""
+    try:
+        fake.start()
+    except BaseException:
+        fake.stop()
+        world.close()
+        raise
+
+
 def stop_fake(fake: "_RunningFake | None", pki_dir: str | Path | None) -> None:
     """Stop a fake Spot (if it started) and remove its throwaway CA and server key (``pki_dir``;
     None: a PKI the caller keeps), also when stopping fails. Ctrl-C, SIGTERM and SIGHUP are held
@@ -99,12 +110,7 @@ def start_demo_fake(pki: TestPKI | str | Path, username: str | None = None, pass
     except BaseException:
         world.close()
         raise
-    try:
-        fake.start()
-    except BaseException:           # e.g. not listening within START_TIMEOUT_S: nothing half-started is left
-        fake.stop()
-        world.close()
-        raise
+    start_serving(fake, world)
     return DemoFake(fake, pki, scene, scene_facts(world, scene))
 
 
