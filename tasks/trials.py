@@ -904,8 +904,7 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
     t0 = time.perf_counter()
     report = report if report is not None else BatchReport([])
     with _FolderLock(out):
-        selected = run_episode_ids(config)
-        ids, source = (selected[0], selected[1]) if selected else (None, "")
+        ids, source = run_episode_ids(config) or (None, "")
         done = prepare_run_folder(out, config, report, episode_ids=None if ids is None else
                                   [*ids, *(e.episode_id for e in episodes)], episode_source=source)
         saved_commit = report.saved_commit
@@ -988,11 +987,10 @@ def _write_bytes_atomic(path: Path, data: bytes) -> None:
     """Write to a temporary file, fsync, rename: a kill leaves the old file or the new one."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
-    with naming_the_file(tmp):
-        with tmp.open("wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
+    with naming_the_file(tmp), tmp.open("wb") as fh:
+        fh.write(data)
+        fh.flush()
+        os.fsync(fh.fileno())
     tmp.replace(path)
 
 
@@ -1011,45 +1009,40 @@ def cpu_paths_now() -> str:
     return invocation_cpu({"cpu": cpu_dispatch()})
 
 
-def run_cpu_paths(out: Path) -> list[str]:
-    """The distinct CPU code paths (:func:`invocation_cpu`) of the invocations that ran episodes
-    in a run folder, in the order first seen; empty when it has no ``invocations.jsonl``.
-    Episodes run on different code paths can differ in outcome (README, "One CPU code path")."""
+def read_invocations(out: Path) -> tuple[list[dict], list[int]]:
+    """The entries of a run folder's ``invocations.jsonl``, and the line numbers (1-based) of its
+    damaged lines: not JSON (a torn last line after a kill, an edit) or not an object. Both empty
+    without the file. The log is informative, never a reason to fail: the report names the damaged
+    lines, the rest skip them."""
     path = Path(out) / "invocations.jsonl"
     if not path.is_file():
-        return []
-    seen: list[str] = []
-    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
-        try:
-            entry = json.loads(line)
-        except ValueError:
-            continue      # a torn line: the invocation log is informative, never a reason to fail
-        if not isinstance(entry, dict) or not entry.get("episodes_to_run"):
-            continue
-        paths = invocation_cpu(entry)
-        if paths not in seen:
-            seen.append(paths)
-    return seen
-
-
-def invocation_damaged_lines(out: Path) -> list[int]:
-    """Line numbers (1-based) of ``invocations.jsonl`` that :func:`run_cpu_paths` skips: not JSON
-    (a torn last line after a kill, an edit) or not an object. The report names them."""
-    path = Path(out) / "invocations.jsonl"
-    if not path.is_file():
-        return []
-    bad = []
+        return [], []
+    entries, bad = [], []
     for number, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
         if not line.strip():
             continue
         try:
             entry = json.loads(line)
         except ValueError:
+            entry = None
+        if isinstance(entry, dict):
+            entries.append(entry)
+        else:
             bad.append(number)
-            continue
-        if not isinstance(entry, dict):
-            bad.append(number)
-    return bad
+    return entries, bad
+
+
+def run_cpu_paths(out: Path) -> list[str]:
+    """The distinct CPU code paths (:func:`invocation_cpu`) of the invocations that ran episodes
+    in a run folder, in the order first seen; empty when it has no ``invocations.jsonl``.
+    Episodes run on different code paths can differ in outcome (README, "One CPU code path")."""
+    seen: list[str] = []
+    for entry in read_invocations(out)[0]:
+        if entry.get("episodes_to_run"):
+            paths = invocation_cpu(entry)
+            if paths not in seen:
+                seen.append(paths)
+    return seen
 
 
 def _log_invocation(out: Path, workers: int, executor: str, address: str, todo: int, commit: str) -> None:

@@ -211,7 +211,7 @@ def test_a_bad_helios_cpu_is_one_error_line_for_every_command(monkeypatch, tmp_p
 def test_an_invocation_logged_after_a_torn_line_is_kept_and_the_torn_line_is_named(tmp_path):
     """A kill mid-write leaves a torn last line; the next invocation starts a line of its own (it
     was glued to the torn one and lost), and the report names the torn line."""
-    from tasks.trials import append_result, invocation_damaged_lines, run_cpu_paths
+    from tasks.trials import append_result, read_invocations, run_cpu_paths
     from tools.report import invocations_problem
 
     path = tmp_path / "invocations.jsonl"
@@ -221,7 +221,7 @@ def test_an_invocation_logged_after_a_torn_line_is_kept_and_the_torn_line_is_nam
     append_result(path, {"episodes_to_run": 3, "cpu": NATIVE})
     lines = path.read_text().splitlines()
     assert len(lines) == 3 and json.loads(lines[2])["episodes_to_run"] == 3
-    assert invocation_damaged_lines(tmp_path) == [2]
+    assert read_invocations(tmp_path)[1] == [2]
     assert len(run_cpu_paths(tmp_path)) == 2
     problem = invocations_problem(tmp_path)
     assert problem.startswith(f"{path}:2: damaged line") and "\n" not in problem

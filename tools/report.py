@@ -86,15 +86,15 @@ def invocations_problem(run_path: Path) -> str | None:
     """What is wrong with a run folder's invocations.jsonl (a directory in its place, damaged
     lines), or None. It only says which code paths the episodes ran on: the report and diff read
     the records without it, but say so (a resume refuses a directory; it appends after damaged
-    lines, which ``tasks.trials.run_cpu_paths`` skips: informative, never a reason to fail)."""
-    from tasks.trials import invocation_damaged_lines
+    lines, which ``tasks.trials.read_invocations`` names and the rest skips)."""
+    from tasks.trials import read_invocations
 
     path = run_path / "invocations.jsonl"
     if path.is_dir():
         return (f"{path} is a directory, where the log of the run's invocations belongs: the CPU code paths of its "
                 f"episodes are unknown (a resume refuses the folder until it is moved away)")
     try:
-        bad = invocation_damaged_lines(run_path)
+        bad = read_invocations(run_path)[1]
     except OSError as exc:
         return f"{path} cannot be read ({exc.strerror or exc}): the CPU code paths of its episodes are unknown"
     if bad:
