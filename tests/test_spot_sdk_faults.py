@@ -240,6 +240,37 @@ def test_close_is_bounded_when_the_robot_accepts_commands_but_never_finishes_the
     assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
 
 
+def test_close_is_bounded_when_the_robot_never_completes_the_safe_power_off(caplog):
+    """A robot that takes the safe power off at shutdown but cannot sit (it goes on standing,
+    motors on): close() waits ``stand_timeout`` for the sit, no longer, leaves the power off with
+    the robot (no stop over it), returns the lease, deregisters its e-stop endpoint, joins its
+    threads, and says in one warning that the robot may still be standing powered."""
+    import logging
+
+    before = python_threads()
+    demo = start_fake(seed=0)
+    backend = connect(demo)                      # stand_timeout 3 s (fast_config)
+    fake = demo.fake
+    assert fake.powered and fake.standing
+    fake.inject("power_off_stalls")
+    with caplog.at_level(logging.WARNING, logger="helios.spot"):
+        t0 = time.monotonic()
+        backend.close()
+        closing = time.monotonic() - t0
+    assert closing < backend.config.stand_timeout + CLOSE_WITHIN, f"close() took {closing:.2f} s"
+    assert closing > backend.config.stand_timeout - 0.5        # it did wait for the sit
+    assert fake.powered and fake.standing                      # the fault: the robot never sat down
+    assert fake.lease_owner is None and not fake._endpoints    # nothing of ours left on the robot
+    last = list(fake.commands.values())[-1]
+    assert (last.kind, last.state) == ("safe_power_off", "running")   # still trying to sit
+    assert [c.kind for c in fake.commands.values()].count("safe_power_off") == 1
+    warnings = [r.getMessage() for r in caplog.records if "did not power off" in r.getMessage()]
+    assert len(warnings) == 1 and "\n" not in warnings[0], [r.getMessage() for r in caplog.records]
+    assert "standing" in warnings[0] and "e-stop" in warnings[0]
+    leaked = wait_for_threads_to_end(before)
+    assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
+
+
 @pytest.mark.parametrize("motion", ["walk", "arm"])
 def test_close_from_another_thread_mid_command_ends_that_command_typed_and_a_second_close_waits(motion):
     """A library user's safety monitor closes the backend while the agent's thread is mid-command:

@@ -1547,8 +1547,11 @@ class SdkSpotBackend:
                     raise _Unanswered("stow failed") from None
         if powered and cfg.power_off_on_close:
             _LOG.info("sitting down and powering off")
-            self.robot.power_off(cut_immediately=False, timeout_sec=cfg.stand_timeout,
-                                 update_frequency=1.0 / cfg.feedback_period, timeout=cfg.rpc_timeout)
+            try:
+                self.robot.power_off(cut_immediately=False, timeout_sec=cfg.stand_timeout,
+                                     update_frequency=1.0 / cfg.feedback_period, timeout=cfg.rpc_timeout)
+            except bd.power.CommandTimedOutError:
+                self._warn_if_still_powered()
         self._lease_client.return_lease(lease, timeout=cfg.rpc_timeout)
         _LOG.info("lease returned")
         if self._estop_endpoint is not None:
@@ -1556,6 +1559,23 @@ class SdkSpotBackend:
             self._estop_client.deregister(ep._config_id, ep, timeout=cfg.rpc_timeout)
             self._estop_endpoint = None
             _LOG.info("e-stop endpoint deregistered")
+
+    def _warn_if_still_powered(self) -> None:
+        """The safe power off did not end within ``stand_timeout``. A robot that answers and still
+        has motor power took the command and could not sit (something under it, a slope): it stays
+        with the robot, which may yet sit, the shutdown goes on in turn (lease, e-stop endpoint),
+        and the operator is told to take over. A robot that does not answer ends the shutdown in
+        flight, as any silent step does."""
+        cfg = self.config
+        try:
+            state = self._state_client.get_robot_state(timeout=cfg.rpc_timeout)
+        except Exception:  # noqa: BLE001 - no answer: the in-flight shutdown takes over
+            raise _Unanswered("safe power off") from None
+        if state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_OFF:
+            return          # it powered off just after the last check
+        _LOG.warning("the robot did not power off within %.1f s of the safe power off (it could not sit "
+                     "down): it may still be standing with motor power on; returning the lease and our "
+                     "e-stop endpoint, take over with the tablet or the e-stop", cfg.stand_timeout)
 
     def _shutdown_in_flight(self, lease, deadline: float) -> None:
         """Degraded robot or link: stop and safe power off (with our lease), then return the lease

@@ -92,6 +92,8 @@ FAULTS: dict[str, str] = {
                       "progress goes on to its end time",
     "slow": "every reply is delayed by `delay` seconds (default 3): the robot acts on each request when it "
             "arrives, the caller hears back late (or gives up)",
+    "power_off_stalls": "a safe power off is accepted and never carried out (the robot cannot sit: it goes on "
+                        "standing with motor power on, the command's feedback stays 'in progress')",
 }
 
 # Services the directory lists: name -> (type, authority). The authorities must be covered by the
@@ -576,6 +578,9 @@ class FakeSpot:
                         other.state, other.detail = "overridden", "stop command"
                 self._jobs.put(self._sim_stop)
             elif cmd.kind == "safe_power_off":
+                if "power_off_stalls" in self.faults:
+                    cmd.state, cmd.detail = "running", "cannot sit (fault injection)"
+                    return
                 self._end_commands("overridden", "safe power off")
                 self.powered = False
                 self.standing = False
