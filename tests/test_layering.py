@@ -3,7 +3,7 @@ function or an ``if TYPE_CHECKING`` block, goes to the same floor or a lower one
 
 Floors, bottom to top: the robots vocabulary (``robots/{hal,transforms}.py``,
 ``robots/spot/{model,urdf,kinematics,motion}.py``) -> ``sim/`` -> the robot adapters
-(``robots/spot/{sim_backend,sdk_backend,sdk_conversions,signals}.py``, ``robots/spot/fake_spot/``) ->
+(``robots/spot/{sim_backend,sdk_*,stall_watch,signals}.py``, ``robots/spot/fake_spot/``) ->
 ``helios/`` -> ``tasks/`` -> ``tools/``. ``sim`` using the robots vocabulary is downward here; the
 one upward arrow by design is ``sim -> helios.perception`` (the protocols the simulated detector
 implements). ``helios/schema.py``, the config machinery, imports nothing of ours and counts as the
@@ -24,8 +24,9 @@ VOCABULARY = {"robots", "robots.hal", "robots.transforms", "robots.spot", "robot
 CONFIG_MACHINERY = "helios.schema"
 """The config machinery (dataclasses as the schema, YAML, overrides, ``require``) serves the config
 trees of every floor and imports nothing of ours, so it stands on the bottom floor (checked below)."""
-ADAPTERS = ("robots.spot.sim_backend", "robots.spot.sdk_backend", "robots.spot.sdk_conversions",
-            "robots.spot.signals", "robots.spot.fake_spot")
+ADAPTERS = ("robots.spot.sim_backend", "robots.spot.sdk_backend", "robots.spot.sdk_config",
+            "robots.spot.sdk_conversions", "robots.spot.sdk_futures", "robots.spot.sdk_shutdown",
+            "robots.spot.stall_watch", "robots.spot.signals", "robots.spot.fake_spot")
 UPWARD_BY_DESIGN = (("sim", "helios.perception"),)          # (importing floor, imported module or package)
 NOT_IN_THE_METHOD = ("pybullet", "bosdyn", "sim", "tasks", "tools") + ADAPTERS
 

@@ -332,10 +332,10 @@ def test_close_from_another_thread_mid_command_ends_that_command_typed_and_a_sec
 def test_a_stow_is_stalled_only_while_still_and_not_stowed():
     """The stall watch of a move the robot plans itself (stow): still for the whole window and the
     robot does not report the arm stowed -> stalled; moving, or still but stowed -> not stalled."""
-    from robots.spot.sdk_backend import _StallWatch
+    from robots.spot.stall_watch import StallWatch
 
     def run(positions, stowed):
-        watch = _StallWatch((lambda s: s[0], None, lambda s: s[1]), window=1.0, expected=10.0)
+        watch = StallWatch((lambda s: s[0], None, lambda s: s[1]), window=1.0, expected=10.0)
         for i, (q, st) in enumerate(zip(positions, stowed)):
             watch.add(0.1 * i, (np.array(q, dtype=float), st))
         return watch.stalled()
@@ -350,7 +350,7 @@ def test_a_stow_is_stalled_only_while_still_and_not_stowed():
     out_and_back = [0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.5]
     assert not run([[q, 1.0] for q in out_and_back], [False] * 12)
     with pytest.raises(ValueError):
-        _StallWatch((lambda s: s, None), window=1.0, expected=1.0)
+        StallWatch((lambda s: s, None), window=1.0, expected=1.0)
 
 
 @pytest.mark.parametrize("step", ["GetAuthToken", "SetEstopConfig", "RegisterEstopEndpoint", "AcquireLease",

@@ -89,7 +89,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", default=None, help="run folder name (default: a timestamp)")
     parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="SDK backend config overrides, e.g. --set rpc_timeout=2.0 estop_timeout=5 "
-                             "(schema: robots/spot/sdk_backend.py SdkBackendConfig)")
+                             "(schema: robots/spot/sdk_config.py SdkBackendConfig)")
     parser.add_argument("--config", default=None, metavar="FILE.yaml",
                         help="SDK backend scenario file (SdkBackendConfig YAML, e.g. configs/spot_fake.yaml or a run "
                              "folder's robot.yaml); HOSTNAME, --port, --cert, --estop, --take-lease and --set "

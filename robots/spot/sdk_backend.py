@@ -32,6 +32,8 @@ e-stop is released). TLS verification is never disabled: the backend only ever u
 secure channels, checked against BD's root CA or ``cert_path``.
 
 ``bosdyn`` is imported lazily (the ``[spot]`` extra); importing this module needs only numpy.
+The shutdown (``close()``) is :mod:`robots.spot.sdk_shutdown`, the configuration, credentials and
+their errors :mod:`robots.spot.sdk_config`, the stall test :mod:`robots.spot.stall_watch`.
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
-from typing import Callable, Literal, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -76,133 +78,25 @@ from robots.hal import (
     TimeSyncLostError,
 )
 from robots.spot import kinematics, model
-from robots.spot.motion import MotionConfig, check_arm_target, plan_arm, plan_base
-from robots.spot.signals import signals_deferred
+from robots.spot.motion import check_arm_target, plan_arm, plan_base
+from robots.spot.sdk_config import (
+    PASSWORD_ENV,
+    USERNAME_ENV,
+    CommandRejectedError,
+    CredentialsError,
+    GrpcTracingError,
+    SdkBackendConfig,
+    SpotConnectError,
+    SpotSdkMissingError,
+    credentials_from_env,
+    grpc_tracing_hazard,
+)
+from robots.spot.sdk_futures import future_result
+from robots.spot.sdk_shutdown import SdkShutdown
+from robots.spot.stall_watch import StallWatch
 from robots.transforms import invert_transform, is_valid_transform, rot_z
 
 _LOG = logging.getLogger("helios.spot")
-
-USERNAME_ENV = "BOSDYN_CLIENT_USERNAME"
-PASSWORD_ENV = "BOSDYN_CLIENT_PASSWORD"
-
-
-# --------------------------------------------------------------------------------------------
-# Errors (all HalError: the command line reports them as one line, no traceback)
-# --------------------------------------------------------------------------------------------
-class SpotSdkMissingError(HalError):
-    """bosdyn-client is not installed."""
-
-
-class CredentialsError(HalError):
-    """Credentials are missing from the environment or were rejected by the robot."""
-
-
-class SpotConnectError(ConnectionLostError):
-    """The robot could not be reached or its TLS certificate was not accepted."""
-
-
-class CommandRejectedError(RobotFault):
-    """The robot refused or could not execute a command for a reason the HAL has no type for."""
-
-
-# --------------------------------------------------------------------------------------------
-# Configuration
-# --------------------------------------------------------------------------------------------
-MAX_WAIT_S = 600.0   # the longest any single wait on the robot may be configured to take
-
-
-@dataclass(frozen=True)
-class SdkBackendConfig:
-    """How to reach and drive a Spot. Credentials are not part of it (environment only)."""
-
-    hostname: str = ""
-    port: int = 443                        # the robot's secure gRPC port
-    cert_path: str | None = None           # CA bundle (PEM); None = BD's root CA shipped with bosdyn-client
-    estop_mode: Literal["external", "endpoint"] = "external"
-    # external: someone else holds the e-stop (tablet, e-stop app) and must have released it;
-    # endpoint: this client registers its own software e-stop and keeps it alive (replaces the
-    # robot's e-stop configuration; only for setups without another e-stop).
-    estop_timeout: float = 9.0             # s without our check-in before our endpoint stops the robot
-    take_lease: bool = False               # take the body lease from its current holder instead of failing
-    client_name: str = "helios"
-    rpc_timeout: float = 1.5               # s per RPC: bounds how long a dead or slow link takes to surface
-    image_rpc_timeout: float = 3.0         # s for an image request (larger payloads)
-    connect_timeout: float = 5.0           # s for authentication and the first time sync
-    power_on_timeout: float = 20.0
-    stand_timeout: float = 10.0
-    feedback_period: float = 0.05          # s between command feedback polls
-    command_margin: float = 2.0            # s a command may run past its planned duration before it times out
-    arm_move_timeout: float = 10.0         # s for moves the robot plans itself (gaze, stow, carry)
-    grasp_timeout: float = 20.0            # s for a pick-in-image
-    time_sync_interval: float = 1.0        # s between time-sync updates (SDK default 60): bounds how long a
-    #                                        time-sync loss takes to surface during a motion
-    close_budget: float = 2.0              # s of wall time close() may spend on a robot after a fault or
-    #                                        on a failing link (stop, safe power off, lease, e-stop in flight)
-    stall_time: float = 1.0                # s a moving command may make no progress while its plan moves
-    #                                        before it is stopped as stalled (CommandTimeoutError)
-    allow_grpc_tracing: bool = False       # connect although GRPC_TRACE / GRPC_VERBOSITY=debug would print
-    #                                        the session token to the terminal (a warning instead of an error)
-    lease_retain_period: float = 2.0       # s between lease keep-alive check-ins
-    stand_on_connect: bool = True          # power on and stand during bring-up
-    power_off_on_close: bool = True        # sit and power off in close()
-    image_format: Literal["jpeg", "raw"] = "jpeg"
-    jpeg_quality: int = 90
-    max_trajectory_points: int = 250       # per SE2 or arm joint trajectory command (Spot's arm limit)
-    goal_tolerance: float = 0.05           # m / rad: a navigation counts as arrived within this
-    release_retreat: float = 0.12          # m the hand backs off after releasing an object
-    motion: MotionConfig = MotionConfig()
-
-    def __post_init__(self) -> None:
-        if not (0 < int(self.port) < 65536):
-            raise ValueError(f"port must be within 1..65535, got {self.port}")
-        for name in ("estop_timeout", "rpc_timeout", "image_rpc_timeout", "connect_timeout", "power_on_timeout",
-                     "stand_timeout", "feedback_period", "arm_move_timeout", "grasp_timeout",
-                     "time_sync_interval", "lease_retain_period", "close_budget", "stall_time"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive number of seconds, got {v!r}")
-            if v > MAX_WAIT_S:
-                raise ValueError(f"{name} must be at most {MAX_WAIT_S:g} s (a wait on the robot longer than "
-                                 f"that is a hang, not a timeout), got {v!r}")
-        if not (0 <= self.command_margin <= MAX_WAIT_S and math.isfinite(self.command_margin)):
-            raise ValueError(f"command_margin must be within 0..{MAX_WAIT_S:g} s, got {self.command_margin!r}")
-        if not 2 <= int(self.max_trajectory_points) <= 250:
-            raise ValueError(f"max_trajectory_points must be within 2..250, got {self.max_trajectory_points}")
-        if not 1 <= int(self.jpeg_quality) <= 100:
-            raise ValueError(f"jpeg_quality must be within 1..100, got {self.jpeg_quality}")
-        for name in ("goal_tolerance", "release_retreat"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and 0 <= v <= 1.0):
-                raise ValueError(f"{name} must be within [0, 1], got {v!r}")
-
-
-_TRACE_OFF = ("", "none", "-all")
-
-
-def grpc_tracing_hazard(environ=None) -> str | None:
-    """Why gRPC's own tracing in the environment would print credentials, or None when it is off.
-    Any GRPC_TRACE tracer counts: with GRPC_TRACE=all grpcio 1.85 prints the session token 17 times
-    in one connect (with or without GRPC_VERBOSITY); tracers differ by version, so none is trusted."""
-    env = os.environ if environ is None else environ
-    trace = env.get("GRPC_TRACE", "").strip()
-    if trace.lower() not in _TRACE_OFF:
-        return f"GRPC_TRACE={trace!r} is set"
-    return None
-
-
-class GrpcTracingError(HalError):
-    """gRPC tracing is on in the environment and would print credentials."""
-
-
-def credentials_from_env(environ=None) -> tuple[str, str]:
-    """(username, password) from the environment, or one clear CredentialsError."""
-    env = os.environ if environ is None else environ
-    user, password = env.get(USERNAME_ENV, ""), env.get(PASSWORD_ENV, "")
-    missing = [n for n, v in ((USERNAME_ENV, user), (PASSWORD_ENV, password)) if not v]
-    if missing:
-        raise CredentialsError(f"Spot credentials missing: set {' and '.join(missing)} in the environment "
-                               f"(credentials are never read from config files or the command line)")
-    return user, password
 
 
 # --------------------------------------------------------------------------------------------
@@ -308,77 +202,7 @@ class _Shot:
 _FATAL = (LeaseLostError, ConnectionLostError, TimeSyncLostError)   # no command can reach the robot
 
 
-def _future_result(fut, timeout: float):
-    """The result of a bosdyn FutureWrapper, waiting at most ``timeout`` s (its own
-    ``result(timeout=)`` waits for the RPC's full deadline before looking at the timeout)."""
-    inner = getattr(fut, "original_future", fut)
-    inner.exception(timeout=timeout)          # grpc.FutureTimeoutError while not done
-    return fut.result()
-
-
-def _cancel(fut) -> None:
-    try:
-        getattr(fut, "original_future", fut).cancel()
-    except Exception:  # noqa: BLE001
-        pass
-
-
 _TIME_SYNC_PROBE = 0.25     # s between our own time-sync updates while a command runs
-
-
-class _Unanswered(Exception):
-    """A shutdown step found the robot not answering (go on without waiting)."""
-
-
-class _StallWatch:
-    """Progress of a moving command from robot state samples: stalled when over the last
-    ``window`` s the robot moved less than ``tolerance`` (any coordinate: m, rad, or cos/sin of a
-    heading) while it is more than four times that away from where its plan has it now (or at
-    the plan's end, once the plan is over). A robot that keeps moving, slower or faster than
-    planned, is never stalled; nor is one that has arrived.
-
-    A move the robot plans itself (stow) has no plan of ours: ``track`` is then (actual(state),
-    None, arrived(state) -> bool), and "away" is the robot's own word that it is not there yet."""
-
-    period = 0.1            # s between state samples
-    tolerance = 0.01
-
-    def __init__(self, track, window: float, expected: float):
-        self.actual, self.planned = track[0], track[1]
-        self.arrived = track[2] if len(track) > 2 else None
-        if (self.planned is None) == (self.arrived is None):
-            raise ValueError("a stall watch needs either a plan or an arrival test")
-        self.window, self.expected = float(window), float(expected)
-        self.samples: list[tuple[float, np.ndarray]] = []
-        self._away = True
-        self._next = time.monotonic() + self.period
-
-    def due(self, now: float) -> bool:
-        if now < self._next:
-            return False
-        self._next = now + self.period
-        return True
-
-    def add(self, t: float, state) -> None:
-        self.samples.append((t, np.asarray(self.actual(state), dtype=float)))
-        while len(self.samples) > 2 and self.samples[1][0] <= t - self.window:
-            self.samples.pop(0)
-        if self.arrived is not None:
-            self._away = not self.arrived(state)
-
-    def stalled(self) -> bool:
-        if len(self.samples) < 2:
-            return False
-        (t_old, _), (t, x) = self.samples[0], self.samples[-1]
-        if t - t_old < self.window:
-            return False
-        # how far any sample in the window lies from the latest: a move out and back within the
-        # window (a stow from stowed passes its tuck pose) is motion, though it ends where it began
-        moved = max(float(np.max(np.abs(xi - x))) for _, xi in self.samples)
-        if self.planned is None:
-            return moved < self.tolerance and self._away
-        behind = float(np.max(np.abs(np.asarray(self.planned(min(t, self.expected)), dtype=float) - x)))
-        return moved < self.tolerance and behind > 4 * self.tolerance
 
 
 # --------------------------------------------------------------------------------------------
@@ -407,7 +231,7 @@ def _closing_aware(method):
     return wrapper
 
 
-class SdkSpotBackend:
+class SdkSpotBackend(SdkShutdown):
     """A real (or fake) Spot behind the :class:`robots.hal.RobotBackend` contract.
 
     Threads: one thread drives the robot; ``stop()`` and ``close()`` may come from any other (a
@@ -819,7 +643,7 @@ class SdkSpotBackend:
             with self._sending_to_robot("stopping"):
                 fut = self._cmd_client.robot_command_async(self._bd.Builder.stop_command(),
                                                            timeout=self.config.rpc_timeout)
-            _future_result(fut, wait)
+            future_result(fut, wait)
         except Exception as exc:  # noqa: BLE001 - best effort on an already failing link
             _LOG.debug("stop after a failure not confirmed: %s", type(exc).__name__)
 
@@ -929,7 +753,7 @@ class SdkSpotBackend:
             self._stop_quietly()                # the robot may have accepted it and be moving
             raise
         deadline = t0 + expected + cfg.command_margin
-        stall = _StallWatch(track, cfg.stall_time, expected) if track is not None else None
+        stall = StallWatch(track, cfg.stall_time, expected) if track is not None else None
         next_sync = t0 + _TIME_SYNC_PROBE
         try:
             while True:
@@ -1430,364 +1254,6 @@ class SdkSpotBackend:
                    timeout=self.config.rpc_timeout,
                    during="stopping")
         return CommandResult(True, Reason.OK, "holding position", duration=time.monotonic() - t0)
-
-    def add_close_callback(self, fn: Callable[[], None]) -> None:
-        """Call ``fn`` at the end of ``close()`` (e.g. to stop a fake robot this backend talks to)."""
-        self._on_close.append(fn)
-
-    def close(self) -> None:
-        """Safe shutdown, whatever happened before: stop; stow (healthy robot, nothing held); sit
-        and power off; return the lease; deregister our e-stop endpoint; stop every keep-alive,
-        time-sync and token thread and close the connection. Never raises (a SIGINT, SIGTERM or
-        SIGHUP that arrives meanwhile is held and delivered after it: :func:`signals_deferred`);
-        safe to call twice.
-
-        Healthy robot: each step in turn, waiting for it. After a fault, a timed-out command or
-        once a step goes unanswered, the remaining steps go out back to back without waiting for
-        one another (a robot on a slow link acts on each as it arrives) and their replies are
-        awaited at most ``close_budget`` s in all; on a silent or dead link ``close()`` therefore
-        returns within about ``close_budget`` + 0.5 s. After a lost lease no motion command is
-        sent (it is not ours to command); the e-stop endpoint is deregistered whenever the robot
-        answers.
-
-        From another thread while a command runs: that command ends in BackendClosedError (see the
-        class docstring). A second close() from another thread returns once the first is done."""
-        with self._close_lock:
-            first = not (self._closed or self._closing)
-            if first:
-                self._closing, self._close_thread = True, threading.current_thread()
-        if not first:
-            if self._close_thread is not threading.current_thread() and \
-                    not self._close_done.wait(self._close_bound()):
-                _LOG.warning("close() in another thread did not finish within %.0f s", self._close_bound())
-            return
-        try:
-            self._let_other_threads_finish()
-            self._close_once()
-        finally:
-            self._close_done.set()
-
-    def _let_other_threads_finish(self) -> None:
-        """Before the shutdown: a bring-up in another thread stops at its next step (bounded by
-        that step's timeout), and motion commands other threads are sending reach the robot
-        (bounded by ``rpc_timeout``), so close()'s stop comes after them."""
-        cfg, me = self.config, threading.current_thread()
-        connecting = self._connecting
-        if connecting is not None and connecting is not me:
-            bound = max(cfg.connect_timeout, cfg.power_on_timeout) + cfg.rpc_timeout + 0.5
-            if not self._connect_done.wait(bound):
-                _LOG.warning("the bring-up in another thread did not stop within %.0f s; shutting down anyway", bound)
-        with self._sends:
-            if not self._sends.wait_for(lambda: self._sending == 0, timeout=cfg.rpc_timeout + 0.5):
-                _LOG.warning("a motion command from another thread was still being sent after %.1f s",
-                             cfg.rpc_timeout + 0.5)
-
-    def _close_bound(self) -> float:
-        """The longest a close() can take (a healthy, slow shutdown of every step): how long a second
-        close() waits for the first."""
-        cfg = self.config
-        return (6 * cfg.rpc_timeout + cfg.arm_move_timeout + cfg.command_margin + cfg.stand_timeout
-                + cfg.close_budget + 2.0)
-
-    def _close_once(self) -> None:
-        t0 = time.monotonic()
-        with signals_deferred():
-            try:
-                if self.robot is not None and hasattr(self, "_cmd_client"):
-                    self._shutdown_robot(t0)
-            except Exception as exc:  # noqa: BLE001 - shutdown never raises
-                _LOG.warning("shutdown step failed: %s: %s", type(exc).__name__, str(exc).split("\n")[0])
-            finally:
-                self._closed = True
-                self._stop_threads(max(t0 + self.config.close_budget + 0.6, time.monotonic() + 0.5))
-                callbacks, self._on_close = self._on_close, []
-                for fn in callbacks:
-                    try:
-                        fn()
-                    except Exception:  # noqa: BLE001
-                        _LOG.exception("close callback failed")
-
-    def _our_lease(self):
-        if self._lease_keepalive is None or isinstance(self._fault, LeaseLostError):
-            return None
-        try:
-            return self._lease_client.lease_wallet.get_lease()
-        except Exception:  # noqa: BLE001 - not ours (any more)
-            return None
-
-    def _shutdown_robot(self, t0: float) -> None:
-        cfg, bd = self.config, self._bd
-        lease = self._our_lease()
-        healthy = self._fault is None and not self._unresponsive
-        if healthy and lease is not None:
-            try:
-                self._shutdown_in_turn(lease)
-                return
-            except (bd.exc.TimedOutError, bd.exc.RpcError, bd.power.CommandTimedOutError, _Unanswered) as exc:
-                _LOG.warning("the robot stopped answering during shutdown (%s); sending the remaining steps "
-                             "without waiting", type(exc).__name__)
-            except Exception as exc:  # noqa: BLE001
-                _LOG.warning("shutdown step failed: %s: %s", type(exc).__name__, str(exc).split("\n")[0])
-            lease = self._our_lease()
-        self._shutdown_in_flight(lease, max(t0 + cfg.close_budget, time.monotonic() + 0.5))
-
-    def _shutdown_in_turn(self, lease) -> None:
-        """Healthy robot: stop, stow, sit and power off, return the lease, deregister the e-stop."""
-        cfg, bd = self.config, self._bd
-        self._cmd_client.robot_command(bd.Builder.stop_command(), timeout=cfg.rpc_timeout)
-        state = self._state_client.get_robot_state(timeout=cfg.rpc_timeout)
-        powered = state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_ON
-        if powered and not state.manipulator_state.is_gripper_holding_item and \
-                state.manipulator_state.stow_state != state.manipulator_state.STOWSTATE_STOWED:
-            try:
-                self.stow_arm()
-            except HalError as exc:
-                _LOG.warning("could not stow the arm at shutdown: %s", exc)
-                if self._fault is not None or self._unresponsive:
-                    raise _Unanswered("stow failed") from None
-        if powered and cfg.power_off_on_close:
-            _LOG.info("sitting down and powering off")
-            try:
-                self.robot.power_off(cut_immediately=False, timeout_sec=cfg.stand_timeout,
-                                     update_frequency=1.0 / cfg.feedback_period, timeout=cfg.rpc_timeout)
-            except bd.power.CommandTimedOutError:
-                self._warn_if_still_powered()
-        self._lease_client.return_lease(lease, timeout=cfg.rpc_timeout)
-        _LOG.info("lease returned")
-        if self._estop_endpoint is not None:
-            ep = self._estop_endpoint
-            self._estop_client.deregister(ep._config_id, ep, timeout=cfg.rpc_timeout)
-            self._estop_endpoint = None
-            _LOG.info("e-stop endpoint deregistered")
-
-    def _warn_if_still_powered(self) -> None:
-        """The safe power off did not end within ``stand_timeout``. A robot that answers and still
-        has motor power took the command and could not sit (something under it, a slope): it stays
-        with the robot, which may yet sit, the shutdown goes on in turn (lease, e-stop endpoint),
-        and the operator is told to take over. A robot that does not answer ends the shutdown in
-        flight, as any silent step does."""
-        cfg = self.config
-        try:
-            state = self._state_client.get_robot_state(timeout=cfg.rpc_timeout)
-        except Exception:  # noqa: BLE001 - no answer: the in-flight shutdown takes over
-            raise _Unanswered("safe power off") from None
-        if state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_OFF:
-            return          # it powered off just after the last check
-        _LOG.warning("the robot did not power off within %.1f s of the safe power off (it could not sit "
-                     "down): it may still be standing with motor power on; returning the lease and our "
-                     "e-stop endpoint, take over with the tablet or the e-stop", cfg.stand_timeout)
-
-    def _shutdown_in_flight(self, lease, deadline: float) -> None:
-        """Degraded robot or link: stop and safe power off (with our lease), then return the lease
-        and deregister the e-stop endpoint, each sent without waiting for the one before; replies
-        awaited until ``deadline``. After a bring-up call that went unanswered, the robot is asked
-        what it left and that is returned / deregistered too (:meth:`_clean_up_unanswered_bring_up`)."""
-        cfg, bd = self.config, self._bd
-        pending = []
-
-        def send(name, fn, *args):
-            try:
-                pending.append((name, fn(*args, timeout=max(0.05, deadline - time.monotonic()))))
-            except Exception as exc:  # noqa: BLE001 - e.g. a refused connection: fails at once
-                _LOG.debug("shutdown: %s not sent: %s", name, type(exc).__name__)
-
-        if lease is not None:
-            send("stop", self._cmd_client.robot_command_async, bd.Builder.stop_command())
-            if cfg.power_off_on_close:
-                send("safe power off", self._cmd_client.robot_command_async, bd.Builder.safe_power_off_command())
-            self._await(pending[-1:], min(deadline, time.monotonic() + 0.3))   # let the robot take them first
-            send("lease return", self._return_lease_async, lease)
-        if self._estop_endpoint is not None:
-            ep = self._estop_endpoint
-            send("e-stop deregistration", self._estop_client.deregister_async, ep._config_id, ep)
-        self._clean_up_unanswered_bring_up(send, deadline)
-        done = self._await(pending, deadline)
-        for name, fut in pending:
-            if name in done:
-                _LOG.info("shutdown: %s done", name)
-            else:
-                _cancel(fut)
-                _LOG.warning("shutdown: %s not confirmed by the robot", name)
-        if "e-stop deregistration" in done:
-            self._estop_endpoint = None
-        if "left e-stop endpoint deregistration" in done:
-            self._estop_unconfirmed = None
-        if "left lease return" in done:
-            self._lease_unconfirmed = False
-
-    def _clean_up_unanswered_bring_up(self, send, deadline: float) -> None:
-        """What a bring-up call answered too late (the robot acted on it, our call had timed out)
-        left on the robot: ask the robot, then ``send`` the return / deregistration (the replies
-        are awaited with the other shutdown steps). Every RPC is bounded by ``deadline``; a robot
-        that does not answer the question leaves nothing to do but warn.
-
-        * Lease (``_lease_unconfirmed``): ListLeases; the body lease is ours when its owner's
-          ``client_name`` is the client name this SDK puts in every request header (the SDK's
-          ``generate_client_name``: prefix, host, program and process id; the prefix carries this
-          session's random token, so it is unique also among backends in one process: QA found
-          one session's clean-up returning another's lease when they shared it). Assumes, as the
-          LeaseService documents, that the robot names the client that acquired or took a lease
-          in ``lease_owner.client_name``, and that ReturnLease accepts the active lease as
-          ListLeases reports it (``include_full_lease_info``).
-        * E-stop (``_estop_unconfirmed``): GetEstopConfig; an endpoint is ours when it has our
-          endpoint's name, which carries this session's random token (another session's endpoint,
-          even one of the same ``client_name`` started at the same moment, is left alone: with a
-          shared name, a refused SetEstopConfig once deregistered a live session's endpoint) and
-          its unique id is new since our SetEstopConfig. Assumes, as for the healthy shutdown, that
-          DeregisterEstopEndpoint with the active configuration's id removes it.
-
-        Both questions go out on the same connection as the late calls, after them, so they reach
-        the robot after the late calls did (a robot that handles requests in parallel could in
-        principle answer before acting on a late call that it received just before; not seen in
-        practice, and not coverable without an answer to wait for). The body lease is returned
-        without a stop or power off: an unanswered acquire comes before power-on."""
-        if self._lease_keepalive is not None:
-            self._lease_unconfirmed = False
-        if not self._lease_unconfirmed and self._estop_unconfirmed is None:
-            return
-
-        def left(seconds: float = 0.05) -> float:
-            return max(seconds, deadline - time.monotonic())
-
-        asks = []
-        for what, wanted, ask in (
-                ("lease", self._lease_unconfirmed,
-                 lambda: self._lease_client.list_leases_async(include_full_lease_info=True, timeout=left())),
-                ("e-stop", self._estop_unconfirmed is not None,
-                 lambda: self._estop_client.get_config_async(timeout=left()))):
-            if not wanted:
-                continue
-            try:
-                asks.append((what, ask()))
-            except Exception as exc:  # noqa: BLE001 - e.g. the channel is already gone
-                _LOG.warning("shutdown: could not ask the robot what an unanswered bring-up call left (%s): %s",
-                             what, type(exc).__name__)
-        for what, fut in asks:
-            try:
-                answer = _future_result(fut, left(0.0))
-            except Exception as exc:  # noqa: BLE001
-                _cancel(fut)
-                _LOG.warning("shutdown: a bring-up call went unanswered and the robot did not say whether "
-                             "it left %s of ours (%s)", "the body lease" if what == "lease" else
-                             "an e-stop endpoint", type(exc).__name__)
-                continue
-            if what == "lease":
-                lease = self._lease_left_with_us(answer)
-                if lease is not None:
-                    _LOG.warning("shutdown: the robot gave us the body lease although our request went "
-                                 "unanswered; returning it")
-                    send("left lease return", self._return_lease_async, lease)
-                else:
-                    self._lease_unconfirmed = False
-            else:
-                ours = self._endpoints_left_by_us(answer)
-                for ep in ours:
-                    _LOG.warning("shutdown: e-stop endpoint %r is on the robot although our request went "
-                                 "unanswered; deregistering it", ep.name)
-                    send("left e-stop endpoint deregistration", self._estop_client.deregister_async,
-                         answer.unique_id, ep)
-                if not ours:
-                    self._estop_unconfirmed = None
-
-    def _client_name_in_headers(self) -> str | None:
-        """The client name the SDK puts in our request headers (``create_standard_sdk``'s
-        ``AddRequestHeader``), which the robot records as a lease's owner."""
-        for proc in getattr(self._sdk, "request_processors", ()):
-            get = getattr(proc, "get_client_name", None)
-            if callable(get):
-                try:
-                    name = get()
-                except Exception:  # noqa: BLE001
-                    continue
-                if name:
-                    return str(name)
-        return None
-
-    def _lease_left_with_us(self, resources):
-        """The body lease from a ListLeases answer when this client holds it, else None."""
-        bd = self._bd
-        ours = self._client_name_in_headers()
-        if ours is None:
-            _LOG.warning("shutdown: cannot tell which client name the robot knows us by; an unanswered "
-                         "lease request may have left the body lease with us")
-            return None
-        for res in resources:
-            if res.resource == "body" and res.lease_owner.client_name == ours and \
-                    bd.lease.Lease.is_valid_proto(res.lease):
-                return bd.lease.Lease(res.lease)
-        return None
-
-    def _endpoints_left_by_us(self, active) -> list:
-        """Endpoints in the robot's active e-stop configuration that our unanswered
-        SetEstopConfig / RegisterEstopEndpoint put there (see :meth:`_clean_up_unanswered_bring_up`)."""
-        name, ids_before = self._estop_unconfirmed
-        return [ep for ep in active.endpoints if ep.name == name and ep.unique_id and ep.unique_id not in ids_before]
-
-    def _return_lease_async(self, lease, **kwargs):
-        """ReturnLease without waiting (bosdyn 5.2's ``return_lease_async`` blocks: it uses ``call``)."""
-        client = self._lease_client
-        if client.lease_wallet:
-            client.lease_wallet.remove(lease)
-        return client.call_async(client._stub.ReturnLease, client._make_return_request(lease), None,
-                                 client._handle_return_errors, copy_request=False, **kwargs)
-
-    @staticmethod
-    def _await(pending, deadline: float) -> set:
-        """Names of the pending calls that completed without error by ``deadline``."""
-        done = set()
-        for name, fut in pending:
-            try:
-                _future_result(fut, max(0.0, deadline - time.monotonic()))
-                done.add(name)
-            except Exception as exc:  # noqa: BLE001
-                _LOG.debug("shutdown: %s: %s", name, type(exc).__name__)
-        return done
-
-    def _stop_threads(self, deadline: float) -> None:
-        """Stop the keep-alive, time-sync and token threads, close every channel (which cancels
-        RPCs still in flight: a silent robot holds nothing up), forget the robot. Joins are
-        bounded by ``deadline``; no thread survives the connection."""
-        robot = self.robot
-        threads = []
-        for keepalive in (self._lease_keepalive, self._estop_keepalive):
-            if keepalive is not None:
-                keepalive._end_periodic_check_in()
-                threads.append(keepalive._thread)
-        if robot is None:
-            self._join(threads, deadline)
-            return
-        ts = getattr(robot, "_time_sync_thread", None)
-        if ts is not None:
-            with ts._lock:                    # TimeSyncThread.stop() without its unbounded join
-                ts._locked_should_exit = True
-            ts._event.set()
-            if ts._thread is not None:
-                threads.append(ts._thread)
-        manager = getattr(robot, "_token_manager", None)
-        if manager is not None:
-            manager.stop()
-        token_thread = getattr(manager, "th", None) or self._token_manager_thread
-        if token_thread is not None:
-            threads.append(token_thread)
-        try:
-            robot.shutdown()                  # closes every channel, cancelling RPCs in flight
-        except Exception:  # noqa: BLE001
-            pass
-        self._join(threads, deadline)
-        robot._time_sync_thread = None        # already stopped: the SDK's _shutdown() must not join again
-        robot._token_manager = None
-        if self._sdk is not None:
-            self._sdk.clear_robots()
-        self._lease_keepalive = self._estop_keepalive = None
-        self.robot = None
-
-    @staticmethod
-    def _join(threads, deadline: float) -> None:
-        for th in threads:
-            if th is not None and th is not threading.current_thread():
-                th.join(timeout=max(0.05, deadline - time.monotonic()))
-            if th is not None and th.is_alive():
-                _LOG.warning("thread %s did not stop in time", th.name)
 
     def __enter__(self) -> "SdkSpotBackend":
         return self

@@ -18,7 +18,7 @@ import signal
 import sys
 import threading
 
-from robots.spot.sdk_backend import PASSWORD_ENV, USERNAME_ENV
+from robots.spot.sdk_config import PASSWORD_ENV, USERNAME_ENV
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,387 @@
+"""The Spot SDK backend's shutdown (``close()``): stop, stow, sit and power off, return the lease,
+deregister our e-stop endpoint and stop every keep-alive thread, bounded in wall time whatever
+state the robot or the link is in, from any thread, and safe to call twice.
+
+A mixin of :class:`robots.spot.sdk_backend.SdkSpotBackend` (the state it reads and the commands it
+sends, such as ``stow_arm``, are the backend's); it lives apart because it is the safety-critical
+part a reviewer reads on its own.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import Callable
+
+from robots.hal import HalError, LeaseLostError
+from robots.spot.sdk_futures import cancel_future, future_result
+from robots.spot.signals import signals_deferred
+
+_LOG = logging.getLogger("helios.spot")
+
+
+class _Unanswered(Exception):
+    """A shutdown step found the robot not answering (go on without waiting)."""
+
+
+class SdkShutdown:
+    """``close()`` and the steps it takes (see :class:`robots.spot.sdk_backend.SdkSpotBackend`)."""
+
+    def add_close_callback(self, fn: Callable[[], None]) -> None:
+        """Call ``fn`` at the end of ``close()`` (e.g. to stop a fake robot this backend talks to)."""
+        self._on_close.append(fn)
+
+    def close(self) -> None:
+        """Safe shutdown, whatever happened before: stop; stow (healthy robot, nothing held); sit
+        and power off; return the lease; deregister our e-stop endpoint; stop every keep-alive,
+        time-sync and token thread and close the connection. Never raises (a SIGINT, SIGTERM or
+        SIGHUP that arrives meanwhile is held and delivered after it: :func:`signals_deferred`);
+        safe to call twice.
+
+        Healthy robot: each step in turn, waiting for it. After a fault, a timed-out command or
+        once a step goes unanswered, the remaining steps go out back to back without waiting for
+        one another (a robot on a slow link acts on each as it arrives) and their replies are
+        awaited at most ``close_budget`` s in all; on a silent or dead link ``close()`` therefore
+        returns within about ``close_budget`` + 0.5 s. After a lost lease no motion command is
+        sent (it is not ours to command); the e-stop endpoint is deregistered whenever the robot
+        answers.
+
+        From another thread while a command runs: that command ends in BackendClosedError (see the
+        class docstring). A second close() from another thread returns once the first is done."""
+        with self._close_lock:
+            first = not (self._closed or self._closing)
+            if first:
+                self._closing, self._close_thread = True, threading.current_thread()
+        if not first:
+            if self._close_thread is not threading.current_thread() and \
+                    not self._close_done.wait(self._close_bound()):
+                _LOG.warning("close() in another thread did not finish within %.0f s", self._close_bound())
+            return
+        try:
+            self._let_other_threads_finish()
+            self._close_once()
+        finally:
+            self._close_done.set()
+
+    def _let_other_threads_finish(self) -> None:
+        """Before the shutdown: a bring-up in another thread stops at its next step (bounded by
+        that step's timeout), and motion commands other threads are sending reach the robot
+        (bounded by ``rpc_timeout``), so close()'s stop comes after them."""
+        cfg, me = self.config, threading.current_thread()
+        connecting = self._connecting
+        if connecting is not None and connecting is not me:
+            bound = max(cfg.connect_timeout, cfg.power_on_timeout) + cfg.rpc_timeout + 0.5
+            if not self._connect_done.wait(bound):
+                _LOG.warning("the bring-up in another thread did not stop within %.0f s; shutting down anyway", bound)
+        with self._sends:
+            if not self._sends.wait_for(lambda: self._sending == 0, timeout=cfg.rpc_timeout + 0.5):
+                _LOG.warning("a motion command from another thread was still being sent after %.1f s",
+                             cfg.rpc_timeout + 0.5)
+
+    def _close_bound(self) -> float:
+        """The longest a close() can take (a healthy, slow shutdown of every step): how long a second
+        close() waits for the first."""
+        cfg = self.config
+        return (6 * cfg.rpc_timeout + cfg.arm_move_timeout + cfg.command_margin + cfg.stand_timeout
+                + cfg.close_budget + 2.0)
+
+    def _close_once(self) -> None:
+        t0 = time.monotonic()
+        with signals_deferred():
+            try:
+                if self.robot is not None and hasattr(self, "_cmd_client"):
+                    self._shutdown_robot(t0)
+            except Exception as exc:  # noqa: BLE001 - shutdown never raises
+                _LOG.warning("shutdown step failed: %s: %s", type(exc).__name__, str(exc).split("\n")[0])
+            finally:
+                self._closed = True
+                self._stop_threads(max(t0 + self.config.close_budget + 0.6, time.monotonic() + 0.5))
+                callbacks, self._on_close = self._on_close, []
+                for fn in callbacks:
+                    try:
+                        fn()
+                    except Exception:  # noqa: BLE001
+                        _LOG.exception("close callback failed")
+
+    def _our_lease(self):
+        if self._lease_keepalive is None or isinstance(self._fault, LeaseLostError):
+            return None
+        try:
+            return self._lease_client.lease_wallet.get_lease()
+        except Exception:  # noqa: BLE001 - not ours (any more)
+            return None
+
+    def _shutdown_robot(self, t0: float) -> None:
+        cfg, bd = self.config, self._bd
+        lease = self._our_lease()
+        healthy = self._fault is None and not self._unresponsive
+        if healthy and lease is not None:
+            try:
+                self._shutdown_in_turn(lease)
+                return
+            except (bd.exc.TimedOutError, bd.exc.RpcError, bd.power.CommandTimedOutError, _Unanswered) as exc:
+                _LOG.warning("the robot stopped answering during shutdown (%s); sending the remaining steps "
+                             "without waiting", type(exc).__name__)
+            except Exception as exc:  # noqa: BLE001
+                _LOG.warning("shutdown step failed: %s: %s", type(exc).__name__, str(exc).split("\n")[0])
+            lease = self._our_lease()
+        self._shutdown_in_flight(lease, max(t0 + cfg.close_budget, time.monotonic() + 0.5))
+
+    def _shutdown_in_turn(self, lease) -> None:
+        """Healthy robot: stop, stow, sit and power off, return the lease, deregister the e-stop."""
+        cfg, bd = self.config, self._bd
+        self._cmd_client.robot_command(bd.Builder.stop_command(), timeout=cfg.rpc_timeout)
+        state = self._state_client.get_robot_state(timeout=cfg.rpc_timeout)
+        powered = state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_ON
+        if powered and not state.manipulator_state.is_gripper_holding_item and \
+                state.manipulator_state.stow_state != state.manipulator_state.STOWSTATE_STOWED:
+            try:
+                self.stow_arm()
+            except HalError as exc:
+                _LOG.warning("could not stow the arm at shutdown: %s", exc)
+                if self._fault is not None or self._unresponsive:
+                    raise _Unanswered("stow failed") from None
+        if powered and cfg.power_off_on_close:
+            _LOG.info("sitting down and powering off")
+            try:
+                self.robot.power_off(cut_immediately=False, timeout_sec=cfg.stand_timeout,
+                                     update_frequency=1.0 / cfg.feedback_period, timeout=cfg.rpc_timeout)
+            except bd.power.CommandTimedOutError:
+                self._warn_if_still_powered()
+        self._lease_client.return_lease(lease, timeout=cfg.rpc_timeout)
+        _LOG.info("lease returned")
+        if self._estop_endpoint is not None:
+            ep = self._estop_endpoint
+            self._estop_client.deregister(ep._config_id, ep, timeout=cfg.rpc_timeout)
+            self._estop_endpoint = None
+            _LOG.info("e-stop endpoint deregistered")
+
+    def _warn_if_still_powered(self) -> None:
+        """The safe power off did not end within ``stand_timeout``. A robot that answers and still
+        has motor power took the command and could not sit (something under it, a slope): it stays
+        with the robot, which may yet sit, the shutdown goes on in turn (lease, e-stop endpoint),
+        and the operator is told to take over. A robot that does not answer ends the shutdown in
+        flight, as any silent step does."""
+        cfg = self.config
+        try:
+            state = self._state_client.get_robot_state(timeout=cfg.rpc_timeout)
+        except Exception:  # noqa: BLE001 - no answer: the in-flight shutdown takes over
+            raise _Unanswered("safe power off") from None
+        if state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_OFF:
+            return          # it powered off just after the last check
+        _LOG.warning("the robot did not power off within %.1f s of the safe power off (it could not sit "
+                     "down): it may still be standing with motor power on; returning the lease and our "
+                     "e-stop endpoint, take over with the tablet or the e-stop", cfg.stand_timeout)
+
+    def _shutdown_in_flight(self, lease, deadline: float) -> None:
+        """Degraded robot or link: stop and safe power off (with our lease), then return the lease
+        and deregister the e-stop endpoint, each sent without waiting for the one before; replies
+        awaited until ``deadline``. After a bring-up call that went unanswered, the robot is asked
+        what it left and that is returned / deregistered too (:meth:`_clean_up_unanswered_bring_up`)."""
+        cfg, bd = self.config, self._bd
+        pending = []
+
+        def send(name, fn, *args):
+            try:
+                pending.append((name, fn(*args, timeout=max(0.05, deadline - time.monotonic()))))
+            except Exception as exc:  # noqa: BLE001 - e.g. a refused connection: fails at once
+                _LOG.debug("shutdown: %s not sent: %s", name, type(exc).__name__)
+
+        if lease is not None:
+            send("stop", self._cmd_client.robot_command_async, bd.Builder.stop_command())
+            if cfg.power_off_on_close:
+                send("safe power off", self._cmd_client.robot_command_async, bd.Builder.safe_power_off_command())
+            self._await(pending[-1:], min(deadline, time.monotonic() + 0.3))   # let the robot take them first
+            send("lease return", self._return_lease_async, lease)
+        if self._estop_endpoint is not None:
+            ep = self._estop_endpoint
+            send("e-stop deregistration", self._estop_client.deregister_async, ep._config_id, ep)
+        self._clean_up_unanswered_bring_up(send, deadline)
+        done = self._await(pending, deadline)
+        for name, fut in pending:
+            if name in done:
+                _LOG.info("shutdown: %s done", name)
+            else:
+                cancel_future(fut)
+                _LOG.warning("shutdown: %s not confirmed by the robot", name)
+        if "e-stop deregistration" in done:
+            self._estop_endpoint = None
+        if "left e-stop endpoint deregistration" in done:
+            self._estop_unconfirmed = None
+        if "left lease return" in done:
+            self._lease_unconfirmed = False
+
+    def _clean_up_unanswered_bring_up(self, send, deadline: float) -> None:
+        """What a bring-up call answered too late (the robot acted on it, our call had timed out)
+        left on the robot: ask the robot, then ``send`` the return / deregistration (the replies
+        are awaited with the other shutdown steps). Every RPC is bounded by ``deadline``; a robot
+        that does not answer the question leaves nothing to do but warn.
+
+        * Lease (``_lease_unconfirmed``): ListLeases; the body lease is ours when its owner's
+          ``client_name`` is the client name this SDK puts in every request header (the SDK's
+          ``generate_client_name``: prefix, host, program and process id; the prefix carries this
+          session's random token, so it is unique also among backends in one process: QA found
+          one session's clean-up returning another's lease when they shared it). Assumes, as the
+          LeaseService documents, that the robot names the client that acquired or took a lease
+          in ``lease_owner.client_name``, and that ReturnLease accepts the active lease as
+          ListLeases reports it (``include_full_lease_info``).
+        * E-stop (``_estop_unconfirmed``): GetEstopConfig; an endpoint is ours when it has our
+          endpoint's name, which carries this session's random token (another session's endpoint,
+          even one of the same ``client_name`` started at the same moment, is left alone: with a
+          shared name, a refused SetEstopConfig once deregistered a live session's endpoint) and
+          its unique id is new since our SetEstopConfig. Assumes, as for the healthy shutdown, that
+          DeregisterEstopEndpoint with the active configuration's id removes it.
+
+        Both questions go out on the same connection as the late calls, after them, so they reach
+        the robot after the late calls did (a robot that handles requests in parallel could in
+        principle answer before acting on a late call that it received just before; not seen in
+        practice, and not coverable without an answer to wait for). The body lease is returned
+        without a stop or power off: an unanswered acquire comes before power-on."""
+        if self._lease_keepalive is not None:
+            self._lease_unconfirmed = False
+        if not self._lease_unconfirmed and self._estop_unconfirmed is None:
+            return
+
+        def left(seconds: float = 0.05) -> float:
+            return max(seconds, deadline - time.monotonic())
+
+        asks = []
+        for what, wanted, ask in (
+                ("lease", self._lease_unconfirmed,
+                 lambda: self._lease_client.list_leases_async(include_full_lease_info=True, timeout=left())),
+                ("e-stop", self._estop_unconfirmed is not None,
+                 lambda: self._estop_client.get_config_async(timeout=left()))):
+            if not wanted:
+                continue
+            try:
+                asks.append((what, ask()))
+            except Exception as exc:  # noqa: BLE001 - e.g. the channel is already gone
+                _LOG.warning("shutdown: could not ask the robot what an unanswered bring-up call left (%s): %s",
+                             what, type(exc).__name__)
+        for what, fut in asks:
+            try:
+                answer = future_result(fut, left(0.0))
+            except Exception as exc:  # noqa: BLE001
+                cancel_future(fut)
+                _LOG.warning("shutdown: a bring-up call went unanswered and the robot did not say whether "
+                             "it left %s of ours (%s)", "the body lease" if what == "lease" else
+                             "an e-stop endpoint", type(exc).__name__)
+                continue
+            if what == "lease":
+                lease = self._lease_left_with_us(answer)
+                if lease is not None:
+                    _LOG.warning("shutdown: the robot gave us the body lease although our request went "
+                                 "unanswered; returning it")
+                    send("left lease return", self._return_lease_async, lease)
+                else:
+                    self._lease_unconfirmed = False
+            else:
+                ours = self._endpoints_left_by_us(answer)
+                for ep in ours:
+                    _LOG.warning("shutdown: e-stop endpoint %r is on the robot although our request went "
+                                 "unanswered; deregistering it", ep.name)
+                    send("left e-stop endpoint deregistration", self._estop_client.deregister_async,
+                         answer.unique_id, ep)
+                if not ours:
+                    self._estop_unconfirmed = None
+
+    def _client_name_in_headers(self) -> str | None:
+        """The client name the SDK puts in our request headers (``create_standard_sdk``'s
+        ``AddRequestHeader``), which the robot records as a lease's owner."""
+        for proc in getattr(self._sdk, "request_processors", ()):
+            get = getattr(proc, "get_client_name", None)
+            if callable(get):
+                try:
+                    name = get()
+                except Exception:  # noqa: BLE001
+                    continue
+                if name:
+                    return str(name)
+        return None
+
+    def _lease_left_with_us(self, resources):
+        """The body lease from a ListLeases answer when this client holds it, else None."""
+        bd = self._bd
+        ours = self._client_name_in_headers()
+        if ours is None:
+            _LOG.warning("shutdown: cannot tell which client name the robot knows us by; an unanswered "
+                         "lease request may have left the body lease with us")
+            return None
+        for res in resources:
+            if res.resource == "body" and res.lease_owner.client_name == ours and \
+                    bd.lease.Lease.is_valid_proto(res.lease):
+                return bd.lease.Lease(res.lease)
+        return None
+
+    def _endpoints_left_by_us(self, active) -> list:
+        """Endpoints in the robot's active e-stop configuration that our unanswered
+        SetEstopConfig / RegisterEstopEndpoint put there (see :meth:`_clean_up_unanswered_bring_up`)."""
+        name, ids_before = self._estop_unconfirmed
+        return [ep for ep in active.endpoints if ep.name == name and ep.unique_id and ep.unique_id not in ids_before]
+
+    def _return_lease_async(self, lease, **kwargs):
+        """ReturnLease without waiting (bosdyn 5.2's ``return_lease_async`` blocks: it uses ``call``)."""
+        client = self._lease_client
+        if client.lease_wallet:
+            client.lease_wallet.remove(lease)
+        return client.call_async(client._stub.ReturnLease, client._make_return_request(lease), None,
+                                 client._handle_return_errors, copy_request=False, **kwargs)
+
+    @staticmethod
+    def _await(pending, deadline: float) -> set:
+        """Names of the pending calls that completed without error by ``deadline``."""
+        done = set()
+        for name, fut in pending:
+            try:
+                future_result(fut, max(0.0, deadline - time.monotonic()))
+                done.add(name)
+            except Exception as exc:  # noqa: BLE001
+                _LOG.debug("shutdown: %s: %s", name, type(exc).__name__)
+        return done
+
+    def _stop_threads(self, deadline: float) -> None:
+        """Stop the keep-alive, time-sync and token threads, close every channel (which cancels
+        RPCs still in flight: a silent robot holds nothing up), forget the robot. Joins are
+        bounded by ``deadline``; no thread survives the connection."""
+        robot = self.robot
+        threads = []
+        for keepalive in (self._lease_keepalive, self._estop_keepalive):
+            if keepalive is not None:
+                keepalive._end_periodic_check_in()
+                threads.append(keepalive._thread)
+        if robot is None:
+            self._join(threads, deadline)
+            return
+        ts = getattr(robot, "_time_sync_thread", None)
+        if ts is not None:
+            with ts._lock:                    # TimeSyncThread.stop() without its unbounded join
+                ts._locked_should_exit = True
+            ts._event.set()
+            if ts._thread is not None:
+                threads.append(ts._thread)
+        manager = getattr(robot, "_token_manager", None)
+        if manager is not None:
+            manager.stop()
+        token_thread = getattr(manager, "th", None) or self._token_manager_thread
+        if token_thread is not None:
+            threads.append(token_thread)
+        try:
+            robot.shutdown()                  # closes every channel, cancelling RPCs in flight
+        except Exception:  # noqa: BLE001
+            pass
+        self._join(threads, deadline)
+        robot._time_sync_thread = None        # already stopped: the SDK's _shutdown() must not join again
+        robot._token_manager = None
+        if self._sdk is not None:
+            self._sdk.clear_robots()
+        self._lease_keepalive = self._estop_keepalive = None
+        self.robot = None
+
+    @staticmethod
+    def _join(threads, deadline: float) -> None:
+        for th in threads:
+            if th is not None and th is not threading.current_thread():
+                th.join(timeout=max(0.05, deadline - time.monotonic()))
+            if th is not None and th.is_alive():
+                _LOG.warning("thread %s did not stop in time", th.name)
