@@ -1033,7 +1033,7 @@ def test_picture_data_that_loads_but_is_damaged_is_named(table, clean_run, tmp_p
     """(QA 2026-12-04) Each damaged picture file is named on stderr and on its episode page; the
     report finishes; the other pages are drawn."""
     from tools.episode_pages import write_episode_pages
-    from tools.report import load_run
+    from tools.report_runs import load_run
 
     folder = tmp_path / "run"
     shutil.copytree(clean_run, folder)

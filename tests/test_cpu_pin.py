@@ -212,7 +212,7 @@ def test_an_invocation_logged_after_a_torn_line_is_kept_and_the_torn_line_is_nam
     """A kill mid-write leaves a torn last line; the next invocation starts a line of its own (it
     was glued to the torn one and lost), and the report names the torn line."""
     from tasks.trials import append_result, read_invocations, run_cpu_paths
-    from tools.report import invocations_problem
+    from tools.report_runs import invocations_problem
 
     path = tmp_path / "invocations.jsonl"
     append_result(path, {"episodes_to_run": 1, "cpu": PINNED})

@@ -128,7 +128,7 @@ def test_a_damaged_line_is_named_and_the_rest_compared(tmp_path):
 
 def test_the_cpu_code_paths_of_the_two_runs_are_compared(tmp_path):
     from tools.diff_runs import diff_runs, report_lines
-    from tools.report import load_run
+    from tools.report_runs import load_run
 
     a, b = load_run(_run(tmp_path / "a", 2)), load_run(_run(tmp_path / "b", 2))
     a.cpu, b.cpu = ("x86-64-v3, numpy X86_V3",), ("x86-64-v4, numpy AVX512_SKX",)

@@ -93,7 +93,7 @@ def test_report_common_compares_runs_on_the_episodes_they_share(tmp_path):
 
 
 def test_sign_test_matches_the_binomial_tails_by_hand():
-    from tools.report import sign_test_p
+    from tools.report_stats import sign_test_p
 
     assert sign_test_p(0, 0) == 1.0
     assert sign_test_p(3, 3) == 1.0
@@ -103,7 +103,7 @@ def test_sign_test_matches_the_binomial_tails_by_hand():
 
 
 def test_p_values_below_one_percent_are_not_printed_as_zero():
-    from tools.report import _p_text
+    from tools.report_stats import _p_text
 
     assert _p_text(0.0004) == "p<0.01"
     assert _p_text(0.0049) == "p<0.01"
@@ -123,7 +123,7 @@ def test_report_pairs_each_run_with_the_first_episode_by_episode(tmp_path):
 
 
 def test_detectable_gap_is_the_smallest_net_count_the_sign_test_accepts():
-    from tools.report import detectable_gap, sign_test_p
+    from tools.report_stats import detectable_gap, sign_test_p
 
     for discordant in range(0, 61):
         sig = [net for net in range(discordant % 2, discordant + 1, 2)
@@ -134,7 +134,7 @@ def test_detectable_gap_is_the_smallest_net_count_the_sign_test_accepts():
 
 
 def test_episodes_needed_is_where_the_gap_seen_would_first_reach_significance():
-    from tools.report import _sign_test_p_float, episodes_needed, sign_test_p
+    from tools.report_stats import _sign_test_p_float, episodes_needed, sign_test_p
 
     assert _sign_test_p_float(17, 5) == pytest.approx(sign_test_p(17, 5))
     assert episodes_needed(20, 20, 200) is None                       # no gap: no number of episodes helps
@@ -191,7 +191,9 @@ def test_time_budgets_score_each_run_as_if_stopped_there(tmp_path):
     runner takes no observation or command that would start at the cap); paired sign tests at each
     budget; the curve behind the plot; report.json; budgets beyond a run's cap are refused."""
     from tools.cli import CliError
-    from tools.report import BUDGET_PHASES, _phase_times, budget_curve, load_run, parse_budgets
+    from tools.report import parse_budgets
+    from tools.report_phase_times import BUDGET_PHASES, _phase_times, budget_curve
+    from tools.report_runs import load_run
 
     a = _with_times(tmp_path / "a", [100, 200, 300, 400, 500, 50, 80, None])
     b = _with_times(tmp_path / "b", [90, 150, 250, 350, 450, 60, None, None])
@@ -227,7 +229,9 @@ def test_time_budgets_score_each_run_as_if_stopped_there(tmp_path):
 def test_the_budget_plot_draws_each_runs_curve(tmp_path):
     """Content, not only a file: one step line per run and panel whose heights are the run's
     percent reached by each second, and a dotted line at each budget of the table."""
-    from tools.report import BUDGET_PHASES, _phase_times, _pyplot, budget_curve, load_run, plot_budgets
+    from tools.report_phase_times import BUDGET_PHASES, _phase_times, budget_curve
+    from tools.report_plots import _pyplot, plot_budgets
+    from tools.report_runs import load_run
 
     plt = _pyplot()
     runs = [load_run(_with_times(tmp_path / "a", [100, 200, None, None])),
@@ -268,7 +272,8 @@ def test_plot_titles_and_labels_lie_inside_the_figure(tmp_path, n_runs):
     plot must lie inside its figure."""
     import matplotlib.text
 
-    from tools.report import _pyplot, load_run, plot_budgets, plot_failures, plot_memory, plot_subtasks
+    from tools.report_plots import _pyplot, plot_budgets, plot_failures, plot_memory, plot_subtasks
+    from tools.report_runs import load_run
 
     plt = _pyplot()
     runs = [load_run(_make_run(tmp_path / f"run{i}", [(5, None)] * 3 + [(2, "receptacle_not_found"), (0, "not_found")]))

@@ -147,7 +147,7 @@ def parse_ignore(text: str) -> frozenset[str]:
 
 def diff_runs(a, b, episodes: int | None = None, ignore: frozenset[str] = frozenset(),
               tolerance: float = 0.0) -> RunDiff:
-    """Compare two loaded runs (``tools.report.Run``) on the episodes both have (the first
+    """Compare two loaded runs (``tools.report_runs.Run``) on the episodes both have (the first
     ``episodes`` of them by id). The records' nondeterministic fields (wall time, memory, recording
     path: ``tasks.trials.NONDETERMINISTIC_FIELDS``) are always left out; CliError when the runs
     share no episode or an ``ignore`` path names nothing in either run."""
@@ -265,7 +265,7 @@ def run(args: argparse.Namespace) -> int:
     import sys
 
     from tools.cli import CliError
-    from tools.report import load_run
+    from tools.report_runs import load_run
 
     if args.episodes is not None and args.episodes <= 0:
         raise CliError(f"--episodes must be a positive number of episodes, got {args.episodes}")

@@ -10,40 +10,31 @@ picture, hand-camera frames and numbers; ``tools.episode_pages``) with a failure
 
 Numbers are recomputed from each run's ``episodes.jsonl`` (so a run that is still going or was
 interrupted is reported as it stands; its row says how many episodes it has).
+
+The command lives here (its arguments, the tables put together, the files written); its parts have
+modules of their own: ``tools.report_runs`` (loading a run folder), ``tools.report_stats`` (the
+paired sign tests and the power table), ``tools.report_phase_times`` (the speed and time-budget
+tables) and ``tools.report_plots`` (the PNG figures).
 """
 
 from __future__ import annotations
 
 import argparse
 import base64
-import contextlib
 import functools
 import html
 import json
 import math
-from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
+from tools.cli import check_text_path
+from tools.report_phase_times import (BUDGET_TITLE, MAX_BUDGETS, SPEED_TITLE, budget_rows, budget_summary,
+                                      check_budgets, default_budgets, speed_rows)
+from tools.report_plots import _pyplot, _quiet_plots, plot_budgets, plot_failures, plot_memory, plot_subtasks
+from tools.report_runs import MAX_LISTED_DAMAGE, PHASES, Run, check_names, load_run
+from tools.report_stats import POWER_TITLE, paired_rows, power_rows
 
-from tools.cli import check_text_path, shown_path
-
-PHASES = ("FindObj", "Pick", "FindRec", "Place", "SR")
-PHASE_COLORS = ("#c6dbef", "#9ecae1", "#6baed6", "#3182bd", "#08519c")
-MEMORY_SERIES = (("rss_mb", "resident memory (RSS)"), ("map_mb", "agent map"),
-                 ("gpu_allocated_mb", "GPU allocated"), ("gpu_reserved_mb", "GPU reserved"))
 FIGURES = ("subtasks.png", "failures.png", "memory.png", "budgets.png")
-
-
-@dataclass
-class Run:
-    name: str
-    path: Path
-    records: list[dict]
-    summary: dict
-    config: dict
-    legacy: int = 0             # records without a configuration fingerprint (written before they existed)
-    cpu: tuple[str, ...] = ()   # the CPU code paths its invocations ran on (tasks.trials.run_cpu_paths)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -60,122 +51,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--budgets", default="", metavar="S[,S...]",
                         help="simulated-second budgets for the 'search by time budget' table (default: fifths of "
                              "the runs' cap, runner.max_sim_time): each run scored as if stopped there")
-
-
-MAX_LISTED_DAMAGE = 10     # damaged lines named one by one (FILE:LINE) per run folder; the rest are counted
-MAX_NAME_CHARS = 100       # a --names name (row labels, file and folder names of the episode pages)
-
-
-def check_names(names: list[str]) -> None:
-    """CliError for a --names name that is empty, too long or holds control characters (names are
-    row labels and become folder names of the episode pages)."""
-    from helios.schema import short_repr
-    from tools.cli import CliError
-
-    for n in names:
-        if not n:
-            raise CliError("--names has an empty name")
-        if len(n) > MAX_NAME_CHARS:
-            raise CliError(f"--names: the name {short_repr(n)} has {len(n)} characters, at most {MAX_NAME_CHARS}")
-        if not n.isprintable():
-            raise CliError(f"--names: the name {short_repr(n)} holds a control character")
-        check_text_path(n, "--names: the name")
-
-
-def invocations_problem(run_path: Path) -> str | None:
-    """What is wrong with a run folder's invocations.jsonl (a directory in its place, damaged
-    lines), or None. It only says which code paths the episodes ran on: the report and diff read
-    the records without it, but say so (a resume refuses a directory; it appends after damaged
-    lines, which ``tasks.trials.read_invocations`` names and the rest skips)."""
-    from tasks.trials import read_invocations
-
-    path = run_path / "invocations.jsonl"
-    if path.is_dir():
-        return (f"{path} is a directory, where the log of the run's invocations belongs: the CPU code paths of its "
-                f"episodes are unknown (a resume refuses the folder until it is moved away)")
-    try:
-        bad = read_invocations(run_path)[1]
-    except OSError as exc:
-        return f"{path} cannot be read ({exc.strerror or exc}): the CPU code paths of its episodes are unknown"
-    if bad:
-        shown = ", ".join(f"{path}:{n}" for n in bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
-        return (f"{shown}: damaged line{'s' if len(bad) > 1 else ''} of the run's invocation log (torn by a kill, "
-                f"or edited), skipped: the CPU code paths shown come from the other lines")
-    return None
-
-
-def load_run(path: str | Path, name: str | None = None, warnings: list[str] | None = None) -> Run:
-    """A run folder's finished episodes and summary; CliError when it is missing, unreadable or
-    empty. Damaged lines of episodes.jsonl are skipped, each named as FILE:LINE in ``warnings``
-    (also records of one episode that disagree, and records of episodes that are not the run's:
-    ``tasks.trials.scan_results``); so are an unreadable config.yaml, records that disagree with it
-    and a damaged invocations.jsonl."""
-    from helios.schema import read_text, short_repr, yaml_load_text
-    from tasks.trials import (FINGERPRINT_FIELD, RunFolderError, config_fingerprint, run_cpu_paths, run_episode_ids,
-                              scan_results, summarize)
-    from tools.cli import CliError
-
-    warnings = warnings if warnings is not None else []
-    p = Path(path)
-    check_text_path(p, "run folder")
-    if not p.exists():
-        raise CliError(f"run folder {short_repr(str(p))} does not exist")
-    if not p.is_dir():
-        raise CliError(f"run folder {short_repr(str(p))} is a file, not a run folder")
-    results = p / "episodes.jsonl"
-    config: dict = {}
-    config_warnings: list[str] = []
-    cfg_path = p / "config.yaml"
-    if cfg_path.exists():
-        try:
-            loaded = yaml_load_text(read_text(cfg_path, str(cfg_path), CliError), str(cfg_path), CliError)
-            if loaded is not None and not isinstance(loaded, dict):
-                raise CliError(f"{cfg_path} holds a {type(loaded).__name__}, not a trial config")
-            config = loaded or {}
-        except CliError as exc:
-            config_warnings.append(f"{exc}; the run's configuration is shown as unknown")
-    selected = run_episode_ids(config) if config else None      # the episodes its records may be of
-    try:
-        scan = scan_results(results, *(selected or (None,)))
-    except RunFolderError as exc:
-        raise CliError(str(exc)) from None
-    for d in scan.damaged[:MAX_LISTED_DAMAGE]:
-        warnings.append(f"{results}:{d.lineno}: {d.reason}; skipped this line")
-    if len(scan.damaged) > MAX_LISTED_DAMAGE:
-        warnings.append(f"{results}: {len(scan.damaged) - MAX_LISTED_DAMAGE} more damaged line(s) skipped")
-    if scan.repeated_runs:
-        shown = ", ".join(f"{eid} ({n} runs)" for eid, n in list(scan.repeated_runs.items())[:5])
-        more = f" and {len(scan.repeated_runs) - 5} more" if len(scan.repeated_runs) > 5 else ""
-        warnings.append(f"{results}: robot runs repeated under one episode id, the first of each is in the tables: "
-                        f"{shown}{more} (on a robot, --trial-id gives each run its own id)")
-    records = list(scan.records.values())
-    if not records:
-        what = "only damaged lines" if scan.damaged else "missing or empty"
-        raise CliError(f"run folder {str(p)!r} has no finished episodes (episodes.jsonl {what}); "
-                       f"run `python -m tools trials --out {p}` (or `tools spot`) first")
-    records.sort(key=lambda r: r["episode_id"])
-    warnings.extend(config_warnings)
-    invocations = invocations_problem(p)
-    if invocations:
-        warnings.append(invocations)
-    fps = scan.fingerprints() - {None}
-    if len(fps) > 1:
-        warnings.append(f"{results}: the records were made with {len(fps)} different configurations "
-                        f"(fingerprints {', '.join(sorted(fps))}); they are reported together")
-    elif fps and config:
-        try:
-            written = config_fingerprint(config)
-        except (TypeError, ValueError):
-            written = None
-        if written not in fps:
-            warnings.append(f"{cfg_path} does not describe the records in {results} (they were made with "
-                            f"configuration {next(iter(fps))}, config.yaml says {written}): it was edited or "
-                            f"replaced; the table shows the records")
-    cpu = tuple(run_cpu_paths(p))
-    if len(cpu) > 1:
-        warnings.append(f"{p}: its episodes ran on {len(cpu)} different CPU code paths ({' | '.join(cpu)}); "
-                        f"they can differ in outcome (README, \"One CPU code path\")")
-    return Run(name or p.resolve().name, p, records, summarize(records), config, legacy=scan.legacy, cpu=cpu)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -213,285 +88,6 @@ def failure_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     headers = ["run", "success"] + used
     rows = [[r.name, r.summary["SR"]["count"]] + [r.summary["failure_reasons"][k] for k in used] for r in runs]
     return headers, rows
-
-
-def sign_test_p(wins: int, losses: int) -> float:
-    """Exact two-sided sign test (McNemar's exact test) on the discordant episodes: the chance of a
-    split at least this uneven if either run were equally likely to win each one."""
-    n = wins + losses
-    if n == 0:
-        return 1.0
-    k = min(wins, losses)
-    tail = sum(math.comb(n, i) for i in range(k + 1)) / 2 ** n
-    return min(1.0, 2 * tail)
-
-
-def _p_text(p: float) -> str:
-    """Two decimals, except below 0.01 (where "p=0.00" would read as impossible)."""
-    return "p<0.01" if p < 0.005 else f"p={p:.2f}"
-
-
-def _metrics_by_episode(run: Run) -> dict[str, dict]:
-    return {r["episode_id"]: r["metrics"] for r in run.records if r.get("metrics")}
-
-
-def _discordant(ref: dict[str, dict], mine: dict[str, dict], key: str) -> tuple[int, int, int]:
-    """(episodes only ``mine`` passed phase ``key``, only ``ref`` passed, episodes both have)."""
-    shared = set(ref) & set(mine)
-    wins = sum(bool(mine[e][key]) and not ref[e][key] for e in shared)
-    losses = sum(bool(ref[e][key]) and not mine[e][key] for e in shared)
-    return wins, losses, len(shared)
-
-
-def paired_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
-    """Each run against the first on the same episodes: per phase, the episodes only this run
-    passed / only the first passed, and the sign-test p-value. Ablations that differ by a few
-    points are often the same agent on most episodes; this says how many episodes actually differ."""
-    from tasks.trials import METRIC_KEYS
-
-    ref = _metrics_by_episode(runs[0])
-    headers = ["run", "vs", "episodes"] + list(PHASES)
-    rows = []
-    for run in runs[1:]:
-        mine = _metrics_by_episode(run)
-        cells = []
-        for key in METRIC_KEYS:        # the order of PHASES
-            wins, losses, shared = _discordant(ref, mine, key)
-            cells.append(f"+{wins} -{losses} ({_p_text(sign_test_p(wins, losses))})")
-        rows.append([run.name, runs[0].name, shared] + cells)
-    return headers, rows
-
-
-def _sign_test_p_float(wins: int, losses: int) -> float:
-    """:func:`sign_test_p` in floating point (binomial CDF), for counts too large for exact sums."""
-    from scipy.stats import binom
-
-    n = wins + losses
-    return 1.0 if n == 0 else min(1.0, 2.0 * float(binom.cdf(min(wins, losses), n, 0.5)))
-
-
-def detectable_gap(discordant: int, alpha: float = 0.05) -> int | None:
-    """The smallest net count ``|wins - losses|`` that the exact sign test calls significant
-    (p < ``alpha``) when ``discordant`` episodes differ between two runs; None when not even
-    a clean sweep would be (fewer than 6 discordant episodes at alpha = 0.05)."""
-    for net in range(discordant % 2, discordant + 1, 2):
-        wins = (discordant + net) // 2
-        if sign_test_p(wins, discordant - wins) < alpha:
-            return net
-    return None
-
-
-def episodes_needed(wins: int, losses: int, shared: int, alpha: float = 0.05, limit: int = 100_000) -> int | None:
-    """About how many episodes the two runs would need for the gap seen on ``shared`` episodes to
-    reach p < ``alpha``, if their wins and losses kept coming at the rates seen. None: no gap
-    (wins == losses) or more than ``limit``. The answer a researcher needs before reading an
-    ordering into a 3-point difference: the paper's 7-point gaps were measured on 1000 episodes."""
-    if wins == losses or shared <= 0:
-        return None
-
-    def significant(n: int) -> bool:
-        return _sign_test_p_float(round(wins * n / shared), round(losses * n / shared)) < alpha
-
-    if not significant(limit):
-        return None
-    lo, hi = 1, limit                 # rounding makes p only nearly monotone in n: the first n found
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if significant(mid):
-            hi = mid
-        else:
-            lo = mid + 1
-    return lo
-
-
-POWER_TITLE = ("How many episodes the paired comparisons need (exact sign test, p < 0.05): the gap seen "
-               "(percentage points), the smallest gap these episodes could show, and about how many "
-               "episodes the gap seen would need at the rates seen")
-
-
-def power_rows(runs: list[Run], keys: tuple[str, ...] = ("find_obj", "success")) -> tuple[list[str], list[list]]:
-    """For each run against the first, per headline phase: the gap in points, the detectable gap
-    with this many episodes that differ (:func:`detectable_gap`), and :func:`episodes_needed`."""
-    from tasks.trials import METRIC_NAMES
-
-    ref = _metrics_by_episode(runs[0])
-    headers = ["run", "vs", "episodes"]
-    for key in keys:
-        name = METRIC_NAMES[key]
-        headers += [f"{name} gap", f"{name} detectable", f"{name} episodes needed"]
-    rows = []
-    for run in runs[1:]:
-        mine = _metrics_by_episode(run)
-        row = [run.name, runs[0].name, len(set(ref) & set(mine))]     # shared episodes, whatever the phase
-        for key in keys:
-            wins, losses, shared = _discordant(ref, mine, key)
-            if not shared:
-                row += ["n/a"] * 3
-                continue
-            pts = 100.0 / shared
-            gap = detectable_gap(wins + losses)
-            need = episodes_needed(wins, losses, shared)
-            row += [f"{(wins - losses) * pts:+.1f}",
-                    "none" if gap is None else f"{gap * pts:.1f}",
-                    "no gap" if wins == losses else (f"> {100_000:,}" if need is None else f"{need:,}")]
-        rows.append(row)
-    return headers, rows
-
-
-SPEED_TITLE = ("How fast each run searches: simulated seconds from the start to each phase (median over the "
-               "episodes that reached it, how many in brackets), and against the first run, the episodes this run "
-               "reached the phase first (+) or the first run did (-; reaching it at all counts as first), exact "
-               "sign test; n/a: records made before phase times were kept")
-SPEED_PHASES = (("find_obj_time", "FindObj"), ("pick_time", "Pick"), ("find_rec_time", "FindRec"))
-
-
-def _phase_times(run: Run, key: str) -> dict[str, float]:
-    """Episode id -> seconds to the phase (inf: never reached), for records that keep phase times."""
-    out = {}
-    for r in run.records:
-        m = r.get("metrics")
-        if isinstance(m, dict) and key in m:
-            out[r["episode_id"]] = math.inf if m[key] is None else float(m[key])
-    return out
-
-
-def speed_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
-    """Per run, the median time to FindObj, Pick and FindRec; against the first run, who got to
-    FindObj and Pick first, episode by episode. Two policies that find the object in the same
-    episodes can still differ in how long they take: this pairs on every episode either one
-    completes, where FindObj's yes/no pairs only on those exactly one completes."""
-    headers = ["run"] + [f"{name} s" for _, name in SPEED_PHASES] + ["FindObj first", "Pick first"]
-    rows = []
-    for i, run in enumerate(runs):
-        row = [run.name]
-        for key, _ in SPEED_PHASES:
-            times = _phase_times(run, key)
-            reached = [t for t in times.values() if math.isfinite(t)]
-            row.append("n/a" if not times else (f"{np.median(reached):.0f} ({len(reached)})" if reached else "- (0)"))
-        for key in ("find_obj_time", "pick_time"):
-            if i == 0:
-                row.append("-")
-                continue
-            ref, mine = _phase_times(runs[0], key), _phase_times(run, key)
-            both = set(ref) & set(mine)
-            if not both:
-                row.append("n/a")
-                continue
-            wins = sum(mine[e] < ref[e] for e in both)        # never reached (inf) on both sides: a tie
-            losses = sum(ref[e] < mine[e] for e in both)
-            row.append(f"+{wins} -{losses} ({_p_text(sign_test_p(wins, losses))})")
-        rows.append(row)
-    return headers, rows
-
-
-BUDGET_PHASES = (("find_obj_time", "FindObj"), ("pick_time", "Pick"), ("find_rec_time", "FindRec"))
-BUDGET_TITLE = ("Search by time budget: % of episodes that reached the phase within T simulated seconds, what the "
-                "run would have scored had it been stopped at T (exact for FindObj and FindRec; a grasp that began "
-                "before T and ended after it counts for a run stopped at T, not here); against the first run, the "
-                "episodes only this run reached within T (+) / only the first run did (-), exact sign test; "
-                "n/a: records made before phase times were kept")
-BUDGET_FRACTIONS = (0.2, 0.4, 0.6, 0.8, 1.0)
-MAX_BUDGETS = 12
-
-
-def run_time_cap(run: Run) -> float:
-    """The simulated-time cap the run's episodes ran under (``runner.max_sim_time`` of its
-    config.yaml; the runner's default when the config does not say)."""
-    from tasks.runner import RunnerConfig
-
-    runner = run.config.get("runner") if isinstance(run.config, dict) else None
-    cap = runner.get("max_sim_time") if isinstance(runner, dict) else None
-    return float(cap) if isinstance(cap, (int, float)) and not isinstance(cap, bool) and cap > 0 \
-        else RunnerConfig().max_sim_time
-
-
-def default_budgets(runs: list[Run]) -> tuple[float, ...]:
-    """Fifths of the smallest cap among the runs (a run cannot be scored for more time than it had)."""
-    cap = min(run_time_cap(r) for r in runs)
-    return tuple(round(f * cap, 1) for f in BUDGET_FRACTIONS)
-
-
-def parse_budgets(text: str) -> tuple[float, ...]:
-    """``--budgets`` "120,300" -> (120.0, 300.0); CliError for anything but distinct positive seconds."""
-    from tools.cli import CliError
-
-    def one(part: str) -> float:
-        try:
-            t = float(part)
-        except ValueError:
-            raise CliError(f"--budgets: {part!r} is not a number of seconds (expected e.g. 120,300,600)") from None
-        if not math.isfinite(t) or t <= 0:
-            raise CliError(f"--budgets: {part} is not a positive number of simulated seconds")
-        return t
-
-    budgets = _parse_list(text, "--budgets", one)
-    if len(budgets) > MAX_BUDGETS:
-        raise CliError(f"--budgets: {len(budgets)} budgets given, at most {MAX_BUDGETS}")
-    return budgets
-
-
-def check_budgets(runs: list[Run], budgets: tuple[float, ...]) -> None:
-    """CliError for a budget beyond a run's cap: beyond it the records say nothing about what the
-    agent would have done with more time."""
-    from tools.cli import CliError
-
-    for r in runs:
-        cap = run_time_cap(r)
-        over = [t for t in budgets if t > cap + 1e-9]
-        if over:
-            raise CliError(f"--budgets: {over[0]:g} s is beyond run {r.name!r}'s cap of {cap:g} s "
-                           f"(runner.max_sim_time): a run can only be scored for shorter budgets than it had")
-
-
-def reached_within(times: dict[str, float], budget: float) -> dict[str, bool]:
-    """Episode id -> the phase was reached strictly before ``budget`` s (the runner stops an episode
-    at the first observation or command that would start at or after its cap)."""
-    return {e: t < budget for e, t in times.items()}
-
-
-def budget_rows(runs: list[Run], budgets: tuple[float, ...]) -> tuple[list[str], list[list]]:
-    """Per run and phase (FindObj, Pick, FindRec): the percent of its episodes that reached the
-    phase within each budget, and against the first run the paired sign test at that budget. The
-    600 s cap is our choice (the paper's benchmark counts steps): an ordering that holds at one
-    budget and not another is a statement about the policies' speed, not their reach."""
-    headers = ["run", "phase"] + [f"within {t:g} s" for t in budgets]
-    rows = []
-    for i, run in enumerate(runs):
-        for key, name in BUDGET_PHASES:
-            times = _phase_times(run, key)
-            if not times:
-                rows.append([run.name, name] + ["n/a"] * len(budgets))
-                continue
-            ref = _phase_times(runs[0], key) if i else {}
-            row = [run.name, name]
-            for t in budgets:
-                mine = reached_within(times, t)
-                cell = f"{100.0 * sum(mine.values()) / len(mine):.1f}"
-                if i:
-                    theirs = reached_within(ref, t)
-                    both = set(mine) & set(theirs)
-                    if both:
-                        wins = sum(mine[e] and not theirs[e] for e in both)
-                        losses = sum(theirs[e] and not mine[e] for e in both)
-                        cell += f" +{wins} -{losses} ({_p_text(sign_test_p(wins, losses))})"
-                    else:
-                        cell += " (n/a)"
-                row.append(cell)
-            rows.append(row)
-    return headers, rows
-
-
-def budget_summary(run: Run, budgets: tuple[float, ...]) -> dict:
-    """{budget s: {phase: percent reached within it}} for report.json (phases without times left out)."""
-    phase_times = {name: times for key, name in BUDGET_PHASES if (times := _phase_times(run, key))}
-    return {f"{t:g}": {name: 100.0 * sum(reached_within(times, t).values()) / len(times)
-                       for name, times in phase_times.items()} for t in budgets}
-
-
-def budget_curve(times: dict[str, float], grid: np.ndarray) -> np.ndarray:
-    """Percent of the episodes in ``times`` that reached the phase strictly before each ``grid`` time."""
-    t = np.sort(np.fromiter(times.values(), dtype=float, count=len(times)))
-    return 100.0 * np.searchsorted(t, grid, side="left") / max(len(t), 1)
 
 
 DECISIONS_TITLE = ("Decisions: totals over the episodes shown (per-episode mean in brackets); "
@@ -636,198 +232,6 @@ def start_receptacle_rows(runs: list[Run]) -> tuple[list[str], list[list]] | Non
 
 
 # ------------------------------------------------------------------------------------------------
-# Plots
-# ------------------------------------------------------------------------------------------------
-@contextlib.contextmanager
-def _quiet_plots():
-    """Drawing never writes to stderr: matplotlib's warnings (a tight layout that does not fit long
-    labels, a glyph missing from the font) and its log messages are left out; what matters about
-    the figures is in the tables."""
-    import logging
-    import warnings
-
-    logger = logging.getLogger("matplotlib")
-    level = logger.level
-    logger.setLevel(logging.ERROR)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            yield
-    finally:
-        logger.setLevel(level)
-
-
-def _pyplot():
-    try:
-        import matplotlib
-    except ImportError:
-        return None
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def plot_subtasks(runs: list[Run], path: Path, plt) -> None:
-    """The paper's hardware-results style: per run one column of overlaid bars, FindObj (tallest,
-    lightest) down to SR (lowest, darkest), each labelled with its percentage ± SE."""
-    fig, ax = plt.subplots(figsize=(max(5.0, 2.2 * len(runs) + 2.0), 4.2))
-    x = np.arange(len(runs))
-    for phase, color in zip(PHASES, PHASE_COLORS):
-        vals = [r.summary[phase]["percent"] for r in runs]
-        ax.bar(x, vals, width=0.6, color=color, edgecolor="white", linewidth=0.6, label=phase)
-    for i, r in enumerate(runs):
-        groups: list[tuple[float, list[str], float]] = []       # equal levels share one label
-        for phase in PHASES:
-            v, se = r.summary[phase]["percent"], r.summary[phase]["se"]
-            if groups and abs(groups[-1][0] - v) < 1e-9:
-                groups[-1][1].append(phase)
-            else:
-                groups.append((v, [phase], se))
-        y_prev = -10.0
-        for v, names, se in sorted(groups, key=lambda g: g[0]):
-            y = max(v, y_prev + 4.5)                            # keep close labels apart
-            ax.text(i + 0.32, y, f"{'='.join(names)} {v:.0f}±{se:.0f}", va="center", ha="left", fontsize=7)
-            y_prev = y
-    ax.set_xticks(x, [f"{r.name}\n(n={r.summary['episodes']})" for r in runs], fontsize=8)
-    ax.set_xlim(-0.6, len(runs) - 0.4 + 0.9)
-    ax.set_ylim(0, 105)
-    ax.set_ylabel("episodes (%)")
-    # a figure title from the left edge: an axes title is centred on the (narrow) axes and its
-    # ends were cut off at the figure's edges with one or two runs
-    fig.suptitle("Subtask success\n(each bar: episodes reaching that phase)", fontsize=10, x=0.02, ha="left")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False)
-    ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
-def plot_failures(runs: list[Run], path: Path, plt) -> None:
-    """How episodes ended, per run: success and each failure reason, as shares of the scored episodes."""
-    from tasks.metrics import FAILURE_REASONS
-
-    cmap = plt.get_cmap("tab10")
-    fig, ax = plt.subplots(figsize=(8.0, max(2.2, 0.55 * len(runs) + 1.4)))
-    y = np.arange(len(runs))
-    left = np.zeros(len(runs))
-    parts = [("success", "#2ca02c", [r.summary["SR"]["count"] for r in runs])]
-    for i, k in enumerate(FAILURE_REASONS):
-        parts.append((k, cmap((i + 3) % 10), [r.summary["failure_reasons"][k] for r in runs]))
-    crashed = [r.summary["episodes"] - r.summary["scored"] for r in runs]
-    if any(crashed):
-        parts.append(("unscored", "#7f7f7f", crashed))
-    for label, color, counts in parts:
-        share = np.array([100.0 * c / max(1, r.summary["episodes"]) for c, r in zip(counts, runs)])
-        if not share.any():
-            continue
-        ax.barh(y, share, left=left, color=color, label=label, edgecolor="white", linewidth=0.6)
-        for yi, (l0, w) in enumerate(zip(left, share)):
-            if w >= 6:
-                ax.text(l0 + w / 2, yi, f"{w:.0f}", ha="center", va="center", fontsize=7, color="white")
-        left += share
-    ax.set_yticks(y, [r.name for r in runs], fontsize=8)
-    ax.invert_yaxis()
-    ax.set_xlim(0, 100)
-    ax.set_xlabel("episodes (%)")
-    ax.set_title("How episodes ended")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
-def memory_curve(records: list[dict], key: str, bins: int = 30) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """Mean and max over episodes of ``key`` against episode time (each episode holds its last sample
-    until it ends; episodes that have ended drop out)."""
-    series = [r["memory"]["series"] for r in records
-              if r.get("memory") and key in (r["memory"].get("series") or {})]
-    series = [(np.asarray(s["t"], dtype=float), np.array([np.nan if v is None else v for v in s[key]], dtype=float))
-              for s in series if s.get("t")]
-    if not series:
-        return None
-    t_end = max(t[-1] for t, _ in series)
-    grid = np.linspace(0.0, max(t_end, 1e-6), bins)
-    vals = np.full((len(series), bins), np.nan)
-    for i, (t, v) in enumerate(series):
-        idx = np.searchsorted(t, grid, side="right") - 1
-        ok = (grid <= t[-1])
-        vals[i, ok] = v[np.clip(idx[ok], 0, len(v) - 1)]
-    with np.errstate(all="ignore"):
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            return grid, np.nanmean(vals, axis=0), np.nanmax(vals, axis=0)
-
-
-def plot_memory(runs: list[Run], path: Path, plt) -> None:
-    """Memory against episode time (simulated s), averaged over each run's episodes (solid) with the
-    maximum (dashed): RSS, the agent's map, and GPU allocated/reserved where recorded."""
-    panels = [(k, label) for k, label in MEMORY_SERIES if any(memory_curve(r.records, k) for r in runs)]
-    if not panels:
-        panels = [MEMORY_SERIES[0]]
-    cols = min(2, len(panels))
-    nrows = (len(panels) + cols - 1) // cols
-    fig, axes = plt.subplots(nrows, cols, figsize=(5.0 * cols + 2.2, 3.2 * nrows + 0.4), squeeze=False)
-    cmap = plt.get_cmap("tab10")
-    legend: dict[str, object] = {}
-    for ax, (key, label) in zip(axes.flat, panels):
-        for i, r in enumerate(runs):
-            curve = memory_curve(r.records, key)
-            if curve is None:
-                continue
-            t, mean, mx = curve
-            legend[f"{r.name} mean"], = ax.plot(t, mean, color=cmap(i % 10))
-            legend[f"{r.name} max"], = ax.plot(t, mx, color=cmap(i % 10), linestyle="--", linewidth=0.8)
-        ax.set_title(label, fontsize=9)
-        ax.set_xlabel("episode time (simulated s)", fontsize=8)
-        ax.set_ylabel("MB", fontsize=8)
-        ax.grid(alpha=0.3)
-    for ax in list(axes.flat)[len(panels):]:
-        ax.set_visible(False)
-    fig.legend(list(legend.values()), list(legend), fontsize=7, loc="upper right", frameon=False)
-    fig.suptitle("Memory over episode time (mean over episodes; dashed: max)", fontsize=10, x=0.02, ha="left")
-    fig.tight_layout(rect=(0, 0, 1.0 - 1.6 / (5.0 * cols + 2.2), 1))
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
-def plot_budgets(runs: list[Run], path: Path, plt, budgets: tuple[float, ...] = ()) -> None:
-    """One panel per phase (FindObj, Pick, FindRec): the percent of each run's episodes that had
-    reached it by each simulated second, up to the smallest cap; dotted lines at the table's budgets."""
-    cap = min(run_time_cap(r) for r in runs)
-    grid = np.linspace(0.0, cap, 601)
-    fig, axes = plt.subplots(1, len(BUDGET_PHASES), figsize=(4.0 * len(BUDGET_PHASES) + 2.0, 3.6), squeeze=False)
-    cmap = plt.get_cmap("tab10")
-    handles: dict[str, object] = {}
-    for ax, (key, name) in zip(axes.flat, BUDGET_PHASES):
-        for i, r in enumerate(runs):
-            times = _phase_times(r, key)
-            if not times:
-                continue
-            handles[r.name], = ax.step(grid, budget_curve(times, grid), where="post", color=cmap(i % 10),
-                                        linewidth=1.4)
-        for t in budgets:
-            ax.axvline(t, color="0.6", linestyle=":", linewidth=0.8)
-        ax.set_xlim(0, cap)
-        ax.set_ylim(0, 100)
-        ax.set_title(f"{name} within the budget", fontsize=9)
-        ax.set_xlabel("budget (simulated s)", fontsize=8)
-        ax.set_ylabel("episodes (%)", fontsize=8)
-        ax.grid(alpha=0.3)
-    if handles:
-        fig.legend(list(handles.values()), list(handles), fontsize=7, loc="upper right", frameon=False)
-    else:
-        axes.flat[0].text(0.5, 0.5, "no phase times in these records", transform=axes.flat[0].transAxes,
-                          ha="center", va="center", fontsize=8)
-    fig.suptitle("Search by time budget (episodes that reached each phase by then)", fontsize=10, x=0.02, ha="left")
-    fig.tight_layout(rect=(0, 0, 1.0 - 1.8 / (4.0 * len(BUDGET_PHASES) + 2.0), 1))
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
-# ------------------------------------------------------------------------------------------------
 # Output
 # ------------------------------------------------------------------------------------------------
 def _html_table(headers, rows) -> str:
@@ -899,6 +303,25 @@ def _parse_list(text: str, option: str, one) -> tuple:
             raise CliError(f"{option}: {part} is given twice")
         values.append(value)
     return tuple(sorted(values))
+
+
+def parse_budgets(text: str) -> tuple[float, ...]:
+    """``--budgets`` "120,300" -> (120.0, 300.0); CliError for anything but distinct positive seconds."""
+    from tools.cli import CliError
+
+    def one(part: str) -> float:
+        try:
+            t = float(part)
+        except ValueError:
+            raise CliError(f"--budgets: {part!r} is not a number of seconds (expected e.g. 120,300,600)") from None
+        if not math.isfinite(t) or t <= 0:
+            raise CliError(f"--budgets: {part} is not a positive number of simulated seconds")
+        return t
+
+    budgets = _parse_list(text, "--budgets", one)
+    if len(budgets) > MAX_BUDGETS:
+        raise CliError(f"--budgets: {len(budgets)} budgets given, at most {MAX_BUDGETS}")
+    return budgets
 
 
 def parse_pick_limits(text: str) -> tuple[int, ...]:
