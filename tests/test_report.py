@@ -103,12 +103,12 @@ def test_sign_test_matches_the_binomial_tails_by_hand():
 
 
 def test_p_values_below_one_percent_are_not_printed_as_zero():
-    from tools.report_stats import _p_text
+    from tools.report_stats import p_text
 
-    assert _p_text(0.0004) == "p<0.01"
-    assert _p_text(0.0049) == "p<0.01"
-    assert _p_text(0.0051) == "p=0.01"
-    assert _p_text(0.56) == "p=0.56"
+    assert p_text(0.0004) == "p<0.01"
+    assert p_text(0.0049) == "p<0.01"
+    assert p_text(0.0051) == "p=0.01"
+    assert p_text(0.56) == "p=0.56"
 
 
 def test_report_pairs_each_run_with_the_first_episode_by_episode(tmp_path):
@@ -192,7 +192,7 @@ def test_time_budgets_score_each_run_as_if_stopped_there(tmp_path):
     budget; the curve behind the plot; report.json; budgets beyond a run's cap are refused."""
     from tools.cli import CliError
     from tools.report import parse_budgets
-    from tools.report_phase_times import BUDGET_PHASES, _phase_times, budget_curve
+    from tools.report_phase_times import BUDGET_PHASES, run_phase_times, budget_curve
     from tools.report_runs import load_run
 
     a = _with_times(tmp_path / "a", [100, 200, 300, 400, 500, 50, 80, None])
@@ -211,7 +211,7 @@ def test_time_budgets_score_each_run_as_if_stopped_there(tmp_path):
     saved = json.loads((tmp_path / "rep" / "report.json").read_text())
     assert saved["a"]["time_budgets"]["300"] == {"FindObj": 50.0, "Pick": 50.0, "FindRec": 0.0}
     assert saved["old"]["time_budgets"]["300"] == {}
-    times = _phase_times(load_run(a), BUDGET_PHASES[0][0])
+    times = run_phase_times(load_run(a), BUDGET_PHASES[0][0])
     assert budget_curve(times, np.array([0.0, 50.0, 50.1, 100.0, 100.1, 600.0])).tolist() == \
         [0.0, 0.0, 12.5, 25.0, 37.5, 87.5]
     # the default: fifths of the cap (600 s here)
@@ -229,7 +229,7 @@ def test_time_budgets_score_each_run_as_if_stopped_there(tmp_path):
 def test_the_budget_plot_draws_each_runs_curve(tmp_path):
     """Content, not only a file: one step line per run and panel whose heights are the run's
     percent reached by each second, and a dotted line at each budget of the table."""
-    from tools.report_phase_times import BUDGET_PHASES, _phase_times, budget_curve
+    from tools.report_phase_times import BUDGET_PHASES, run_phase_times, budget_curve
     from tools.report_plots import _pyplot, plot_budgets
     from tools.report_runs import load_run
 
@@ -258,7 +258,7 @@ def test_the_budget_plot_draws_each_runs_curve(tmp_path):
         for line, run in zip(solid, runs):
             x, y = np.asarray(line.get_xdata()), np.asarray(line.get_ydata())
             assert x[0] == 0.0 and x[-1] == 600.0
-            assert np.array_equal(y, budget_curve(_phase_times(run, key), x))
+            assert np.array_equal(y, budget_curve(run_phase_times(run, key), x))
     # a's FindObj reaches 25 % after 100 s and 50 % after 200 s; b's 25 % after 50 s
     y_a = np.asarray(fig.axes[0].get_lines()[0].get_ydata())
     assert y_a[0] == 0.0 and y_a.max() == 50.0

@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from tools.report_runs import Run
-from tools.report_stats import _p_text, sign_test_p
+from tools.report_stats import p_text, sign_test_p
 
 
 SPEED_TITLE = ("How fast each run searches: simulated seconds from the start to each phase (median over the "
@@ -23,7 +23,7 @@ SPEED_TITLE = ("How fast each run searches: simulated seconds from the start to 
 SPEED_PHASES = (("find_obj_time", "FindObj"), ("pick_time", "Pick"), ("find_rec_time", "FindRec"))
 
 
-def _phase_times(run: Run, key: str) -> dict[str, float]:
+def run_phase_times(run: Run, key: str) -> dict[str, float]:
     """Episode id -> seconds to the phase (inf: never reached), for records that keep phase times."""
     out = {}
     for r in run.records:
@@ -43,21 +43,21 @@ def speed_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     for i, run in enumerate(runs):
         row = [run.name]
         for key, _ in SPEED_PHASES:
-            times = _phase_times(run, key)
+            times = run_phase_times(run, key)
             reached = [t for t in times.values() if math.isfinite(t)]
             row.append("n/a" if not times else (f"{np.median(reached):.0f} ({len(reached)})" if reached else "- (0)"))
         for key in ("find_obj_time", "pick_time"):
             if i == 0:
                 row.append("-")
                 continue
-            ref, mine = _phase_times(runs[0], key), _phase_times(run, key)
+            ref, mine = run_phase_times(runs[0], key), run_phase_times(run, key)
             both = set(ref) & set(mine)
             if not both:
                 row.append("n/a")
                 continue
             wins = sum(mine[e] < ref[e] for e in both)        # never reached (inf) on both sides: a tie
             losses = sum(ref[e] < mine[e] for e in both)
-            row.append(f"+{wins} -{losses} ({_p_text(sign_test_p(wins, losses))})")
+            row.append(f"+{wins} -{losses} ({p_text(sign_test_p(wins, losses))})")
         rows.append(row)
     return headers, rows
 
@@ -117,11 +117,11 @@ def budget_rows(runs: list[Run], budgets: tuple[float, ...]) -> tuple[list[str],
     rows = []
     for i, run in enumerate(runs):
         for key, name in BUDGET_PHASES:
-            times = _phase_times(run, key)
+            times = run_phase_times(run, key)
             if not times:
                 rows.append([run.name, name] + ["n/a"] * len(budgets))
                 continue
-            ref = _phase_times(runs[0], key) if i else {}
+            ref = run_phase_times(runs[0], key) if i else {}
             row = [run.name, name]
             for t in budgets:
                 mine = reached_within(times, t)
@@ -132,7 +132,7 @@ def budget_rows(runs: list[Run], budgets: tuple[float, ...]) -> tuple[list[str],
                     if both:
                         wins = sum(mine[e] and not theirs[e] for e in both)
                         losses = sum(theirs[e] and not mine[e] for e in both)
-                        cell += f" +{wins} -{losses} ({_p_text(sign_test_p(wins, losses))})"
+                        cell += f" +{wins} -{losses} ({p_text(sign_test_p(wins, losses))})"
                     else:
                         cell += " (n/a)"
                 row.append(cell)
@@ -142,7 +142,7 @@ def budget_rows(runs: list[Run], budgets: tuple[float, ...]) -> tuple[list[str],
 
 def budget_summary(run: Run, budgets: tuple[float, ...]) -> dict:
     """{budget s: {phase: percent reached within it}} for report.json (phases without times left out)."""
-    phase_times = {name: times for key, name in BUDGET_PHASES if (times := _phase_times(run, key))}
+    phase_times = {name: times for key, name in BUDGET_PHASES if (times := run_phase_times(run, key))}
     return {f"{t:g}": {name: 100.0 * sum(reached_within(times, t).values()) / len(times)
                        for name, times in phase_times.items()} for t in budgets}
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.report_phase_times import BUDGET_PHASES, _phase_times, budget_curve, run_time_cap
+from tools.report_phase_times import BUDGET_PHASES, budget_curve, run_phase_times, run_time_cap
 from tools.report_runs import PHASES, Run
 
 
@@ -186,7 +186,7 @@ def plot_budgets(runs: list[Run], path: Path, plt, budgets: tuple[float, ...] = 
     handles: dict[str, object] = {}
     for ax, (key, name) in zip(axes.flat, BUDGET_PHASES):
         for i, r in enumerate(runs):
-            times = _phase_times(r, key)
+            times = run_phase_times(r, key)
             if not times:
                 continue
             handles[r.name], = ax.step(grid, budget_curve(times, grid), where="post", color=cmap(i % 10),

@@ -76,7 +76,7 @@ def load_run(path: str | Path, name: str | None = None, warnings: list[str] | No
     ``tasks.trials.scan_results``); so are an unreadable config.yaml, records that disagree with it
     and a damaged invocations.jsonl."""
     from helios.schema import read_text, short_repr, yaml_load_text
-    from tasks.trials import (FINGERPRINT_FIELD, RunFolderError, config_fingerprint, run_cpu_paths, run_episode_ids,
+    from tasks.trials import (RunFolderError, config_fingerprint, run_cpu_paths, run_episode_ids,
                               scan_results, summarize)
     from tools.cli import CliError
 

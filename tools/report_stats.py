@@ -23,7 +23,7 @@ def sign_test_p(wins: int, losses: int) -> float:
     return min(1.0, 2 * tail)
 
 
-def _p_text(p: float) -> str:
+def p_text(p: float) -> str:
     """Two decimals, except below 0.01 (where "p=0.00" would read as impossible)."""
     return "p<0.01" if p < 0.005 else f"p={p:.2f}"
 
@@ -54,7 +54,7 @@ def paired_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
         cells = []
         for key in METRIC_KEYS:        # the order of PHASES
             wins, losses, shared = _discordant(ref, mine, key)
-            cells.append(f"+{wins} -{losses} ({_p_text(sign_test_p(wins, losses))})")
+            cells.append(f"+{wins} -{losses} ({p_text(sign_test_p(wins, losses))})")
         rows.append([run.name, runs[0].name, shared] + cells)
     return headers, rows
 
