@@ -385,15 +385,15 @@ def test_an_unanswered_bring_up_call_that_never_reached_the_robot_leaves_others_
     """The clean-up after an unanswered bring-up call only touches what that call left: a call that
     failed before the robot acted on it leaves another client's lease and an older endpoint of the
     same name where they were (close() asks the robot, finds nothing of ours, returns nothing)."""
-    from robots.spot.fake_spot.server import _Endpoint
+    from robots.spot.fake_spot.bookkeeping import Endpoint
 
     demo = start_fake(seed=0)
     fake = demo.fake
     try:
         if method == "SetEstopConfig":
             proto = estop_pb2.EstopEndpoint(role="PDB_rooted", name="helios-estop", unique_id="endpoint-older")
-            fake._endpoints = {"endpoint-older": _Endpoint(proto, level=estop_pb2.ESTOP_LEVEL_NONE,
-                                                           last_checkin=time.monotonic() + 3600)}
+            fake._endpoints = {"endpoint-older": Endpoint(proto, level=estop_pb2.ESTOP_LEVEL_NONE,
+                                                          last_checkin=time.monotonic() + 3600)}
         else:
             fake.lease_owner = "tablet"
         fake.fail_calls(method, 1, code=grpc.StatusCode.UNAVAILABLE)   # refused before it is acted on

@@ -1,0 +1,40 @@
+"""The fake Spot's bookkeeping records, which the robot (``server.FakeSpot``) and the code that
+serves and executes its commands (``servicer``, ``protocol``, ``sim_execution``) all name: the
+state of a software e-stop endpoint (:class:`Endpoint`), a robot command and its progress
+(:class:`Command`), and the names of the e-stop levels.
+
+They live apart, at the bottom of the package, so that ``server.py`` can import the modules that
+serve and execute commands without any of them importing ``server.py`` (no import cycles:
+``tests/test_layering.py``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+from bosdyn.api import estop_pb2
+
+STOP_LEVEL_NAMES = {estop_pb2.ESTOP_LEVEL_CUT: "CUT", estop_pb2.ESTOP_LEVEL_SETTLE_THEN_CUT: "SETTLE_THEN_CUT",
+                     estop_pb2.ESTOP_LEVEL_NONE: "NONE"}
+
+
+@dataclass
+class Endpoint:
+    proto: estop_pb2.EstopEndpoint
+    level: int = estop_pb2.ESTOP_LEVEL_CUT
+    last_checkin: float = field(default_factory=time.monotonic)
+    challenge: int = 0
+
+
+@dataclass
+class Command:
+    """A robot command and its progress. ``state``: queued | running | done | overridden | frozen | hung."""
+
+    id: int
+    kind: str                      # stand, sit, stop, safe_power_off, se2, arm_joint, arm_cartesian,
+    request: object                # arm_gaze, arm_named, arm_stop, claw, pick
+    state: str = "queued"
+    success: bool = False          # meaningful once done
+    detail: str = ""
+    extra: dict = field(default_factory=dict)
