@@ -34,7 +34,6 @@ from robots.transforms import invert_transform, make_transform, rot_z
 
 _FB = basic_command_pb2.RobotCommandFeedbackStatus
 _MAX_ARM_POINTS = 250
-_UNTIMED = ("stop", "sit", "safe_power_off")   # commands without a time that a robot takes without time sync
 
 
 # ====================================================================== robot state and images

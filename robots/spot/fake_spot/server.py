@@ -162,7 +162,11 @@ class FakeSpot:
         self._call_rules: list[dict] = []
         self._timers: list[threading.Timer] = []
         # server
-        self._executor = futures.ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix="fake-spot-rpc")
+        # the RPC threads note themselves as they start, so stop() can join them (the executor
+        # keeps its own list private)
+        self._rpc_threads: list[threading.Thread] = []
+        self._executor = futures.ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix="fake-spot-rpc",
+                                                    initializer=self._note_rpc_thread)
         self._server: grpc.Server | None = None
         self._robot_thread: threading.Thread | None = None
         self.port: int | None = None
@@ -263,7 +267,9 @@ class FakeSpot:
         # the RPC threads: no wait=True (a handler blocked on sim_lock behind a hung command would
         # never end); queued calls are cancelled, running ones get what is left of the budget
         self._executor.shutdown(wait=False, cancel_futures=True)
-        for t in list(getattr(self._executor, "_threads", ())):
+        with self._lock:
+            rpc_threads = list(self._rpc_threads)
+        for t in rpc_threads:
             t.join(left(5.0))
             if t.is_alive():
                 stuck.append(t.name)
@@ -278,6 +284,10 @@ class FakeSpot:
         else:
             _LOG.warning("fake Spot: the simulator is still in use (sim_lock held) %.1f s after stop() began; "
                          "not closed", time.monotonic() - t0)
+
+    def _note_rpc_thread(self) -> None:
+        with self._lock:
+            self._rpc_threads.append(threading.current_thread())
 
     def __enter__(self) -> "FakeSpot":
         return self.start() if self._server is None else self
