@@ -237,8 +237,8 @@ def prepare_hardware_folder(out: Path, config: HardwareConfig, dry_run: bool = F
     """Create or reopen a hardware-trials run folder for ``config``; returns its configuration
     fingerprint. A folder holding trials of another configuration is refused (one line): results
     of different configurations never mix. ``dry_run``: only the checks."""
-    from tasks.trials import RunFolderError, check_folder_layout, config_fingerprint, config_text, read_config_body, \
-        scan_results, write_atomic
+    from tasks.run_folder import RunFolderError, check_folder_layout, read_config_body, scan_results, write_atomic
+    from tasks.trial_config import config_fingerprint, config_text
 
     out = Path(out)
     try:
@@ -333,7 +333,7 @@ def run_hardware_trial(backend, config: HardwareConfig, task: RobotTask, percept
     ``out/episodes.jsonl``; returns the record."""
     from tasks.instrument import InstrumentedAgent
     from tasks.registry import RunContext, make_agent
-    from tasks.trials import append_result
+    from tasks.run_folder import append_result
 
     out = Path(out)
     fingerprint = fingerprint or prepare_hardware_folder(out, config)

@@ -35,7 +35,8 @@ def picture_runs(tmp_path_factory):
     (a timeout, with a map). About 5 s on the 2-core machine."""
     from helios.schema import with_overrides
     from tasks.episodes import load_split
-    from tasks.trials import TrialConfig, run_batch
+    from tasks.trial_config import TrialConfig
+    from tasks.trials import run_batch
     from tools.report import make_report
 
     root = tmp_path_factory.mktemp("picture_runs")

@@ -25,8 +25,8 @@ import pytest
 
 from cli_helpers import run_cli
 from tasks.episodes import load_split
-from tasks.trials import (DAMAGED_FILE, FINGERPRINT_FIELD, TrialConfig, append_result, config_fingerprint,
-                          deterministic_view, prepare_run_folder, read_results)
+from tasks.run_folder import DAMAGED_FILE, append_result, prepare_run_folder, read_results
+from tasks.trial_config import FINGERPRINT_FIELD, TrialConfig, config_fingerprint, deterministic_view
 
 TASK = "Move the mug from the stool to the table"
 LONG = "x" * 10_000
@@ -1001,7 +1001,7 @@ def test_a_damaged_run_folder(damage, clean_run, tmp_path):
     side = (folder / DAMAGED_FILE).read_bytes() if (folder / DAMAGED_FILE).exists() else b""
     for line in damaged_lines:
         assert line in kept or line.rstrip(b"\n") in side, line
-    from tasks.trials import read_run_config
+    from tasks.run_folder import read_run_config
 
     fps = {r.get(FINGERPRINT_FIELD) for r in read_results(folder / "episodes.jsonl").values()}
     assert fps <= {config_fingerprint(read_run_config(clean_run)[1]), None}
@@ -1020,7 +1020,7 @@ def test_a_damaged_run_folder(damage, clean_run, tmp_path):
 ])
 def test_record_fields_the_pages_use_are_checked(clean_run, field, value, says):
     """(QA 2026-12-04) The line checks cover what the episode pages draw and what names files."""
-    from tasks.trials import record_problem
+    from tasks.run_folder import record_problem
 
     rec = json.loads(_lines(clean_run)[0])
     assert record_problem(rec) is None
@@ -1076,7 +1076,7 @@ def test_diff_names_damage_report_names(clean_run, tmp_path):
 def test_repeated_robot_runs_of_one_episode_are_not_a_disagreement(clean_run, tmp_path):
     """`tools spot --fake --episode ID` appends a record per run to one folder; robot runs differ by
     nature (robot clock), so they are not damaged lines: the first is used and report says so."""
-    from tasks.trials import scan_results
+    from tasks.run_folder import scan_results
 
     folder = tmp_path / "robot"
     shutil.copytree(clean_run, folder)

@@ -7,7 +7,7 @@ import pytest
 
 from cli_helpers import run_cli
 from helios.schema import ConfigError, with_overrides
-from tasks.trials import TrialConfig, check_devices
+from tasks.trial_config import TrialConfig, check_devices
 
 
 @pytest.mark.parametrize("agent", ["helios", "helios-gt"])

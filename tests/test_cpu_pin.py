@@ -14,7 +14,7 @@ import pytest
 
 from helios.runtime import (CPU_ENV_VAR, PIN_VARS, PORTABLE_LEVEL, cpu_dispatch, cpu_flags, cpu_pin_settings)
 from tasks.executors import cpu_pin_environment
-from tasks.trials import TrialConfig
+from tasks.trial_config import TrialConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 AVX512 = {"avx", "avx2", "fma", "avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"}
@@ -140,7 +140,7 @@ def _invocations(folder: Path, *cpus) -> None:
 
 
 def test_run_cpu_paths_lists_the_distinct_code_paths_in_order(tmp_path):
-    from tasks.trials import invocation_cpu, run_cpu_paths
+    from tasks.run_folder import invocation_cpu, run_cpu_paths
 
     assert run_cpu_paths(tmp_path) == []
     _invocations(tmp_path, None, PINNED, PINNED, NATIVE)
@@ -211,7 +211,7 @@ def test_a_bad_helios_cpu_is_one_error_line_for_every_command(monkeypatch, tmp_p
 def test_an_invocation_logged_after_a_torn_line_is_kept_and_the_torn_line_is_named(tmp_path):
     """A kill mid-write leaves a torn last line; the next invocation starts a line of its own (it
     was glued to the torn one and lost), and the report names the torn line."""
-    from tasks.trials import append_result, read_invocations, run_cpu_paths
+    from tasks.run_folder import append_result, read_invocations, run_cpu_paths
     from tools.report_runs import invocations_problem
 
     path = tmp_path / "invocations.jsonl"

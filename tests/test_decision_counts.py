@@ -12,8 +12,10 @@ from helios.schema import with_overrides
 from tasks.decisions import (ACTIVITIES, DECISION_COUNTS, summarize_activity_time, summarize_decisions,
                              summarize_start_receptacle, summarize_timeouts)
 from tasks.episodes import load_split
+from tasks.run_folder import append_result, prepare_run_folder, read_results
 from tasks.runner import RunnerConfig, run_episode
-from tasks.trials import TrialConfig, append_result, prepare_run_folder, read_results, run_batch, run_one
+from tasks.trial_config import TrialConfig
+from tasks.trials import run_batch, run_one
 from tools.report import make_report
 
 

@@ -8,7 +8,8 @@ import math
 import pytest
 
 from cli_helpers import run_cli
-from tasks.trials import FINGERPRINT_FIELD, TrialConfig, append_result, config_fingerprint, prepare_run_folder
+from tasks.run_folder import append_result, prepare_run_folder
+from tasks.trial_config import FINGERPRINT_FIELD, TrialConfig, config_fingerprint
 from tools.diff_runs import differences, parse_ignore
 
 

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from tasks.episode_trace import load_trace, trace_path
-from tasks.trials import deterministic_view, run_batch
+from tasks.trial_config import deterministic_view
+from tasks.trials import run_batch
 from tools.episode_pages import FAILED_TEXT, FOOTER, HEADER, MAP_PX, PATH, TARGET, map_picture
 
 
@@ -153,7 +154,7 @@ def test_a_trace_of_an_episode_that_never_observed_still_draws():
 
 
 def test_a_file_where_the_pictures_folder_belongs_is_one_clear_error(tmp_path):
-    from tasks.trials import RunFolderError, check_folder_layout
+    from tasks.run_folder import RunFolderError, check_folder_layout
 
     (tmp_path / "run").mkdir()
     (tmp_path / "run" / "episodes").write_text("")

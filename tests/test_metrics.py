@@ -21,7 +21,7 @@ from tasks.episodes import Episode, SceneRef
 from tasks.metrics import FAILURE_REASONS, EpisodeJudge, MetricsConfig
 from tasks.oracle import OracleAgent
 from tasks.runner import RunnerConfig, SimEpisode, run_episode
-from tasks.trials import summarize
+from tasks.trial_summary import summarize
 
 
 def _kitchen() -> HomeLayout:

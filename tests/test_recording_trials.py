@@ -15,7 +15,8 @@ from helios.schema import with_overrides
 from tasks import registry
 from tasks.episodes import load_split
 from tasks.oracle import OracleAgent
-from tasks.trials import TrialConfig, deterministic_view, run_batch, run_one
+from tasks.trial_config import TrialConfig, deterministic_view
+from tasks.trials import run_batch, run_one
 
 RERUN = Path(sys.executable).with_name("rerun")
 

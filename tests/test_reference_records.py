@@ -23,7 +23,8 @@ from pathlib import Path
 import pytest
 
 from tasks.episodes import load_split
-from tasks.trials import FINGERPRINT_FIELD, NONDETERMINISTIC_FIELDS, config_fingerprint, load_trial_config, run_one
+from tasks.trial_config import FINGERPRINT_FIELD, NONDETERMINISTIC_FIELDS, config_fingerprint, load_trial_config
+from tasks.trials import run_one
 from tools.diff_runs import differences, outcomes_first, show_value
 
 ROOT = Path(__file__).resolve().parents[1]

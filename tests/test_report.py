@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from tasks.trials import TrialConfig, append_result, prepare_run_folder
+from tasks.run_folder import append_result, prepare_run_folder
+from tasks.trial_config import TrialConfig
 from tools.report import FIGURES, make_report
 
 
@@ -321,7 +322,7 @@ def _with_attempts(path, attempts):
 
 
 def test_limit_pick_attempts_zeroes_every_phase_of_episodes_over_the_limit():
-    from tasks.trials import limit_pick_attempts
+    from tasks.trial_summary import limit_pick_attempts
 
     records = [_record(i, 5, None, False) for i in range(3)]
     for r, n in zip(records, (1, 2, 6)):

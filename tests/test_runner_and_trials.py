@@ -12,8 +12,10 @@ import pytest
 from cli_helpers import run_cli
 from tasks.episodes import load_split
 from tasks.registry import UnknownAgentError, make_agent
+from tasks.run_folder import prepare_run_folder, read_results, RunFolderError
 from tasks.runner import RunnerConfig, run_sim_episode
-from tasks.trials import TrialConfig, episode_seed, prepare_run_folder, read_results, run_batch, RunFolderError
+from tasks.trial_config import TrialConfig, episode_seed
+from tasks.trials import run_batch
 
 
 class _Looper:
@@ -85,7 +87,8 @@ def test_oracle_completes_smoke_episodes_and_batches_resume(tmp_path):
 
 
 def test_a_run_folder_refuses_a_different_config(tmp_path):
-    from tasks.trials import FINGERPRINT_FIELD, append_result, config_fingerprint
+    from tasks.run_folder import append_result
+    from tasks.trial_config import FINGERPRINT_FIELD, config_fingerprint
 
     prepare_run_folder(tmp_path, TrialConfig(seed=0))
     record = {"episode_id": "smoke-00000", "metrics": None, "sim_time": 1.0, "wall_time": 1.0,
@@ -97,7 +100,7 @@ def test_a_run_folder_refuses_a_different_config(tmp_path):
 
 
 def test_a_run_folder_without_results_takes_a_new_config(tmp_path):
-    from tasks.trials import read_run_config
+    from tasks.run_folder import read_run_config
 
     prepare_run_folder(tmp_path, TrialConfig(seed=0))
     prepare_run_folder(tmp_path, TrialConfig(seed=1))     # e.g. a corrected command after a failed set-up
@@ -105,7 +108,7 @@ def test_a_run_folder_without_results_takes_a_new_config(tmp_path):
 
 
 def test_a_run_can_be_extended_to_more_episodes_but_not_shortened(tmp_path):
-    from tasks.trials import read_run_config
+    from tasks.run_folder import read_run_config
 
     episodes = load_split("smoke")[:2]
     first = run_batch(TrialConfig(agent="oracle", split="smoke", episodes=1), episodes[:1], tmp_path)
@@ -187,7 +190,8 @@ def test_every_command_help_describes_it_in_whole_sentences():
 
 
 def _folder_with_one_record(out, config):
-    from tasks.trials import FINGERPRINT_FIELD, append_result, config_fingerprint
+    from tasks.run_folder import append_result
+    from tasks.trial_config import FINGERPRINT_FIELD, config_fingerprint
 
     prepare_run_folder(out, config)
     append_result(out / "episodes.jsonl", {"episode_id": "smoke-00000", "metrics": None, "sim_time": 1.0,
@@ -196,7 +200,7 @@ def _folder_with_one_record(out, config):
 
 def test_stale_results_name_a_different_configuration_or_commit_and_nothing_else(tmp_path):
     from tasks.provenance import git_commit
-    from tasks.trials import stale_results
+    from tasks.run_folder import stale_results
 
     cfg = TrialConfig(agent="oracle", split="smoke", episodes=2)
     assert stale_results(tmp_path / "none", cfg) is None                   # no folder
@@ -219,7 +223,7 @@ def test_stale_results_name_a_different_configuration_or_commit_and_nothing_else
 
 
 def test_move_aside_keeps_the_folder_under_a_dated_name_and_never_moves_one_in_use(tmp_path):
-    from tasks.trials import RunFolderError, _FolderLock, move_aside
+    from tasks.run_folder import RunFolderError, FolderLock, move_aside
 
     out = tmp_path / "run"
     _folder_with_one_record(out, TrialConfig())
@@ -230,7 +234,7 @@ def test_move_aside_keeps_the_folder_under_a_dated_name_and_never_moves_one_in_u
     _folder_with_one_record(out, TrialConfig())
     assert move_aside(out, stamp="20261202-030000") == tmp_path / "run.20261202-030000.2"
     _folder_with_one_record(out, TrialConfig())
-    with _FolderLock(out):                     # a batch is writing there
+    with FolderLock(out):                     # a batch is writing there
         with pytest.raises(RunFolderError, match="in use by pid"):
             move_aside(out)
     assert (out / "episodes.jsonl").is_file()

@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from helios.schema import ConfigError, dump_yaml, to_dict, with_overrides
-from tasks.trials import TrialConfig, load_trial_config, prepare_run_folder, read_run_config
+from tasks.run_folder import prepare_run_folder, read_run_config
+from tasks.trial_config import TrialConfig, load_trial_config
 from tools.cli import build_parser, main
 from tools.trials import resolve_config
 

@@ -18,8 +18,9 @@ import pytest
 from helios.runtime import cpu_dispatch
 from helios.schema import with_overrides
 from tasks.episodes import load_split
-from tasks.trials import (NONDETERMINISTIC_FIELDS, TrialConfig, deterministic_view, read_results, run_batch,
-                          run_one)
+from tasks.run_folder import read_results
+from tasks.trial_config import NONDETERMINISTIC_FIELDS, TrialConfig, deterministic_view
+from tasks.trials import run_batch, run_one
 
 # Short episodes for the oracle: smoke-00000 succeeds within the limit, smoke-00001 runs out of time (mixed outcomes).
 SHORT = ["runner.max_sim_time=45"]
@@ -189,7 +190,7 @@ def test_a_second_batch_on_the_same_folder_is_refused_while_the_first_runs(tmp_p
         while not (out / ".lock").exists() or not (out / ".lock").read_text():
             assert time.monotonic() < deadline and proc.poll() is None
             time.sleep(0.05)
-        from tasks.trials import RunFolderError
+        from tasks.run_folder import RunFolderError
 
         with pytest.raises(RunFolderError, match=r"is in use by pid \d+"):
             run_batch(with_overrides(TrialConfig(episodes=1), SHORT), load_split("smoke")[:1], out)

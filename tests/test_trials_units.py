@@ -193,28 +193,28 @@ def test_a_repair_killed_before_its_rename_does_not_copy_the_damaged_lines_again
     """(QA 2026-12-04) quarantine() appends the damaged lines to episodes.damaged.jsonl, then
     renames the cleaned episodes.jsonl into place; a resume killed between the two left the lines
     in both files, and every later repair appended them again (3 copies after 2 kills)."""
-    from tasks import trials
+    from tasks import run_folder
 
     path = tmp_path / "episodes.jsonl"
     torn = b'{"episode_id": "smoke-00002", "succ'
     path.write_bytes(b"#not a record\n" + torn)
-    side = tmp_path / trials.DAMAGED_FILE
-    real_write = trials._write_bytes_atomic
+    side = tmp_path / run_folder.DAMAGED_FILE
+    real_write = run_folder.write_bytes_atomic
 
     def killed(*_args, **_kwargs):
         raise KeyboardInterrupt("killed at the rename")
 
-    monkeypatch.setattr(trials, "_write_bytes_atomic", killed)
+    monkeypatch.setattr(run_folder, "write_bytes_atomic", killed)
     for _ in range(2):                                  # two resumes killed at the same place
         with pytest.raises(KeyboardInterrupt):
-            trials.quarantine(path, trials.scan_results(path))
-    monkeypatch.setattr(trials, "_write_bytes_atomic", real_write)
-    trials.quarantine(path, trials.scan_results(path))
+            run_folder.quarantine(path, run_folder.scan_results(path))
+    monkeypatch.setattr(run_folder, "write_bytes_atomic", real_write)
+    run_folder.quarantine(path, run_folder.scan_results(path))
     assert side.read_bytes() == b"#not a record\n" + torn + b"\n"
     assert path.read_bytes() == b""
     # a later, different damage is still appended after it
     path.write_bytes(b"#garbage\n")
-    trials.quarantine(path, trials.scan_results(path))
+    run_folder.quarantine(path, run_folder.scan_results(path))
     assert side.read_bytes() == b"#not a record\n" + torn + b"\n#garbage\n"
 
 
@@ -224,18 +224,18 @@ def test_a_write_error_names_the_file(tmp_path, monkeypatch):
     one error line prints."""
     import errno
 
-    from tasks import trials
+    from tasks import run_folder
 
     real_fsync = os.fsync
 
     def full(_fd):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(trials.os, "fsync", full)
+    monkeypatch.setattr(run_folder.os, "fsync", full)
     with pytest.raises(OSError) as info:
-        trials.append_result(tmp_path / "episodes.jsonl", {"episode_id": "smoke-00000"})
+        run_folder.append_result(tmp_path / "episodes.jsonl", {"episode_id": "smoke-00000"})
     assert info.value.errno == errno.ENOSPC and info.value.filename == str(tmp_path / "episodes.jsonl")
     with pytest.raises(OSError) as info:
-        trials._write_bytes_atomic(tmp_path / "summary.json", b"{}")
+        run_folder.write_bytes_atomic(tmp_path / "summary.json", b"{}")
     assert info.value.filename == str(tmp_path / "summary.json.tmp")
-    monkeypatch.setattr(trials.os, "fsync", real_fsync)
+    monkeypatch.setattr(run_folder.os, "fsync", real_fsync)

@@ -227,7 +227,7 @@ def run(args: argparse.Namespace) -> str:
         finally:
             for w in workers.values():
                 w.close()
-    from tasks.trials import cpu_paths_now
+    from tasks.run_folder import cpu_paths_now
 
     cpu = cpu_paths_now()     # both workers inherit this process's environment, hence its code paths
     after = {"label": "this checkout", "cpu": cpu, **results["after"], **_summary(**results["after"])}

@@ -58,7 +58,8 @@ def _load() -> str:
 
 def run(args: argparse.Namespace) -> str:
     from tasks.episodes import load_split
-    from tasks.trials import TrialConfig, deterministic_view, run_batch
+    from tasks.trial_config import TrialConfig, deterministic_view
+    from tasks.trials import run_batch
     from tools.cli import CliError
     from tools.tables import format_table
 

@@ -41,7 +41,7 @@ def user_error_types() -> tuple[type[BaseException], ...]:
     from tasks.executors import ExecutorError
     from tasks.registry import UnknownAgentError
     from tasks.spec import TaskSpecError
-    from tasks.trials import RunFolderError
+    from tasks.run_folder import RunFolderError
 
     # HalError covers the Spot SDK backend's errors too (robots.spot.sdk_backend: CredentialsError,
     # SpotConnectError, SpotSdkMissingError and the HAL's RobotFault subclasses).

@@ -149,10 +149,10 @@ def diff_runs(a, b, episodes: int | None = None, ignore: frozenset[str] = frozen
               tolerance: float = 0.0) -> RunDiff:
     """Compare two loaded runs (``tools.report_runs.Run``) on the episodes both have (the first
     ``episodes`` of them by id). The records' nondeterministic fields (wall time, memory, recording
-    path: ``tasks.trials.NONDETERMINISTIC_FIELDS``) are always left out; CliError when the runs
+    path: ``tasks.trial_config.NONDETERMINISTIC_FIELDS``) are always left out; CliError when the runs
     share no episode or an ``ignore`` path names nothing in either run."""
     from helios.schema import short_repr
-    from tasks.trials import NONDETERMINISTIC_FIELDS
+    from tasks.trial_config import NONDETERMINISTIC_FIELDS
     from tools.cli import CliError
 
     ra = {r["episode_id"]: r for r in a.records}

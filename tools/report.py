@@ -57,7 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 # Tables
 # ------------------------------------------------------------------------------------------------
 def metrics_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
-    from tasks.trials import metrics_table_rows
+    from tasks.trial_summary import metrics_table_rows
 
     headers = ["run"] + list(PHASES)
     return headers, [metrics_table_rows(r.name, r.summary) for r in runs]
@@ -276,7 +276,7 @@ def write_html(path: Path, runs: list[Run], tables: list[tuple[str, list, list]]
 def restrict_to_common(runs: list[Run]) -> int:
     """Keep only the episodes every run has finished (a fair comparison of runs of different
     lengths or of unfinished runs); returns how many that is."""
-    from tasks.trials import summarize
+    from tasks.trial_summary import summarize
     from tools.cli import CliError
 
     common = set.intersection(*({r["episode_id"] for r in run.records} for run in runs))
@@ -326,7 +326,7 @@ def parse_budgets(text: str) -> tuple[float, ...]:
 
 def parse_pick_limits(text: str) -> tuple[int, ...]:
     """``--pick-limits`` "1,5" -> (1, 5); CliError for anything but distinct integers in range."""
-    from tasks.trials import MAX_PICK_LIMIT
+    from tasks.trial_summary import MAX_PICK_LIMIT
     from tools.cli import CliError
 
     def one(part: str) -> int:
@@ -343,10 +343,10 @@ def parse_pick_limits(text: str) -> tuple[int, ...]:
 
 def pick_limited_runs(runs: list[Run], limit: int) -> list[Run]:
     """Copies of ``runs`` scored with at most ``limit`` grasp attempts per episode
-    (:func:`tasks.trials.limit_pick_attempts`, the paper's "N picks" rows)."""
+    (:func:`tasks.trial_summary.limit_pick_attempts`, the paper's "N picks" rows)."""
     import dataclasses
 
-    from tasks.trials import limit_pick_attempts, summarize
+    from tasks.trial_summary import limit_pick_attempts, summarize
 
     out = []
     for r in runs:
@@ -357,7 +357,7 @@ def pick_limited_runs(runs: list[Run], limit: int) -> list[Run]:
 
 def pick_limit_tables(runs: list[Run], limits: tuple[int, ...]) -> list[tuple[str, list, list]]:
     """Per limit: the percent table and (several runs) the paired sign tests against the first run."""
-    from tasks.trials import exceeds_pick_limit
+    from tasks.trial_summary import exceeds_pick_limit
 
     tables = []
     for n in limits:
@@ -389,7 +389,8 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     ``pick_limits``: also the paper's "N picks" tables (:func:`pick_limit_tables`). ``budgets``:
     the simulated seconds of the time-budget table (:func:`budget_rows`; default fifths of the cap)."""
     from tasks.episode_trace import trace_path
-    from tasks.trials import FOLDER_FILES, MAX_PICK_LIMIT, is_pick_limit
+    from tasks.run_folder import FOLDER_FILES
+    from tasks.trial_summary import MAX_PICK_LIMIT, is_pick_limit
     from tools.cli import CliError, check_output_dir, check_output_file
 
     RUN_FOLDER_PARTS = {*FOLDER_FILES, "episodes", "recordings", "config.yaml.damaged"}

@@ -24,7 +24,7 @@ class Run:
     summary: dict
     config: dict
     legacy: int = 0             # records without a configuration fingerprint (written before they existed)
-    cpu: tuple[str, ...] = ()   # the CPU code paths its invocations ran on (tasks.trials.run_cpu_paths)
+    cpu: tuple[str, ...] = ()   # the CPU code paths its invocations ran on (tasks.run_folder.run_cpu_paths)
 
 
 MAX_LISTED_DAMAGE = 10     # damaged lines named one by one (FILE:LINE) per run folder; the rest are counted
@@ -51,8 +51,8 @@ def invocations_problem(run_path: Path) -> str | None:
     """What is wrong with a run folder's invocations.jsonl (a directory in its place, damaged
     lines), or None. It only says which code paths the episodes ran on: the report and diff read
     the records without it, but say so (a resume refuses a directory; it appends after damaged
-    lines, which ``tasks.trials.read_invocations`` names and the rest skips)."""
-    from tasks.trials import read_invocations
+    lines, which ``tasks.run_folder.read_invocations`` names and the rest skips)."""
+    from tasks.run_folder import read_invocations
 
     path = run_path / "invocations.jsonl"
     if path.is_dir():
@@ -73,11 +73,12 @@ def load_run(path: str | Path, name: str | None = None, warnings: list[str] | No
     """A run folder's finished episodes and summary; CliError when it is missing, unreadable or
     empty. Damaged lines of episodes.jsonl are skipped, each named as FILE:LINE in ``warnings``
     (also records of one episode that disagree, and records of episodes that are not the run's:
-    ``tasks.trials.scan_results``); so are an unreadable config.yaml, records that disagree with it
+    ``tasks.run_folder.scan_results``); so are an unreadable config.yaml, records that disagree with it
     and a damaged invocations.jsonl."""
     from helios.schema import read_text, short_repr, yaml_load_text
-    from tasks.trials import (RunFolderError, config_fingerprint, run_cpu_paths, run_episode_ids,
-                              scan_results, summarize)
+    from tasks.run_folder import RunFolderError, run_cpu_paths, scan_results
+    from tasks.trial_config import config_fingerprint, run_episode_ids
+    from tasks.trial_summary import summarize
     from tools.cli import CliError
 
     warnings = warnings if warnings is not None else []

@@ -44,7 +44,7 @@ def paired_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     """Each run against the first on the same episodes: per phase, the episodes only this run
     passed / only the first passed, and the sign-test p-value. Ablations that differ by a few
     points are often the same agent on most episodes; this says how many episodes actually differ."""
-    from tasks.trials import METRIC_KEYS
+    from tasks.trial_summary import METRIC_KEYS
 
     ref = _metrics_by_episode(runs[0])
     headers = ["run", "vs", "episodes"] + list(PHASES)
@@ -109,7 +109,7 @@ POWER_TITLE = ("How many episodes the paired comparisons need (exact sign test, 
 def power_rows(runs: list[Run], keys: tuple[str, ...] = ("find_obj", "success")) -> tuple[list[str], list[list]]:
     """For each run against the first, per headline phase: the gap in points, the detectable gap
     with this many episodes that differ (:func:`detectable_gap`), and :func:`episodes_needed`."""
-    from tasks.trials import METRIC_NAMES
+    from tasks.trial_summary import METRIC_NAMES
 
     ref = _metrics_by_episode(runs[0])
     headers = ["run", "vs", "episodes"]

@@ -582,7 +582,7 @@ def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str,
     from tasks.hardware import HardwareTrialError, prepare_hardware_folder
     from tasks.instrument import InstrumentedAgent
     from tasks.runner import RunnerConfig
-    from tasks.trials import append_result
+    from tasks.run_folder import append_result
     from tools.cli import CliError
 
     _check_fake_available()

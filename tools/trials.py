@@ -10,7 +10,7 @@ results, a printed OVMM-style table and ``summary.json``.
     python -m tools trials --config configs/val_helios.yaml --workers 2 --out runs/val/helios
     python -m tools trials --config runs/val/helios/config.yaml --episodes 300 --out runs/val/helios
 
-Scenario files: ``--config FILE.yaml`` loads a trial config (schema ``tasks.trials.TrialConfig``;
+Scenario files: ``--config FILE.yaml`` loads a trial config (schema ``tasks.trial_config.TrialConfig``;
 examples in ``configs/``), then ``--agent``/``--split``/``--episodes-file``/``--episodes``/``--seed``
 override it where given, then ``KEY=VALUE`` overrides. A run folder's ``config.yaml`` is such a
 file (its ``helios_version``/``git_commit`` header is provenance, checked and otherwise ignored):
@@ -75,7 +75,7 @@ CONFIG_FLAGS = ("agent", "split", "episodes_file", "episodes", "seed")
 def resolve_config(args: argparse.Namespace):
     """Defaults < ``--config`` file < flags given on the command line < ``KEY=VALUE`` overrides."""
     from helios.schema import with_overrides
-    from tasks.trials import TrialConfig, load_trial_config
+    from tasks.trial_config import TrialConfig, load_trial_config
 
     base = TrialConfig()
     if getattr(args, "config", None):
@@ -125,9 +125,10 @@ def run(args: argparse.Namespace) -> int:
 
     from tasks.executors import check_address
     from tasks.registry import check_agent
-    from tasks.trials import (METRIC_NAMES, BatchReport, EpisodeSetupError, check_devices, check_folder_layout,
-                              metrics_table_rows, move_aside, prepare_run_folder, read_results, run_batch,
-                              stale_results, summarize)
+    from tasks.run_folder import check_folder_layout, move_aside, prepare_run_folder, read_results, stale_results
+    from tasks.trial_config import check_devices
+    from tasks.trial_summary import METRIC_NAMES, metrics_table_rows, summarize
+    from tasks.trials import BatchReport, EpisodeSetupError, run_batch
     from tools.cli import CliError, check_output_dir
     from tools.progress import Progress, format_duration
     from tools.tables import format_markdown, format_table
