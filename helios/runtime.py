@@ -85,6 +85,27 @@ def cpu_flags(cpuinfo: str | None = None) -> set[str]:
     return set()
 
 
+def cpu_model(cpuinfo: str | None = None) -> str:
+    """The CPU's model name from ``/proc/cpuinfo`` (``platform.processor()`` where there is none).
+
+    The pinned code path does not make every record machine-independent (README, "One CPU code
+    path": a 200-episode re-run on an AMD EPYC moved a few episodes; the same code on an Intel Xeon
+    moved one reference record by 0.4 ms of simulated time), so exact comparisons name the
+    machine they were made on."""
+    if cpuinfo is None:
+        try:
+            with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
+                cpuinfo = fh.read()
+        except OSError:
+            import platform
+
+            return platform.processor() or "unknown"
+    for line in cpuinfo.splitlines():
+        if line.startswith("model name"):
+            return " ".join(line.partition(":")[2].split())
+    return "unknown"
+
+
 def _numpy_at_least_2_4() -> bool:
     from importlib.metadata import PackageNotFoundError, version
 

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from helios.runtime import (CPU_ENV_VAR, PIN_VARS, PORTABLE_LEVEL, cpu_dispatch, cpu_flags, cpu_pin_settings)
+from helios.runtime import (CPU_ENV_VAR, PIN_VARS, PORTABLE_LEVEL, cpu_dispatch, cpu_flags, cpu_model,
+                           cpu_pin_settings)
 from tasks.executors import cpu_pin_environment
 from tasks.trial_config import TrialConfig
 
@@ -66,6 +67,14 @@ def test_cpu_flags_reads_the_flags_line():
     text = "processor\t: 0\nvendor_id\t: GenuineIntel\nflags\t\t: fpu sse2 avx2 fma avx512f\nbugs\t: x\n"
     assert cpu_flags(text) == {"fpu", "sse2", "avx2", "fma", "avx512f"}
     assert cpu_flags("no flags here") == set()
+
+
+def test_cpu_model_reads_the_model_name_line():
+    """The reference records name the CPU they were made on by this line (tests/test_reference_records.py)."""
+    text = "processor\t: 0\nmodel name\t:  AMD EPYC   9R14 96-Core Processor\nflags\t: fpu\n"
+    assert cpu_model(text) == "AMD EPYC 9R14 96-Core Processor"
+    assert cpu_model("no model here") == "unknown"
+    assert cpu_model() and "\n" not in cpu_model()
 
 
 def _fresh_python(code: str, **extra) -> subprocess.CompletedProcess:
