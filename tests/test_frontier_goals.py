@@ -20,7 +20,6 @@ from helios.maps.grid import GridGeometry
 from helios.config import OccupancyConfig
 from helios.maps.occupancy import OccupancyGrid
 from helios.planning.fmm import PlanResult
-from helios.search.objective import FrontierOption
 from robots.hal import SE2Pose
 
 GEO = GridGeometry(cell_size=0.1, size=200, origin_x=-10.0, origin_y=-10.0)

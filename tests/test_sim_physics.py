@@ -3,7 +3,6 @@ depth is metric, and runs repeat bit for bit."""
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest

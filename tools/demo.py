@@ -151,7 +151,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from helios.schema import load_config
     from robots.spot.sim_backend import SimBackendConfig
-    from tools.cli import CliError, check_output_file, check_seed
+    from tools.cli import check_output_file, check_seed
 
     check_seed(args.seed)
     load_config(SimBackendConfig, getattr(args, "config", None), list(args.overrides))   # bad config: fail first

@@ -331,7 +331,6 @@ def render_gaussians(means: torch.Tensor, scales: torch.Tensor, opacities: torch
     # makes dozens of calls per bucket).
     order = torch.argsort(z[idx], stable=True)
     idx = idx[order]
-    n_vis = idx.numel()
     buckets = [r for r in _RADIUS_BUCKETS if r < cfg.max_radius_px] + [cfg.max_radius_px]
     bucket_of = torch.bucketize(radius.index_select(0, idx),
                                 torch.as_tensor(buckets, dtype=radius.dtype, device=device))

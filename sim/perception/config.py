@@ -34,7 +34,6 @@ The goal receptacle (od_b = 0.45) comes out of the same model and is reported, n
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Literal
 
