@@ -650,3 +650,63 @@ def test_a_plan_from_the_bodys_checker_is_the_plan_from_a_fresh_one():
     assert planner._checker(geo, obstacle, explored, max_height, starts[0], other).config == cfg.footprint
     blind = FootprintChecker(cfg.footprint, geo, obstacle, max_height)
     assert planner._checker(geo, obstacle, explored, max_height, starts[0], blind).blocks_unknown
+
+
+def _box_mesh_loop(half_extents, max_cell: float = 0.25):
+    """The per-vertex loop ``sim.assets.box_mesh`` replaced (the oracle)."""
+    h = np.asarray(half_extents, dtype=float)
+    verts, idx, normals, uvs = [], [], [], []
+    for axis in range(3):
+        u_ax, v_ax = [a for a in range(3) if a != axis]
+        nu = max(1, int(math.ceil(2 * h[u_ax] / max_cell)))
+        nv = max(1, int(math.ceil(2 * h[v_ax] / max_cell)))
+        for sign in (1.0, -1.0):
+            base = len(verts)
+            n = [0.0, 0.0, 0.0]
+            n[axis] = sign
+            for i in range(nu + 1):
+                for j in range(nv + 1):
+                    p = np.zeros(3)
+                    p[axis] = sign * h[axis]
+                    p[u_ax] = -h[u_ax] + 2 * h[u_ax] * i / nu
+                    p[v_ax] = -h[v_ax] + 2 * h[v_ax] * j / nv
+                    verts.append(p.tolist())
+                    normals.append(n)
+                    uvs.append([p[u_ax] + h[u_ax], p[v_ax] + h[v_ax]])
+            flip = (sign < 0) != (axis == 1)
+            for i in range(nu):
+                for j in range(nv):
+                    a, b = base + i * (nv + 1) + j, base + (i + 1) * (nv + 1) + j
+                    quad = [a, b, b + 1, a, b + 1, a + 1]
+                    idx += [quad[0], quad[2], quad[1], quad[3], quad[5], quad[4]] if flip else quad
+    return verts, idx, normals, uvs
+
+
+def _bits(values) -> list:
+    """Floats as their exact bit patterns (so -0.0 and 0.0 differ), ints as they are."""
+    return [v if isinstance(v, int) else float(v).hex() for v in np.ravel(np.asarray(values, dtype=object))]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_box_mesh_equals_the_per_vertex_loop_bit_for_bit(seed):
+    from sim.assets import box_mesh
+
+    rng = np.random.default_rng(seed)
+    for _ in range(60):
+        h = tuple(float(x) for x in rng.uniform(0.005, 3.0, 3))
+        max_cell = float(rng.choice([0.1, 0.25, 0.5, 1e9]))
+        new, old = box_mesh(h, max_cell), _box_mesh_loop(h, max_cell)
+        for a, b in zip(new, old):
+            assert _bits(a) == _bits(b)
+
+
+def test_a_layout_comes_back_equal_and_unshared():
+    """The per-worker layout cache hands out copies: a caller's change never reaches the next one."""
+    from sim.scenes.layout import generate_layout
+
+    a = generate_layout(1835504127)
+    b = generate_layout(1835504127)
+    assert a == b and a is not b and a.receptacles[0] is not b.receptacles[0]
+    a.receptacles.pop()
+    a.objects[0].x += 1.0
+    assert generate_layout(1835504127) == b
