@@ -135,20 +135,12 @@ def _resolve_baseline(ref: str | None, tmp: Path) -> tuple[str, Path | None, dic
             raise CliError(f"--agent-baseline {ref!r}: not a file written by `bench agent --agent-save` "
                            f"(format {SAVE_FORMAT!r})")
         return saved.get("label", path.name), None, saved
-    try:
-        commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--verify", "--quiet", f"{ref}^{{commit}}"],
-                                capture_output=True, text=True, timeout=30).stdout.strip()
-    except (OSError, subprocess.TimeoutExpired) as exc:
-        raise CliError(f"--agent-baseline {ref!r}: git is not usable here ({exc})") from None
+    from tools.commit_tree import extract_commit, resolve_commit
+
+    commit = resolve_commit(ref, "--agent-baseline")
     if not commit:
         raise CliError(f"--agent-baseline {ref!r} is neither a file nor a commit of {ROOT}")
-    tree = tmp / commit[:12]
-    tree.mkdir()
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", "--format=tar", commit], capture_output=True,
-                             timeout=120)
-    if archive.returncode != 0:
-        raise CliError(f"--agent-baseline {ref!r}: git archive failed: {archive.stderr.decode(errors='replace')[:200]}")
-    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive.stdout, check=True, timeout=120)
+    tree = extract_commit(commit, tmp / commit[:12], f"--agent-baseline {ref!r}")
     if not (tree / "tasks" / "runner.py").is_file():
         raise CliError(f"--agent-baseline {ref!r} ({commit[:12]}) has no tasks/runner.py: too old to bench")
     return f"{ref} ({commit[:10]})", tree, None

@@ -23,6 +23,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "report": ("tools.report", "compare run folders: the paper-style table (text, Markdown) and PNG/HTML plots"),
     "diff": ("tools.diff_runs", "which episodes' records differ between two run folders, field by field "
                                 "(exit 1 if any): did a change keep every result?"),
+    "unchanged": ("tools.unchanged", "run val episodes with a commit's code and with this working tree, here, and "
+                                     "compare the records (exit 1 if any differs): the refactor check"),
     "view": ("tools.view", "open a rerun recording (.rrd) in the viewer, or say how to view it elsewhere"),
     "episodes": ("tools.episodes", "generate an episode split from a seed, or check an episode file"),
     "tsdf": ("tools.tsdf", "TSDF-reconstruct what an episode saw; report true-surface coverage, write the mesh"),

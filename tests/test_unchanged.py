@@ -1,0 +1,74 @@
+"""``python -m tools unchanged``: the same episodes with two trees' code, compared record by record.
+
+The end-to-end tests run a committed tree (``git archive HEAD``) on both sides, so they do not
+depend on what is edited in this checkout: the same code must give identical records, and a
+scenario that differs must be reported as a change with exit status 1.
+"""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from tools.commit_tree import extract_commit, resolve_commit
+from tools.unchanged import MARKER, compare, prepare
+
+
+def _head() -> str:
+    try:
+        commit = resolve_commit("HEAD", "HEAD")
+    except Exception as exc:  # noqa: BLE001 - no git here
+        pytest.skip(f"git is not usable in this checkout ({exc})")
+    if commit is None:
+        pytest.skip("this checkout has no commit (not a git clone)")
+    return commit
+
+
+@pytest.fixture(scope="module")
+def head_tree(tmp_path_factory) -> Path:
+    return extract_commit(_head(), tmp_path_factory.mktemp("head") / "tree", "HEAD")
+
+
+def test_the_same_code_gives_identical_records_and_a_changed_scenario_is_a_change(head_tree, tmp_path, capsys):
+    out = tmp_path / "check"
+    same = compare(out, ["trusting"], 1, 1, frozenset(), base=(head_tree, "HEAD"), now=(head_tree, "HEAD again"))
+    text = capsys.readouterr().out
+    assert same, text
+    assert "trusting: 1 of 1 records identical" in text and "unchanged: every record is the same" in text
+    assert (out / "trusting" / "base" / "episodes.jsonl").is_file()
+
+    # The base side's scenario cut to 20 s: the same episode ends differently, and that is a change.
+    changed = tmp_path / "changed"
+    subprocess.run(["cp", "-r", str(head_tree), str(changed)], check=True, timeout=60)
+    scenario = changed / "configs" / "val_trusting.yaml"
+    scenario.write_text(scenario.read_text() + "\nrunner:\n  max_sim_time: 20\n")
+    same = compare(tmp_path / "check2", ["trusting"], 1, 1, frozenset(), base=(changed, "cut"),
+                   now=(head_tree, "HEAD"))
+    text = capsys.readouterr().out
+    assert not same
+    assert "val-00000" in text and "sim_time" in text and "CHANGED" in text
+
+
+def test_a_new_check_reruns_the_working_tree_side_and_keeps_the_commits(tmp_path):
+    """The commit's side resumes (same commit) or starts afresh (another commit, --fresh); the
+    working tree's side is always run again, since the code may have changed in between."""
+    commit = _head()
+    out = tmp_path / "u"
+    tree = prepare(out, commit, ["trusting"], fresh=False)
+    assert (tree / "tasks" / "trials.py").is_file() and (out / MARKER).is_file()
+    for side in ("base", "now"):
+        (out / "trusting" / side).mkdir(parents=True)
+        (out / "trusting" / side / "episodes.jsonl").write_text("{}\n")
+    prepare(out, commit, ["trusting"], fresh=False)
+    assert (out / "trusting" / "base" / "episodes.jsonl").is_file()
+    assert not (out / "trusting" / "now").exists()
+    (out / "base-commit").write_text("0" * 40 + "\n")          # the last check was of another commit
+    prepare(out, commit, ["trusting"], fresh=False)
+    assert not (out / "trusting" / "base").exists()
+    assert (out / "base-commit").read_text().strip() == commit
+    (out / "trusting" / "base").mkdir(parents=True)
+    prepare(out, commit, ["trusting"], fresh=True)
+    assert not (out / "trusting" / "base").exists()
+
