@@ -159,6 +159,14 @@ class GaussianConfig:
     """The Gaussian layer works on images subsampled by the smallest integer factor that brings
     the width to at most this many pixels (320 x 240 input -> 160 x 120). Render cost scales with
     covered pixels, so this is the main speed knob; geometry stays exact (intrinsics rescaled)."""
+    view_evidence_max_width: int = 0
+    """Width cap of the renders of hypothetical views (the information gain of a candidate's gaze
+    points and the predicted Psi' of an extra view): 0 renders them at the working resolution
+    (``update_max_width``), like the real updates. A smaller width renders them subsampled by
+    the smallest integer factor g that fits, with footprints of the same solid angle
+    (``helios.maps.gaussians.coarser_render``), and counts each rendered pixel g^2 times: an
+    approximation of the evidence sum, cheaper by about the pixel ratio (ours, not the paper's;
+    a speed option, measured with ``python -m tools bench agent --agent-set ...``)."""
     creation_stride: int = 1
     """Gaussians are created on this pixel grid of the working image (1 = one per pixel, as in
     HELIOS). Larger strides make fewer, wider Gaussians."""
@@ -214,6 +222,9 @@ class GaussianConfig:
         require_range(self, "alpha_cpa scale_factor", 0.0, 1000.0, lo_open=True)
         require_range(self, "prior_concentration", 0.0, 1e6, lo_open=True)
         require_range(self, "update_max_width", 8, 4096)
+        require_range(self, "view_evidence_max_width", 0, 4096)
+        require(self.view_evidence_max_width == 0 or self.view_evidence_max_width >= 8,
+                "view_evidence_max_width must be 0 (the working resolution) or >= 8 pixels")
         require_range(self, "creation_stride", 1, 64)
         require_range(self, "creation_erosion_px reobservation_closing_px", 1, 100)
         require_range(self, "creation_depth_error reobservation_depth_error", 0.0, 10.0, lo_open=True)

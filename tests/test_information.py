@@ -206,3 +206,47 @@ def test_psi_prime_of_several_views_adds_their_evidence():
     assert both.predicted_psi > max(predicted_object_score(gmap, iid, "cup", CAM, T).predicted_psi for T in (POSE, side))
     with pytest.raises(ValueError, match="assumption"):
         predicted_object_score_of_views(gmap, iid, "cup", CAM, [POSE], "pessimistic")
+
+
+def _with_view_width(width: int) -> tuple[GaussianMap, int]:
+    from dataclasses import replace
+
+    gmap, iid = blob_map([1.0, 1.0, 1.0])
+    gmap.cfg = replace(gmap.cfg, view_evidence_max_width=width)
+    return gmap, iid
+
+
+def test_coarser_hypothetical_views_render_smaller_and_keep_the_evidence_scale(monkeypatch):
+    """``view_evidence_max_width``: a cap at or above the working width changes nothing; half of it
+    renders a quarter of the pixels, with footprints of the same solid angle (``coarser_render``),
+    and counts each four times, so the total evidence stays that of the full render."""
+    full_map, iid = blob_map([1.0, 1.0, 1.0])
+    _, full = optimistic_evidence(full_map, iid, CAM, POSE)
+    same_map, _ = _with_view_width(160)
+    _, same = optimistic_evidence(same_map, iid, CAM, POSE)
+    assert torch.equal(full, same)
+
+    coarse_map, _ = _with_view_width(80)
+    widths = []
+    render = GaussianMap.render
+
+    def spy(self, cam, pose, indices=None, pixel_mask=None, render_cfg=None):
+        widths.append(cam.width)
+        return render(self, cam, pose, indices=indices, pixel_mask=pixel_mask, render_cfg=render_cfg)
+
+    monkeypatch.setattr(GaussianMap, "render", spy)
+    _, coarse = optimistic_evidence(coarse_map, iid, CAM, POSE)
+    assert widths == [80]
+    assert not torch.equal(coarse, full)
+    assert float(coarse.sum()) == pytest.approx(float(full.sum()), rel=0.02)
+    assert float(coarse.min()) > 0
+
+
+def test_a_coarser_render_keeps_the_footprints_solid_angle():
+    from helios.config import RenderConfig
+    from helios.maps.gaussians import coarser_render
+
+    cfg = RenderConfig()
+    two = coarser_render(cfg, 2)
+    assert two.blur_px2 == pytest.approx(cfg.blur_px2 / 4) and two.max_radius_px == 24
+    assert coarser_render(cfg, 1) == cfg and coarser_render(cfg, 100).max_radius_px == 1

@@ -56,6 +56,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--agent-baseline", default=None, metavar="REF",
                        help="a git commit (e.g. HEAD~3) or a file saved with --agent-save: run/read it too and "
                             "print before and after side by side")
+    group.add_argument("--agent-set", action="append", default=[], metavar="KEY=VALUE",
+                       help="an option of the agent in this checkout (agent_config.*, helios.* or perception.*, "
+                            "as in `tools trials`; repeatable): with --agent-baseline HEAD, an option's cost side "
+                            "by side")
     group.add_argument("--agent-save", default=None, metavar="FILE",
                        help="write this run's numbers as JSON (a later run's --agent-baseline)")
 
@@ -67,9 +71,12 @@ def _percentile(values, q):
 class _WorkerProcess:
     """One bench worker on a source tree; requests and answers are JSON lines, each with a timeout."""
 
-    def __init__(self, root: Path, agent: str, profile: bool, label: str, start_timeout: float = 300.0):
+    def __init__(self, root: Path, agent: str, profile: bool, label: str, start_timeout: float = 300.0,
+                 sets: tuple[str, ...] = ()):
         self.label = label
         cmd = [sys.executable, str(WORKER), str(root), agent, "1"] + (["--profile"] if profile else [])
+        for s in sets:
+            cmd += ["--set", s]
         env = dict(os.environ, PYTHONPATH=str(root))
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                      text=True, cwd=str(root), env=env)
@@ -119,6 +126,24 @@ class _WorkerProcess:
         if self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait(timeout=10)
+
+
+AGENT_SET_PREFIXES = ("agent_config.", "helios.", "perception.")
+
+
+def check_agent_sets(agent: str, sets: list[str]) -> tuple[str, ...]:
+    """``--agent-set`` values, checked against the trial configuration's schema before any work."""
+    from helios.schema import with_overrides
+    from tasks.trial_config import TrialConfig
+
+    for s in sets:
+        key = s.partition("=")[0]
+        if "=" not in s or not key.startswith(AGENT_SET_PREFIXES):
+            raise CliError(f"--agent-set {s!r}: give KEY=VALUE with a key under "
+                           f"{', '.join(p.rstrip('.') for p in AGENT_SET_PREFIXES)} (e.g. "
+                           f"helios.gaussians.view_evidence_max_width=80)")
+    with_overrides(TrialConfig(agent=agent), list(sets))        # unknown keys and bad values: ConfigError
+    return tuple(sets)
 
 
 def _resolve_baseline(ref: str | None, tmp: Path) -> tuple[str, Path | None, dict | None]:
@@ -183,6 +208,7 @@ def run(args: argparse.Namespace) -> str:
     from tasks.registry import check_agent
 
     check_agent(args.agent_name)
+    sets = check_agent_sets(args.agent_name, args.agent_set)
     n_eps = 2 if args.quick else args.agent_episodes
     n_plans = 10 if args.quick else args.agent_replans
     n_val = len(load_split("val"))
@@ -195,9 +221,10 @@ def run(args: argparse.Namespace) -> str:
         save = Path(args.agent_save)
         if not save.parent.is_dir():
             raise CliError(f"--agent-save {args.agent_save!r}: folder {str(save.parent)!r} does not exist")
+    after_label = "this checkout" + (f" ({', '.join(sets)})" if sets else "")
     with tempfile.TemporaryDirectory(prefix="bench-agent-") as tmp:
         base_label, base_tree, base_saved = _resolve_baseline(args.agent_baseline, Path(tmp))
-        workers = {"after": _WorkerProcess(ROOT, args.agent_name, args.agent_profile, "this checkout")}
+        workers = {"after": _WorkerProcess(ROOT, args.agent_name, args.agent_profile, after_label, sets=sets)}
         try:
             if base_tree is not None:
                 workers["before"] = _WorkerProcess(base_tree, args.agent_name, args.agent_profile, base_label)
@@ -222,7 +249,7 @@ def run(args: argparse.Namespace) -> str:
     from tasks.run_folder import cpu_paths_now
 
     cpu = cpu_paths_now()     # both workers inherit this process's environment, hence its code paths
-    after = {"label": "this checkout", "cpu": cpu, **results["after"], **_summary(**results["after"])}
+    after = {"label": after_label, "cpu": cpu, **results["after"], **_summary(**results["after"])}
     before = None
     if "before" in results:
         before = {"label": base_label, "cpu": cpu, **results["before"], **_summary(**results["before"])}

@@ -1,7 +1,9 @@
 """A worker process of ``python -m tools bench agent``: times HELIOS episodes and planner replans
 for one source tree (this checkout, or another commit's files extracted by the parent).
 
-Run as ``python tools/bench_agent_worker.py ROOT AGENT THREADS [--profile]``. The first entry
+Run as ``python tools/bench_agent_worker.py ROOT AGENT THREADS [--profile] [--set KEY=VALUE ...]``
+(``--set``: the agent's options, ``agent_config.*``, ``helios.*`` or ``perception.*`` as in
+``tools trials``; only this checkout's worker is given them). The first entry
 of ``sys.path`` becomes ROOT, so ``helios``, ``tasks`` and ``robots`` are that tree's; the
 worker itself only uses calls every version since the split of the agent has had
 (``load_split``, ``make_agent``, ``run_sim_episode``, ``FMMPlanner.plan``, ``agent.timings``).
@@ -79,12 +81,25 @@ def _profile_phases(profiler) -> tuple[dict, list]:
     return phases, [[round(t, 3), name] for t, name in top]
 
 
+def agent_options(agent: str, sets: list[str]) -> dict:
+    """``make_agent``'s options for ``KEY=VALUE`` settings (none: the agent's defaults)."""
+    if not sets:
+        return {}
+    from helios.schema import with_overrides
+    from tasks.trial_config import TrialConfig
+
+    config = with_overrides(TrialConfig(agent=agent), sets)
+    return {"agent_config": config.agent_config, "method_config": config.helios,
+            "perception_config": config.perception}
+
+
 class _Worker:
-    def __init__(self, agent: str, threads: int, profile: bool):
+    def __init__(self, agent: str, threads: int, profile: bool, sets: list[str] | None = None):
         from helios.runtime import configure_threads
         from tasks.episodes import load_split
 
         configure_threads(threads)
+        self.options = agent_options(agent, sets or [])
         self.agent_name = agent
         self.profile = profile
         self.episodes = load_split("val")
@@ -115,7 +130,7 @@ class _Worker:
             for name in HAL_COMMANDS:
                 if hasattr(sim.backend, name):
                     setattr(sim.backend, name, timed(getattr(sim.backend, name)))
-            holder["agent"] = make_agent(self.agent_name, sim)
+            holder["agent"] = make_agent(self.agent_name, sim, **self.options)
             return holder["agent"]
 
         profiler = None
@@ -217,7 +232,8 @@ def _worst_case_map(geometry, rng):
 def main(argv: list[str]) -> int:
     root, agent, threads = argv[0], argv[1], int(argv[2])
     sys.path[0] = root
-    worker = _Worker(agent, threads, "--profile" in argv)
+    sets = [argv[i + 1] for i, a in enumerate(argv[:-1]) if a == "--set"]
+    worker = _Worker(agent, threads, "--profile" in argv, sets)
     print(json.dumps({"ready": True}), flush=True)
     for line in sys.stdin:
         request = json.loads(line)

@@ -165,11 +165,15 @@ def compare(out: Path, runs: list[str], episodes: int, workers: int, ignore: fro
         verdicts.append((name, diff))
     print()
     for name, diff in verdicts:
-        what = "identical" if not diff.differing else f"{len(diff.differing)} differ"
+        what = "" if not diff.differing else f" ({len(diff.differing)} differ)"
         short = len(diff.compared) < episodes
-        print(f"{name}: {diff.identical} of {len(diff.compared)} records identical ({what}), {now[1]} against "
+        print(f"{name}: {diff.identical} of {len(diff.compared)} records identical{what}, {now[1]} against "
               f"{base[1]}" + (f"; only {len(diff.compared)} of the {episodes} episodes finished on both sides"
                               if short else ""))
+    fields = {path for _, d in verdicts for diffs in d.differing.values() for path, _a, _b in diffs}
+    if fields == {"config_fingerprint"}:
+        print("only config_fingerprint differs: the change added (or renamed) a config key; if that was all, "
+              "run again with --ignore config_fingerprint")
     same = all(not d.differing and len(d.compared) == episodes for _, d in verdicts)
     print("unchanged: every record is the same" if same else
           "CHANGED: records differ (above); a deliberate behaviour change says so in its commit")
