@@ -37,6 +37,7 @@ def test_the_same_code_gives_identical_records_and_a_changed_scenario_is_a_chang
     text = capsys.readouterr().out
     assert same, text
     assert "trusting: 1 of 1 records identical" in text and "unchanged: every record is the same" in text
+    assert "[unchanged] trusting (HEAD again): 1/1 val-00000" in text          # each side's progress
     assert (out / "trusting" / "base" / "episodes.jsonl").is_file()
 
     # The base side's scenario cut to 20 s: the same episode ends differently, and that is a change.
@@ -72,3 +73,14 @@ def test_a_new_check_reruns_the_working_tree_side_and_keeps_the_commits(tmp_path
     prepare(out, commit, ["trusting"], fresh=True)
     assert not (out / "trusting" / "base").exists()
 
+
+
+def test_a_side_that_fails_is_one_line_with_its_own_error(head_tree, tmp_path):
+    from tools.cli import CliError
+
+    broken = tmp_path / "broken"
+    subprocess.run(["cp", "-r", str(head_tree), str(broken)], check=True, timeout=60)
+    scenario = broken / "configs" / "val_trusting.yaml"
+    scenario.write_text(scenario.read_text() + "\nrunner:\n  max_sim_tme: 20\n")
+    with pytest.raises(CliError, match=r"trusting \(broken\): `tools trials` exited with status 2: .*max_sim_tme"):
+        compare(tmp_path / "c", ["trusting"], 1, 1, frozenset(), base=(broken, "broken"), now=(head_tree, "HEAD"))

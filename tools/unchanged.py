@@ -21,10 +21,13 @@ is run afresh on every call, since the code may have changed since the last one.
 from __future__ import annotations
 
 import argparse
+import collections
 import os
+import re
 import shutil
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -118,12 +121,17 @@ def prepare(out: Path, commit: str, runs: list[str], fresh: bool) -> Path:
     return tree
 
 
+PROGRESS = re.compile(r"\[trials\] (\d+/\d+ .*)")     # `tools trials --progress lines`: one per episode
+STOP_GRACE_S = 15.0
+
+
 def run_side(tree: Path, run: str, episodes: int, workers: int, folder: Path, label: str) -> float:
     """``tools trials`` for ``run`` with the code in ``tree``, its own interpreter's packages,
-    into ``folder`` (resumed if it holds some of the episodes); its wall seconds. A side that fails
-    or outlives its time limit is a CliError with its last lines."""
+    into ``folder`` (resumed if it holds some of the episodes), its progress passed on one line per
+    episode; its wall seconds. A side that fails or outlives its time limit is a CliError with its
+    last lines; an interrupted one is given ``STOP_GRACE_S`` to stop (it keeps what it finished)."""
     cmd = [sys.executable, "-m", "tools", "trials", "--config", str(tree / "configs" / f"val_{run}.yaml"),
-           "--episodes", str(episodes), "--workers", str(workers), "--no-pictures", "--progress", "none",
+           "--episodes", str(episodes), "--workers", str(workers), "--no-pictures", "--progress", "lines",
            "--out", str(folder.resolve())]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tree), *filter(None, [os.environ.get("PYTHONPATH")])])}
     if tree != ROOT:    # an extracted tree has no .git: git must not find this checkout's (a wrong commit)
@@ -131,15 +139,46 @@ def run_side(tree: Path, run: str, episodes: int, workers: int, folder: Path, la
     limit = 120.0 + SECONDS_PER_EPISODE_LIMIT * episodes / workers
     print(f"[unchanged] {run}: {label}, {episodes} episode(s) -> {folder}", flush=True)
     t0 = time.perf_counter()
+    tail: collections.deque[str] = collections.deque(maxlen=20)
+    proc = subprocess.Popen(cmd, cwd=tree, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            errors="replace")
+
+    def pump() -> None:
+        for line in proc.stdout:
+            tail.append(line.rstrip("\n"))
+            m = PROGRESS.match(line)
+            if m:
+                print(f"[unchanged] {run} ({label}): {m.group(1).strip()}", flush=True)
+
+    reader = threading.Thread(target=pump, daemon=True)
+    reader.start()
     try:
-        done = subprocess.run(cmd, cwd=tree, env=env, capture_output=True, text=True, timeout=limit)
+        code = proc.wait(timeout=limit)
     except subprocess.TimeoutExpired:
+        _stop(proc, signalled=False)
         raise CliError(f"{run} ({label}) did not finish {episodes} episode(s) within {limit:.0f} s; what it "
                        f"finished is kept in {str(folder)!r} and a second call resumes it") from None
-    if done.returncode != 0:
-        tail = " | ".join(line for line in (done.stderr or done.stdout).strip().splitlines()[-3:])
-        raise CliError(f"{run} ({label}): `tools trials` exited with status {done.returncode}: {one_line(tail)}")
+    except BaseException:                  # Ctrl-C reaches the child too: let it keep what it finished
+        _stop(proc)
+        raise
+    reader.join(timeout=5.0)
+    if code != 0:
+        last = " | ".join(line for line in list(tail)[-3:] if line.strip())
+        raise CliError(f"{run} ({label}): `tools trials` exited with status {code}: {one_line(last)}")
     return time.perf_counter() - t0
+
+
+def _stop(proc: subprocess.Popen, signalled: bool = True) -> None:
+    """Stop a side: wait up to ``STOP_GRACE_S`` for it to stop on its own when it was sent the same
+    signal as this process (``signalled``), then terminate it, then kill it."""
+    for action in ((None,) if signalled else ()) + (proc.terminate, proc.kill):
+        if action is not None:
+            action()
+        try:
+            proc.wait(timeout=STOP_GRACE_S)
+            return
+        except subprocess.TimeoutExpired:
+            continue
 
 
 def compare(out: Path, runs: list[str], episodes: int, workers: int, ignore: frozenset[str],
