@@ -28,7 +28,7 @@ from typing import Iterable
 
 import numpy as np
 
-from helios.runtime import cpu_dispatch
+from helios.runtime import cpu_dispatch, cpu_model
 from helios.schema import ConfigError, dump_yaml, from_dict, read_text, shorten, yaml_load_text
 from tasks.provenance import PROVENANCE_KEYS, differs, git_commit, package_version, provenance
 from tasks.trial_config import (FINGERPRINT_FIELD, TrialConfig, config_difference, config_fingerprint, config_text,
@@ -646,9 +646,23 @@ def run_cpu_paths(out: Path) -> list[str]:
     return seen
 
 
+def run_cpu_models(out: Path) -> list[str]:
+    """The distinct CPU models (``model name`` of /proc/cpuinfo) of the invocations that ran
+    episodes in a run folder, in the order first seen; invocations written before 2026-12-05 did
+    not record it and are left out. The same code on the same pinned code path can still give
+    other records on another CPU (README, "One CPU code path")."""
+    seen: list[str] = []
+    for entry in read_invocations(out)[0]:
+        model = entry.get("cpu_model")
+        if entry.get("episodes_to_run") and isinstance(model, str) and model not in seen:
+            seen.append(model)
+    return seen
+
+
 def log_invocation(out: Path, workers: int, executor: str, address: str, todo: int, commit: str) -> None:
     entry = {"time": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "host": socket.gethostname(), "pid": os.getpid(),
              "argv": sys.argv, "workers": workers, "executor": executor,
              "address": address if executor == "ray" else None, "episodes_to_run": todo,
-             "helios_version": package_version(), "git_commit": commit, "cpu": cpu_dispatch()}
+             "helios_version": package_version(), "git_commit": commit, "cpu": cpu_dispatch(),
+             "cpu_model": cpu_model()}
     append_result(out / "invocations.jsonl", entry)

@@ -139,6 +139,34 @@ def test_the_cpu_code_paths_of_the_two_runs_are_compared(tmp_path):
     assert "CPU code paths differ" not in "\n".join(report_lines(a, b, diff_runs(a, b)))
 
 
+def test_runs_on_different_cpus_on_the_same_code_path_are_said(tmp_path):
+    """The same code on the same pinned path still moved a record on another CPU (2026-12-05), so
+    the diff names the CPUs the runs ran on and says when they differ."""
+    from tasks.run_folder import append_result, run_cpu_models
+    from tools.diff_runs import diff_runs, report_lines
+    from tools.report_runs import load_run
+
+    folders = {name: _run(tmp_path / name, 2) for name in ("a", "b")}
+    for name, model in (("a", "Intel(R) Xeon(R) Processor"), ("b", "AMD EPYC 9R14 96-Core Processor")):
+        append_result(folders[name] / "invocations.jsonl", {"episodes_to_run": 2, "cpu_model": model})
+        append_result(folders[name] / "invocations.jsonl", {"episodes_to_run": 0, "cpu_model": "not counted"})
+    assert run_cpu_models(folders["b"]) == ["AMD EPYC 9R14 96-Core Processor"]
+    a, b = load_run(folders["a"]), load_run(folders["b"])
+    text = "\n".join(report_lines(a, b, diff_runs(a, b)))
+    assert "on Intel(R) Xeon(R) Processor" in text and "on AMD EPYC 9R14 96-Core Processor" in text
+    assert "the runs ran on different CPUs" in text
+    b = load_run(folders["a"])
+    assert "different CPUs" not in "\n".join(report_lines(a, b, diff_runs(a, b)))
+
+
+def test_an_invocation_records_the_cpu_model(tmp_path):
+    from helios.runtime import cpu_model
+    from tasks.run_folder import log_invocation, read_invocations
+
+    log_invocation(tmp_path, 1, "local", "", 3, "abc")
+    assert read_invocations(tmp_path)[0][0]["cpu_model"] == cpu_model()
+
+
 @pytest.mark.parametrize("text,fragment", [("a,,b", "empty field name"), ("a b", "not a dotted field path"),
                                            (".a", "not a dotted field path"), ("a..b", "not a dotted field path")])
 def test_bad_ignore_lists_are_refused(text, fragment):

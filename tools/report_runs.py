@@ -25,6 +25,7 @@ class Run:
     config: dict
     legacy: int = 0             # records without a configuration fingerprint (written before they existed)
     cpu: tuple[str, ...] = ()   # the CPU code paths its invocations ran on (tasks.run_folder.run_cpu_paths)
+    cpu_models: tuple[str, ...] = ()   # the CPUs they ran on, where recorded (tasks.run_folder.run_cpu_models)
 
 
 MAX_LISTED_DAMAGE = 10     # damaged lines named one by one (FILE:LINE) per run folder; the rest are counted
@@ -76,7 +77,7 @@ def load_run(path: str | Path, name: str | None = None, warnings: list[str] | No
     ``tasks.run_folder.scan_results``); so are an unreadable config.yaml, records that disagree with it
     and a damaged invocations.jsonl."""
     from helios.schema import read_text, short_repr, yaml_load_text
-    from tasks.run_folder import RunFolderError, run_cpu_paths, scan_results
+    from tasks.run_folder import RunFolderError, run_cpu_models, run_cpu_paths, scan_results
     from tasks.trial_config import config_fingerprint, run_episode_ids
     from tasks.trial_summary import summarize
     from tools.cli import CliError
@@ -141,4 +142,5 @@ def load_run(path: str | Path, name: str | None = None, warnings: list[str] | No
     if len(cpu) > 1:
         warnings.append(f"{p}: its episodes ran on {len(cpu)} different CPU code paths ({' | '.join(cpu)}); "
                         f"they can differ in outcome (README, \"One CPU code path\")")
-    return Run(name or p.resolve().name, p, records, summarize(records), config, legacy=scan.legacy, cpu=cpu)
+    return Run(name or p.resolve().name, p, records, summarize(records), config, legacy=scan.legacy, cpu=cpu,
+               cpu_models=tuple(run_cpu_models(p)))
