@@ -71,18 +71,27 @@ PIN_VARS = (*_LEVEL_VARS, "NPY_DISABLE_CPU_FEATURES", "OPENCV_CPU_DISABLE")
 """Every variable the pin may set."""
 
 
+def _proc_cpuinfo() -> str | None:
+    """The text of ``/proc/cpuinfo``; None where there is none (not Linux)."""
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
+            return fh.read()
+    except OSError:
+        return None
+
+
+def _cpuinfo_line(cpuinfo: str, name: str) -> str | None:
+    """The value (after the colon) of the first ``name`` line of ``cpuinfo``; None without one."""
+    for line in cpuinfo.splitlines():
+        if line.startswith(name):
+            return line.partition(":")[2]
+    return None
+
+
 def cpu_flags(cpuinfo: str | None = None) -> set[str]:
     """The CPU's feature flags from ``/proc/cpuinfo`` (empty where there is none: not Linux)."""
-    if cpuinfo is None:
-        try:
-            with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
-                cpuinfo = fh.read()
-        except OSError:
-            return set()
-    for line in cpuinfo.splitlines():
-        if line.startswith("flags"):
-            return set(line.partition(":")[2].split())
-    return set()
+    text = _proc_cpuinfo() if cpuinfo is None else cpuinfo
+    return set((_cpuinfo_line(text, "flags") or "").split()) if text is not None else set()
 
 
 def cpu_model(cpuinfo: str | None = None) -> str:
@@ -92,18 +101,13 @@ def cpu_model(cpuinfo: str | None = None) -> str:
     path": a 200-episode re-run on an AMD EPYC moved a few episodes; the same code on an Intel Xeon
     moved one reference record by 0.4 ms of simulated time), so exact comparisons name the
     machine they were made on."""
-    if cpuinfo is None:
-        try:
-            with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
-                cpuinfo = fh.read()
-        except OSError:
-            import platform
+    text = _proc_cpuinfo() if cpuinfo is None else cpuinfo
+    if text is None:
+        import platform
 
-            return platform.processor() or "unknown"
-    for line in cpuinfo.splitlines():
-        if line.startswith("model name"):
-            return " ".join(line.partition(":")[2].split())
-    return "unknown"
+        return platform.processor() or "unknown"
+    value = _cpuinfo_line(text, "model name")
+    return " ".join(value.split()) if value is not None else "unknown"
 
 
 def _numpy_at_least_2_4() -> bool:

@@ -637,13 +637,7 @@ def run_cpu_paths(out: Path) -> list[str]:
     """The distinct CPU code paths (:func:`invocation_cpu`) of the invocations that ran episodes
     in a run folder, in the order first seen; empty when it has no ``invocations.jsonl``.
     Episodes run on different code paths can differ in outcome (README, "One CPU code path")."""
-    seen: list[str] = []
-    for entry in read_invocations(out)[0]:
-        if entry.get("episodes_to_run"):
-            paths = invocation_cpu(entry)
-            if paths not in seen:
-                seen.append(paths)
-    return seen
+    return _distinct(invocation_cpu(entry) for entry in _episode_invocations(out))
 
 
 def run_cpu_models(out: Path) -> list[str]:
@@ -651,12 +645,17 @@ def run_cpu_models(out: Path) -> list[str]:
     episodes in a run folder, in the order first seen; invocations written before 2026-12-05 did
     not record it and are left out. The same code on the same pinned code path can still give
     other records on another CPU (README, "One CPU code path")."""
-    seen: list[str] = []
-    for entry in read_invocations(out)[0]:
-        model = entry.get("cpu_model")
-        if entry.get("episodes_to_run") and isinstance(model, str) and model not in seen:
-            seen.append(model)
-    return seen
+    return _distinct(e["cpu_model"] for e in _episode_invocations(out) if isinstance(e.get("cpu_model"), str))
+
+
+def _episode_invocations(out: Path) -> list[dict]:
+    """The entries of ``invocations.jsonl`` that ran episodes."""
+    return [entry for entry in read_invocations(out)[0] if entry.get("episodes_to_run")]
+
+
+def _distinct(values) -> list[str]:
+    """``values`` without repeats, in the order first seen."""
+    return list(dict.fromkeys(values))
 
 
 def log_invocation(out: Path, workers: int, executor: str, address: str, todo: int, commit: str) -> None:

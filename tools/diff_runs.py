@@ -215,8 +215,7 @@ def describe_run(run) -> str:
     commit = str(cfg.get("git_commit") or "unknown")[:10]
     agent = cfg.get("agent") or (run.records[0].get("agent") if run.records else None) or "unknown"
     cpu = " | ".join(run.cpu) if run.cpu else "not recorded"
-    models = getattr(run, "cpu_models", ())
-    on = f" on {' | '.join(models)}" if models else ""
+    on = f" on {' | '.join(run.cpu_models)}" if run.cpu_models else ""
     return f"{run.path}: {len(run.records)} episodes, agent {agent}, commit {commit}, CPU code paths {cpu}{on}"
 
 
@@ -232,7 +231,7 @@ def report_lines(a, b, diff: RunDiff, show: int = MAX_EPISODES_LISTED) -> list[s
     if diff.cpu[0] and diff.cpu[1] and diff.cpu[0] != diff.cpu[1]:
         lines.append("CPU code paths differ between the runs: outcomes can differ for that reason alone "
                      "(README, \"One CPU code path\")")
-    elif getattr(a, "cpu_models", ()) and getattr(b, "cpu_models", ()) and set(a.cpu_models) != set(b.cpu_models):
+    elif a.cpu_models and b.cpu_models and set(a.cpu_models) != set(b.cpu_models):
         lines.append("the runs ran on different CPUs (on the same code path): a few records can differ for that "
                      "reason alone (README, \"One CPU code path\"); `python -m tools unchanged` runs both sides on "
                      "one machine")

@@ -31,7 +31,7 @@ import threading
 import time
 from pathlib import Path
 
-from tools.cli import CliError, check_output_dir, one_line
+from tools.cli import CliError, check_output_dir
 from tools.commit_tree import ROOT, extract_commit, resolve_commit
 
 DEFAULT_RUNS = "helios,helios-no-global,trusting"
@@ -74,8 +74,10 @@ def parse_runs(text: str) -> list[str]:
     return names
 
 
-def check_arguments(args: argparse.Namespace) -> tuple[str, list[str], Path]:
-    """Everything checked before any work: (the base commit's full hash, the runs, --out)."""
+def check_arguments(args: argparse.Namespace) -> tuple[str, list[str], Path, frozenset[str]]:
+    """Everything checked before any work: (the base commit's full hash, the runs, --out, --ignore)."""
+    from tools.diff_runs import parse_ignore
+
     if not 1 <= args.episodes <= MAX_EPISODES:
         raise CliError(f"--episodes must be 1-{MAX_EPISODES}, got {args.episodes}")
     if not 1 <= args.workers <= 64:
@@ -85,14 +87,11 @@ def check_arguments(args: argparse.Namespace) -> tuple[str, list[str], Path]:
     if out.is_dir() and any(out.iterdir()) and not (out / MARKER).is_file():
         raise CliError(f"--out {str(out)!r} holds files that are not an earlier `tools unchanged` check's; "
                        f"name an empty or new folder")
-    if args.ignore:
-        from tools.diff_runs import parse_ignore
-
-        parse_ignore(args.ignore)
+    ignore = parse_ignore(args.ignore)
     commit = resolve_commit(args.base, "COMMIT")
     if commit is None:
         raise CliError(f"COMMIT {args.base!r} is not a commit of {ROOT} (try HEAD, a hash or a branch)")
-    return commit, runs, out
+    return commit, runs, out, ignore
 
 
 def prepare(out: Path, commit: str, runs: list[str], fresh: bool) -> Path:
@@ -164,7 +163,7 @@ def run_side(tree: Path, run: str, episodes: int, workers: int, folder: Path, la
     reader.join(timeout=5.0)
     if code != 0:
         last = " | ".join(line for line in list(tail)[-3:] if line.strip())
-        raise CliError(f"{run} ({label}): `tools trials` exited with status {code}: {one_line(last)}")
+        raise CliError(f"{run} ({label}): `tools trials` exited with status {code}: {last}")
     return time.perf_counter() - t0
 
 
@@ -220,10 +219,7 @@ def compare(out: Path, runs: list[str], episodes: int, workers: int, ignore: fro
 
 
 def run(args: argparse.Namespace) -> int:
-    from tools.diff_runs import parse_ignore
-
-    commit, runs, out = check_arguments(args)
-    ignore = parse_ignore(args.ignore) if args.ignore else frozenset()
+    commit, runs, out, ignore = check_arguments(args)
     tree = prepare(out, commit, runs, args.fresh)
     same = compare(out, runs, args.episodes, args.workers, ignore, base=(tree, f"commit {commit[:10]}"))
     return 0 if same else 1
