@@ -710,3 +710,69 @@ def test_a_layout_comes_back_equal_and_unshared():
     a.receptacles.pop()
     a.objects[0].x += 1.0
     assert generate_layout(1835504127) == b
+
+
+# ------------------------------------------------------------------ the robot's own pixels
+def _own_case(rng):
+    """A hand-camera frame looking down beside the body: most returns lie in the body's box or near it."""
+    intr = CameraIntrinsics(320, 240, 226.0, 226.0, 159.5, 119.5)
+    eye = np.array([rng.uniform(0.2, 0.6), rng.uniform(-0.4, 0.4), rng.uniform(0.3, 0.7)])
+    target = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.6, 0.6), rng.uniform(-0.6, -0.2)])
+    T_body_cam = look_at_camera(eye, target)
+    depth = rng.uniform(0.05, 2.5, size=(240, 320)).astype(np.float32)
+    depth[rng.random((240, 320)) < 0.1] = 0.0        # no return
+    return depth, intr, T_body_cam
+
+
+def test_own_pixels_on_the_image_grid_are_the_back_projected_box_test(monkeypatch):
+    from helios.agents import self_mask
+
+    box, top = (-0.53, 0.53, -0.33, 0.33), 0.25
+    rng = np.random.default_rng(3)
+    owned = 0
+    for _ in range(20):
+        depth, intr, T = _own_case(rng)
+        exact = self_mask.own_pixels_exact(depth, intr, T, box, top)
+        assert np.array_equal(self_mask.own_pixels(depth, intr, T, box, top), exact)
+        owned += int(exact.sum())
+    assert owned > 1000                                   # the cases do reach into the box
+    # A return exactly on a face: the fast test cannot decide it and hands the frame over.
+    depth, intr, T = _own_case(rng)
+    v, u = 120, 160
+    depth[v, u] = 1.0
+    point = T[:3, :3] @ intr.backproject(u, v, float(depth[v, u])) + T[:3, 3]
+    x, y, z = (float(c) for c in point)
+    face_box, face_top = (x, x + 1.0, y - 1.0, y + 1.0), z + 1.0
+    calls = []
+    real = self_mask.own_pixels_exact
+    monkeypatch.setattr(self_mask, "own_pixels_exact", lambda *a: calls.append(1) or real(*a))
+    fast = self_mask.own_pixels(depth, intr, T, face_box, face_top)
+    assert calls and np.array_equal(fast, real(depth, intr, T, face_box, face_top))
+
+
+def test_ground_projection_points_and_window_are_the_selected_rows_and_column_extremes():
+    from helios.config import OccupancyConfig
+    from helios.maps.ground_view import project_to_ground
+
+    cfg = OccupancyConfig(max_depth=3.0)
+    geometry = GridGeometry.from_config(cfg)
+    intr = CameraIntrinsics(320, 240, 226.0, 226.0, 159.5, 119.5)
+    rng = np.random.default_rng(5)
+    T = look_at_camera(np.array([1.0, 2.0, 0.8]), np.array([3.0, 3.5, 0.2]))
+    depth = rng.uniform(0.1, 6.0, size=(240, 320)).astype(np.float32)     # some returns beyond max_depth
+    view = project_to_ground(depth, intr, T, geometry, cfg)
+    s = cfg.depth_stride
+    d = depth[::s, ::s]
+    vv, uu = np.mgrid[0:240:s, 0:320:s]
+    valid = d >= cfg.min_depth
+    d, uu, vv = d[valid].astype(np.float64), uu[valid], vv[valid]
+    rays = np.stack([(uu - intr.cx) / intr.fx, (vv - intr.cy) / intr.fy, np.ones_like(d)], axis=-1)
+    dirs = rays @ T[:3, :3].T
+    near = d <= cfg.max_depth
+    assert 0 < near.sum() < near.size
+    assert np.array_equal(view.points, T[:3, 3] + dirs[near] * d[near, None])
+    vis = T[:2, 3] + dirs[:, :2] * np.minimum(d, cfg.max_depth)[:, None]
+    lo = np.minimum(vis.min(axis=0), T[:2, 3])
+    hi = np.maximum(vis.max(axis=0), T[:2, 3])
+    (r0, c0), (r1, c1) = [np.asarray(geometry.world_to_cell(p)).ravel() for p in (lo, hi)]
+    assert view.window == (int(r0), int(r1) + 1, int(c0), int(c1) + 1)

@@ -20,6 +20,7 @@ import numpy as np
 
 from helios.agents.config import AgentConfig
 from helios.agents.geometry import backproject, project
+from helios.agents.self_mask import own_pixels
 from helios.agents.target import Target
 from helios.config import HeliosConfig
 from helios.maps.hierarchical import HierarchicalMap
@@ -105,18 +106,13 @@ class Observer:
                 obs = replace(obs, depth=np.where(near, np.float32(0.0), obs.depth))
         x0, x1, y0, y1 = self.config.planner.footprint.body
         m = self.config.view.self_mask_margin
-        v, u = np.nonzero(obs.depth > 0)
-        if not len(v):
-            return obs
-        pc = obs.intrinsics.backproject(u, v, obs.depth[v, u])
-        T = np.linalg.inv(obs.T_world_body) @ obs.T_world_cam
-        pb = pc @ T[:3, :3].T + T[:3, 3]
-        own = (pb[:, 0] > x0 - m) & (pb[:, 0] < x1 + m) & (pb[:, 1] > y0 - m) & (pb[:, 1] < y1 + m) & \
-              (pb[:, 2] < self.config.view.self_mask_top)
+        T_body_cam = np.linalg.inv(obs.T_world_body) @ obs.T_world_cam
+        own = own_pixels(obs.depth, obs.intrinsics, T_body_cam, (x0 - m, x1 + m, y0 - m, y1 + m),
+                         self.config.view.self_mask_top)
         if not own.any():
             return obs
         depth = obs.depth.copy()
-        depth[v[own], u[own]] = 0.0
+        depth[own] = 0.0
         return replace(obs, depth=depth)
 
     def _trust(self, obs: Observation, detections: Sequence[Detection]) -> None:
