@@ -15,7 +15,6 @@ from helios.agents.config import AgentConfig
 from helios.agents.body import MAX_GAZE_YAW, UNSEEN_SIDE_NO_TURN, Body
 from helios.agents.frontier_goals import StallWatch, frontier_options, unseen_bearing
 from helios.agents.helios_agent import HeliosAgent
-from helios.agents.candidates import SearchedLocations
 from helios.maps.frontiers import Frontier
 from helios.maps.grid import GridGeometry
 from helios.config import OccupancyConfig
@@ -282,9 +281,6 @@ class _Viewer:
         self.views.append(gp)
         return True
 
-    def xy(self):
-        return np.zeros(2)
-
 
 def test_a_local_search_ends_once_its_location_is_no_longer_a_candidate_when_asked():
     """``end_local_search_on_doubt``: a closer look showed the "desk" is a table (or the instance
@@ -302,70 +298,15 @@ def test_a_local_search_ends_once_its_location_is_no_longer_a_candidate_when_ask
             agent.config = replace(AgentConfig(), end_local_search_on_doubt=on)
             agent.method, agent.start_class, agent.log, agent.stats = HeliosConfig(), "desk", [], Counter()
             agent.observer = _Seer([] if scores is None else [_Instance(7, scores)])
-            agent.body, agent.searched = _Viewer(), SearchedLocations()
+            agent.body, agent.visited = _Viewer(), set()
             agent.local = _LocalSearch(7, ["a", "b", "c"])
             agent.local_search_sizes = [3]
             agent._continue_local_search(None)
             if on and ends:
-                assert agent.body.views == [] and agent.local is None and agent.searched.visited == {7}
+                assert agent.body.views == [] and agent.local is None and agent.visited == {7}
                 assert "no longer a desk candidate" in agent.log[-1]
             else:
-                assert agent.body.views == ["a"] and agent.local.queue == ["b", "c"] and agent.searched.visited == set()
-
-
-class _Wedged(_Viewer):
-    """A robot at ``at`` that reaches no gaze point (every plan blocked at its first move)."""
-
-    def __init__(self, at=(0.0, 0.0)):
-        super().__init__()
-        self.at = np.array(at, dtype=float)
-
-    def view_from(self, robot, gp):
-        self.views.append(gp)
-        return False
-
-    def xy(self):
-        return self.at
-
-
-def _searching_agent(retries: int, body) -> HeliosAgent:
-    from helios.agents.helios_agent import _LocalSearch
-    from helios.config import HeliosConfig
-
-    agent = HeliosAgent.__new__(HeliosAgent)
-    agent.config = replace(AgentConfig(), unviewed_search_retries=retries, unviewed_retry_distance=1.0)
-    agent.method, agent.start_class, agent.log, agent.stats = HeliosConfig(), "desk", [], Counter()
-    agent.body = body
-    agent.searched = SearchedLocations(agent.config.unviewed_search_retries, agent.config.unviewed_retry_distance)
-    agent.local = _LocalSearch(7, ["a", "b"])
-    agent.local_search_sizes = [2]
-    return agent
-
-
-def test_a_local_search_that_took_no_view_leaves_its_location_a_candidate_when_asked():
-    """``unviewed_search_retries``: a wedged robot uses up a search's gaze points without a view;
-    the location stays a candidate, offered again once the robot has moved 1 m, until the
-    retries run out. With 0 (the default, the paper read literally) it is visited at once, and a
-    search that took a view always marks it visited."""
-    for retries in (0, 2):
-        agent = _searching_agent(retries, _Wedged())
-        agent._continue_local_search(None)
-        agent._continue_local_search(None)
-        assert agent.body.views == ["a", "b"] and agent.local is None and agent.stats["gaze_point_views"] == 0
-        if retries == 0:
-            assert agent.searched.visited == {7} and not agent.searched.is_open(7, (5.0, 5.0))
-            continue
-        assert agent.searched.visited == set() and "took no view: it stays a candidate" in agent.log[-1]
-        assert not agent.searched.is_open(7, (0.5, 0.5))          # still as wedged as before
-        assert agent.searched.is_open(7, (1.0, 0.0))               # moved 1 m: offered again
-    searched = SearchedLocations(retries=2, distance=1.0)
-    assert not searched.close(7, 0, (0.0, 0.0)) and not searched.close(7, 0, (2.0, 0.0))
-    assert not searched.is_open(7, (2.5, 0.0)) and searched.is_open(7, (0.0, 0.0))
-    assert searched.close(7, 0, (0.0, 0.0)) and not searched.is_open(7, (9.0, 9.0))    # third: out of retries
-    agent = _searching_agent(2, _Viewer())                                                # views taken
-    agent._continue_local_search(None)
-    agent._continue_local_search(None)
-    assert agent.searched.visited == {7} and agent.stats["gaze_point_views"] == 2
+                assert agent.body.views == ["a"] and agent.local.queue == ["b", "c"] and agent.visited == set()
 
 
 # ---------------------------------------------------------------- facing the unseen side

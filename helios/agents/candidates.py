@@ -13,7 +13,6 @@ rule examines them in.
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -68,43 +67,3 @@ def rests_on_start_receptacle(observer: Observer, obj: Instance, config: AgentCo
         if d <= config.support_radius:
             return True
     return False
-
-
-@dataclass
-class SearchedLocations:
-    """Candidate pick locations whose local search is over. The paper marks a location visited
-    "after performing local search" and never searches it again. A search can end without a single
-    view: each gaze point unreachable from where the robot stands (most often "blocked", a robot
-    wedged at the edge of the known floor where an exploration step left it, so every plan fails
-    at its first move and the whole queue is used up in an instant). That search never looked at
-    the location. With ``retries`` > 0 (``AgentConfig.unviewed_search_retries``) such a location
-    stays a candidate, up to ``retries`` searches without a view, and is offered again once the
-    robot stands ``distance`` m or more from where the last of them ended (never at once: the
-    robot would be as wedged as before). ``retries = 0``: visited after any search (the paper read
-    literally)."""
-
-    retries: int = 0
-    distance: float = 1.0
-    visited: set[int] = field(default_factory=set)
-    unviewed: dict[int, tuple[int, np.ndarray]] = field(default_factory=dict)
-    """instance -> (searches of it that took no view, robot position when the last one ended)"""
-
-    def close(self, instance_id: int, views: int, here) -> bool:
-        """The local search of ``instance_id`` ended after taking ``views`` views with the robot at
-        ``here``; True if the location is now visited, False if it stays a candidate."""
-        if views > 0 or self.retries == 0:
-            self.visited.add(instance_id)
-            return True
-        count = self.unviewed.get(instance_id, (0, None))[0] + 1
-        if count > self.retries:
-            self.visited.add(instance_id)
-            return True
-        self.unviewed[instance_id] = (count, np.array(here, dtype=float))
-        return False
-
-    def is_open(self, instance_id: int, here) -> bool:
-        """Whether the location may be offered to the global objective with the robot at ``here``."""
-        if instance_id in self.visited:
-            return False
-        entry = self.unviewed.get(instance_id)
-        return entry is None or float(np.linalg.norm(np.asarray(here, dtype=float) - entry[1])) >= self.distance

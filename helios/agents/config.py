@@ -263,13 +263,6 @@ class AgentConfig:
     2026-12-02, decided on train: on the first 100 train episodes FindObj 55 against 55, FindRec
     28 against 22 (+12 -6), SR 13 against 11, timeouts 25 against 33 (README, "Where the misses
     come from")."""
-    unviewed_search_retries: int = 0
-    """A candidate pick location whose local search took no view (every gaze point unreachable)
-    stays a candidate for up to this many such searches, offered again once the robot stands
-    ``unviewed_retry_distance`` m from where the last one ended; 0: visited after any search, the
-    paper read literally (``helios.agents.candidates.SearchedLocations``)."""
-    unviewed_retry_distance: float = 1.0
-    """m the robot must have moved from an unviewed search's end before the location is offered again."""
     max_revisits: int = 4
     """When no frontier is left, up to this many walks to the most promising seen places (value
     map) to look again before giving up."""
@@ -319,9 +312,9 @@ class AgentConfig:
         require(self.max_looks_per_candidate >= 0 and self.max_failures_per_candidate >= 1,
                  "need max_looks_per_candidate >= 0 and max_failures_per_candidate >= 1")
         require(self.frontier_reach > 0 and self.gaze_goal_radius > 0, "radii must be > 0")
-        require_range(self, "max_pick_attempts max_looks_per_candidate max_revisits unviewed_search_retries", 0, 100000)
+        require_range(self, "max_pick_attempts max_looks_per_candidate max_revisits", 0, 100000)
         require_range(self, "max_failures_per_candidate revisit_candidates max_walk_chunks", 1, 100000)
-        require_range(self, "support_radius frontier_blacklist_radius revisit_spacing unviewed_retry_distance", 0.0, 100.0)
+        require_range(self, "support_radius frontier_blacklist_radius revisit_spacing", 0.0, 100.0)
         require_range(self, "frontier_reach gaze_goal_radius", 0.0, 100.0, lo_open=True)
         require_range(self, "frontier_approach", 0.0, 100.0)
         require_range(self, "unstick_distance", 0.0, 3.0)

@@ -43,7 +43,7 @@ import numpy as np
 
 from helios.agents.activities import ACTIVITIES, DECISION_COUNTS  # noqa: F401  (ACTIVITIES: re-exported)
 from helios.agents.body import Body
-from helios.agents.candidates import SearchedLocations, candidate_targets, is_candidate, still_candidate
+from helios.agents.candidates import candidate_targets, is_candidate, still_candidate
 from helios.agents.config import AgentConfig
 from helios.agents.frontier_goals import StallWatch, frontier_options, revisit_goals
 from helios.agents.geometry import away_from, facing, fresh_views, gaze_cameras
@@ -75,7 +75,7 @@ class Phase(Enum):
 class _LocalSearch:
     instance_id: int
     queue: list[GazePoint] = field(default_factory=list)
-    choice: dict = field(default_factory=lambda: {"views": 0})   # the global decision that chose it: views counted
+    choice: dict | None = None     # the global decision that chose it (see decision_stats), views counted there
 
 
 class HeliosAgent:
@@ -112,7 +112,7 @@ class HeliosAgent:
         self.place_objective = GlobalObjective(self.method.search, cell, "frontiers_only")
         self.phase = Phase.START
         self.pick_attempts = 0
-        self.searched = SearchedLocations(self.config.unviewed_search_retries, self.config.unviewed_retry_distance)
+        self.visited: set[int] = set()
         self.local: _LocalSearch | None = None
         self.viewed: defaultdict[tuple, list] = defaultdict(list)   # per candidate: where its extra views were taken
         self.failures: Counter = Counter()
@@ -303,8 +303,7 @@ class HeliosAgent:
             cs = self.method.search.cs_start_receptacle
             intr = self.observer.last_obs.intrinsics
             for inst in self.observer.instances():
-                if not self.searched.is_open(inst.id, self.body.xy()) or \
-                        not is_candidate(inst, self.start_class, cs, self.method):
+                if inst.id in self.visited or not is_candidate(inst, self.start_class, cs, self.method):
                     continue
                 views = self._gaze_points_of(inst.id)
                 if not views:
@@ -422,8 +421,9 @@ class HeliosAgent:
                                      cams, self.config.local_search_min_gain, self.method.search.information_gain)
             views = [views[i] for i in sorted(keep)]
         order = visiting_order(views, self.body.xy())
-        self.local = _LocalSearch(instance_id, order, {} if choice is None else choice)
-        self.local.choice["views"] = 0
+        if choice is not None:
+            choice["views"] = 0
+        self.local = _LocalSearch(instance_id, order, choice)
         self.local_search_sizes.append(len(order))
         self.log.append(f"local search of instance {instance_id}: {len(order)} gaze points")
 
@@ -436,10 +436,10 @@ class HeliosAgent:
             self.stats["gaze_point_visits"] += 1
             if self.body.view_from(robot, self.local.queue.pop(0)):
                 self.stats["gaze_point_views"] += 1
-                self.local.choice["views"] += 1
+                if self.local.choice is not None:
+                    self.local.choice["views"] += 1
         if not self.local.queue:
-            if not self.searched.close(iid, self.local.choice["views"], self.body.xy()):
-                self.log.append(f"local search of instance {iid} took no view: it stays a candidate")
+            self.visited.add(self.local.instance_id)
             self.local = None
 
     def _take_view(self, robot: RobotBackend, target: Target, view: GazePoint) -> None:
