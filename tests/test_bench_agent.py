@@ -40,6 +40,20 @@ def test_report_puts_before_and_after_side_by_side_with_ratios_and_projection():
     assert "are other episodes" in bench_agent.format_report(changed, before, "helios")
     alone = bench_agent.format_report(after, None, "helios")
     assert "before" not in alone.split("\n", 2)[1] and "ratio" not in alone
+    assert "hand-camera" not in alone                      # runs that did not time the camera
+
+
+def test_the_report_nests_the_hand_cameras_share_under_the_simulator():
+    before = _run("3f77267", [10.0, 20.0], [600.0, 600.0], [50.0])
+    after = _run("this checkout", [5.0, 10.0], [600.0, 600.0], [20.0])
+    for e, (seconds, frames) in zip(after["episodes"], ((1.2, 80), (1.8, 120))):
+        e["camera"] = {"seconds": seconds, "frames": frames}
+    lines = bench_agent.format_report(after, before, "helios").splitlines()
+    share = next(line for line in lines if "of which hand-camera frames" in line)
+    assert share.split()[-1] == "1.50" and " - " in f" {share} "      # mean s; the baseline did not time it
+    assert next(line for line in lines if "frames per episode" in line).split()[-1] == "100"
+    assert next(line for line in lines if "ms per hand-camera frame" in line).split()[-1] == "15.0"
+    assert lines.index(share) == 1 + next(i for i, line in enumerate(lines) if line.startswith("simulator"))
 
 
 def test_the_report_names_the_cpu_code_paths_and_flags_a_baseline_on_other_ones():
@@ -183,3 +197,6 @@ def test_a_repeated_episode_adds_no_second_replan_map():
     again = worker.episode(1)
     assert (first["sim"], first["success"]) == (again["sim"], again["success"])
     assert len(worker.maps) == 1
+    # every observation is one hand-camera render, timed inside the simulator's HAL time
+    assert first["camera"]["frames"] == again["camera"]["frames"] > 10
+    assert 0 < first["camera"]["seconds"] < first["phases"]["simulator (HAL commands)"]

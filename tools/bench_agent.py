@@ -280,6 +280,15 @@ def _fmt(v, spec=".1f") -> str:
     return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, spec)
 
 
+def camera_frames(run: dict) -> tuple[float, float] | None:
+    """Mean (seconds, frames) of the hand camera's renders per episode; None for runs made before
+    the worker timed them (a baseline commit's own worker, an older saved file)."""
+    cams = [e["camera"] for e in run.get("episodes", []) if "camera" in e]
+    if not cams or len(cams) != len(run.get("episodes", [])):
+        return None
+    return (sum(c["seconds"] for c in cams) / len(cams), sum(c["frames"] for c in cams) / len(cams))
+
+
 def format_report(after: dict, before: dict | None, agent: str) -> str:
     """The benchmark's tables; ``before`` (a baseline run or saved file) adds columns and ratios."""
     cols = [("after", after)] if before is None else [("before", before), ("after", after)]
@@ -321,8 +330,13 @@ def format_report(after: dict, before: dict | None, agent: str) -> str:
                        by_id.get(e["episode"], {}).get("success") == e["success"] for e in after["episodes"])
             out.append(f"same simulated time and outcome on every episode: {'yes' if same else 'NO (behaviour differs)'}")
     out += ["", "mean seconds per episode, by phase:", f"{'phase':44s}{head}"]
+    frames = [camera_frames(c) for _, c in cols]
     for phase in after["phases"]:
         out.append(row(phase, [c["phases"].get(phase) for _, c in cols], ".2f"))
+        if phase.startswith("simulator") and frames[-1] is not None:     # part of the simulator's time
+            out.append(row("  of which hand-camera frames (TinyRenderer)", [f and f[0] for f in frames], ".2f"))
+            out.append(row("  hand-camera frames per episode", [f and f[1] for f in frames], ".0f"))
+            out.append(row("  ms per hand-camera frame", [f and 1e3 * f[0] / max(f[1], 1) for f in frames], ".1f"))
     if after.get("profile"):
         out += ["", "profiled phases (cumulative seconds per episode under cProfile; phases nest):", f"{'phase':44s}{head}"]
         for phase in after["profile"]:

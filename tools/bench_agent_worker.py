@@ -133,14 +133,31 @@ class _Worker:
             holder["agent"] = make_agent(self.agent_name, sim, **self.options)
             return holder["agent"]
 
+        import sim.camera as sim_camera
+
+        camera = {"seconds": 0.0, "frames": 0}
+        raw_render = sim_camera.raw_render
+
+        def timed_render(*args, **kwargs):      # the hand camera's frames: TinyRenderer's share
+            t0 = time.perf_counter()
+            try:
+                return raw_render(*args, **kwargs)
+            finally:
+                camera["seconds"] += time.perf_counter() - t0
+                camera["frames"] += 1
+
         profiler = None
         if self.profile:
             import cProfile
 
             profiler = cProfile.Profile()
             profiler.enable()
+        sim_camera.raw_render = timed_render
         t0 = time.perf_counter()
-        result = run_sim_episode(make, episode)
+        try:
+            result = run_sim_episode(make, episode)
+        finally:
+            sim_camera.raw_render = raw_render
         total = time.perf_counter() - t0
         if profiler is not None:
             profiler.disable()
@@ -153,7 +170,8 @@ class _Worker:
                "phases": {"simulator (HAL commands)": hal["seconds"], "agent: perception": own["perception"],
                           "agent: map update": own["map"], "agent: planning": own["planning"],
                           "agent: decisions and the rest": max(0.0, wall - hal["seconds"] - sum(own.values())),
-                          "scene build and judge": max(0.0, total - wall)}}
+                          "scene build and judge": max(0.0, total - wall)},
+               "camera": camera}
         if profiler is not None:
             out["profile"], out["top"] = _profile_phases(profiler)
         import resource
