@@ -138,7 +138,11 @@ class _Worker:
         camera = {"seconds": 0.0, "frames": 0}
         raw_render = sim_camera.raw_render
 
-        def timed_render(*args, **kwargs):      # the hand camera's frames: TinyRenderer's share
+        def timed_render(*args, **kwargs):
+            """The hand camera's frames inside HAL commands, the part of the simulator's time the
+            report nests under it (the judge's own check views render outside them)."""
+            if not hal["depth"]:
+                return raw_render(*args, **kwargs)
             t0 = time.perf_counter()
             try:
                 return raw_render(*args, **kwargs)
