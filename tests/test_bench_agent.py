@@ -28,6 +28,8 @@ def test_report_puts_before_and_after_side_by_side_with_ratios_and_projection():
     median_line = next(line for line in text.splitlines() if line.startswith("median"))
     assert "10.0" in median_line and "5.0" in median_line and "2.00x" in median_line
     assert "same simulated time and outcome on every episode: yes" in text
+    per_sim = next(line for line in text.splitlines() if line.startswith("wall ms per simulated s"))
+    assert per_sim.split()[-3:] == [f"{1e3 * 34 / 1339:.1f}", f"{1e3 * 17 / 1339:.1f}", "2.00x"]
     # the projection: 10 runs x 1000 episodes x mean(wall + scene build) / 2 workers
     hours = 10 * 1000 * np.mean([6.0, 11.0, 3.0]) / 2 / 3600
     assert f"{hours:10.1f}" in next(line for line in text.splitlines() if line.startswith("hours"))
@@ -200,3 +202,51 @@ def test_a_repeated_episode_adds_no_second_replan_map():
     # every observation is one hand-camera render, timed inside the simulator's HAL time
     assert first["camera"]["frames"] == again["camera"]["frames"] > 10
     assert 0 < first["camera"]["seconds"] < first["phases"]["simulator (HAL commands)"]
+
+
+def test_the_bench_times_the_tables_episodes_with_their_trial_seeds():
+    """By default an episode gets the agent seed ``tools trials --seed 0`` gives it, so the bench
+    times the very episodes of the tables: same simulated time, outcome and end as the record."""
+    from tasks.episodes import load_split
+    from tasks.trial_config import TrialConfig, episode_seed
+    from tasks.trials import run_one
+    from tools.bench_agent_worker import _Worker
+
+    requests = bench_agent.episode_requests("0", 2)
+    episodes = load_split("val")
+    assert requests[1] == {"episode": 1, "episode_id": episodes[1].episode_id,
+                           "seed": episode_seed(0, episodes[1].episode_id)}
+    assert bench_agent.episode_requests("own", 2) == [{"episode": 0}, {"episode": 1}]
+    assert bench_agent.episode_requests("7", 1)[0]["seed"] == episode_seed(7, episodes[0].episode_id) != requests[0]["seed"]
+    worker = _Worker("helios", 1, False)
+    timed = worker.episode(1, requests[1]["seed"], requests[1]["episode_id"])
+    record = run_one(TrialConfig(agent="helios", split="val", episodes=2), episodes[1])
+    assert timed["seed"] == record["seed"] == requests[1]["seed"]
+    assert (timed["sim"], timed["success"]) == (record["sim_time"], record["success"])
+    own = worker.episode(1)
+    assert own["seed"] is None and own["sim"] != timed["sim"]      # the episode's own seed: another course
+    with pytest.raises(ValueError, match="splits differ"):
+        worker.episode(1, 5, "val-09999")
+
+
+@pytest.mark.parametrize("seed", ["-1", "x", str(2 ** 32)])
+def test_a_bad_agent_seed_is_refused_before_any_episode_runs(capsys, seed):
+    from tools.cli import main
+
+    assert main(["bench", "agent", "--agent-seed", seed]) == 2
+    assert f"--agent-seed must be a master seed within 0..{2 ** 32 - 1} or 'own', got {seed!r}" in capsys.readouterr().err
+
+
+def test_the_report_names_the_workload_and_flags_a_baseline_with_other_seeds():
+    before = _run("saved", [10.0, 20.0], [600.0, 600.0], [50.0])          # a file saved before the seeds
+    after = _run("this checkout", [5.0, 10.0], [400.0, 600.0], [20.0])
+    after["agent_seed"] = "0"
+    for i, e in enumerate(after["episodes"]):
+        e["seed"] = 100 + i
+    text = bench_agent.format_report(after, before, "helios")
+    assert "episodes: the trial seeds of master seed 0, as `tools trials --seed 0` runs them" in text
+    assert "the baseline's episodes: each episode's own seed (not the tables' episodes): OTHER WORKLOADS" in text
+    assert "are other episodes (its own splits or seeds)" in text
+    same = {**before, "agent_seed": "0", "episodes": [dict(e, seed=100 + i) for i, e in enumerate(before["episodes"])]}
+    text = bench_agent.format_report(after, same, "helios")
+    assert "OTHER WORKLOADS" not in text and "are other episodes" not in text

@@ -1,6 +1,8 @@
 """``python -m tools bench agent``: what a HELIOS episode costs on this machine, and where it goes.
 
-1. Wall time of whole val episodes (1 torch/BLAS thread, as a trial worker), split per phase:
+1. Wall time of whole val episodes (1 torch/BLAS thread, as a trial worker), each run as
+   ``tools trials --seed 0`` runs it (the agent gets the episode's trial seed; ``--agent-seed``
+   picks another master seed, or ``own`` for the episodes' own seeds), split per phase:
    the simulator's share (time inside HAL commands: physics, rendering, motion, collision
    queries), the agent's perception, map update and planning, its decisions and the rest, and
    the scene build; then the projected hours of the paper's ablation table (5 agents and their
@@ -51,6 +53,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--agent-repeats", type=int, default=1, metavar="N",
                        help="run each episode N times per tree (interleaved) and keep the run with the least "
                             "wall time: steadier ratios on a shared or busy machine (default 1)")
+    group.add_argument("--agent-seed", default="0", metavar="SEED",
+                       help="master seed of the episodes' trial seeds, as `tools trials --seed` (default 0: "
+                            "the episodes the README's tables ran), or 'own' for each episode's own seed "
+                            "(the bench's workload before 2026-12-05)")
     group.add_argument("--agent-profile", action="store_true",
                        help="profile the episodes (cProfile) and print the cost per phase and the top functions")
     group.add_argument("--agent-baseline", default=None, metavar="REF",
@@ -172,6 +178,27 @@ def _resolve_baseline(ref: str | None, tmp: Path) -> tuple[str, Path | None, dic
 
 
 MAX_REPEATS = 20
+MAX_SEED = 2 ** 32 - 1
+
+
+def episode_requests(agent_seed: str, n_eps: int) -> list[dict]:
+    """The workers' request for each of the first ``n_eps`` val episodes: with a master seed, the
+    agent's trial seed as ``tools trials --seed`` derives it (``tasks.trial_config.episode_seed``),
+    so the bench times the very episodes of the tables; with ``own``, each episode's own seed."""
+    from tasks.episodes import load_split
+    from tasks.trial_config import episode_seed
+
+    if agent_seed == "own":
+        return [{"episode": i} for i in range(n_eps)]
+    try:
+        master = int(agent_seed)
+    except ValueError:
+        master = -1
+    if not 0 <= master <= MAX_SEED:
+        raise CliError(f"--agent-seed must be a master seed within 0..{MAX_SEED} or 'own', got {agent_seed!r}")
+    episodes = load_split("val")[:n_eps]
+    return [{"episode": i, "episode_id": e.episode_id, "seed": episode_seed(master, e.episode_id)}
+            for i, e in enumerate(episodes)]
 
 
 def least_wall(runs: list[dict]) -> dict:
@@ -217,6 +244,7 @@ def run(args: argparse.Namespace) -> str:
     repeats = args.agent_repeats
     if not 1 <= repeats <= MAX_REPEATS:
         raise CliError(f"--agent-repeats must be within 1..{MAX_REPEATS}, got {repeats}")
+    requests = episode_requests(args.agent_seed, n_eps)
     if args.agent_save:
         save = Path(args.agent_save)
         if not save.parent.is_dir():
@@ -233,7 +261,7 @@ def run(args: argparse.Namespace) -> str:
                 runs: dict[str, list] = {k: [] for k in workers}
                 for rep in range(repeats):
                     for key in sorted(workers, reverse=True):       # before, then after
-                        r = workers[key].ask({"episode": i}, EPISODE_TIMEOUT_S, f"finish val episode {i}")
+                        r = workers[key].ask(requests[i], EPISODE_TIMEOUT_S, f"finish val episode {i}")
                         runs[key].append(r)
                         again = f" (run {rep + 1}/{repeats})" if repeats > 1 else ""
                         print(f"[bench agent] {key:6s} {i + 1}/{n_eps} {r['episode']}{again}: {r['wall']:.1f} s wall, "
@@ -249,10 +277,12 @@ def run(args: argparse.Namespace) -> str:
     from tasks.run_folder import cpu_paths_now
 
     cpu = cpu_paths_now()     # both workers inherit this process's environment, hence its code paths
-    after = {"label": after_label, "cpu": cpu, **results["after"], **_summary(**results["after"])}
+    after = {"label": after_label, "cpu": cpu, "agent_seed": args.agent_seed, **results["after"],
+             **_summary(**results["after"])}
     before = None
     if "before" in results:
-        before = {"label": base_label, "cpu": cpu, **results["before"], **_summary(**results["before"])}
+        before = {"label": base_label, "cpu": cpu, "agent_seed": args.agent_seed, **results["before"],
+                  **_summary(**results["before"])}
     elif base_saved is not None:
         before = base_saved
     if args.agent_save:
@@ -274,6 +304,32 @@ def cpu_lines(after: dict, before: dict | None) -> list[str]:
                 "a ratio may include the difference"]
     return [f"CPU code paths: {now}; the baseline ran on OTHER code paths ({before['cpu']}): the ratios include "
             "their cost and its episodes may have behaved differently"]
+
+
+def wall_per_sim_second(run: dict) -> float:
+    """Milliseconds of wall time per simulated second over all episodes: the cost of the same robot
+    time, comparable where two trees' episodes take other courses (and so last other times)."""
+    sim = sum(e["sim"] for e in run.get("episodes", []))
+    return 1e3 * sum(e["wall"] for e in run.get("episodes", [])) / sim if sim > 0 else float("nan")
+
+
+def workload(run: dict) -> str:
+    """Which seeds a run's episodes ran with, in words (files saved before 2026-12-05: their own)."""
+    seed = run.get("agent_seed", "own")
+    if seed == "own" or any(e.get("seed") is None for e in run.get("episodes", [])):
+        return "each episode's own seed (not the tables' episodes)"
+    return f"the trial seeds of master seed {seed}, as `tools trials --seed {seed}` runs them"
+
+
+def workload_lines(after: dict, before: dict | None) -> list[str]:
+    """The episodes' seeds, and a warning when the baseline ran other ones: a saved file from
+    before 2026-12-05 timed the episodes with their own seeds, a heavier workload (5 of the first
+    6 val episodes ran to the 600 s cap, against 3 with the trial seeds)."""
+    lines = [f"episodes: {workload(after)}"]
+    if before is not None and workload(before) != workload(after):
+        lines.append(f"the baseline's episodes: {workload(before)}: OTHER WORKLOADS, the ratios compare different "
+                     "episodes")
+    return lines
 
 
 def _fmt(v, spec=".1f") -> str:
@@ -305,6 +361,7 @@ def format_report(after: dict, before: dict | None, agent: str) -> str:
         out.append(f"before: {before.get('label', '?')}    after: {after.get('label', 'this checkout')}"
                    "    (ratio = before / after: above 1 is faster)")
     out += cpu_lines(after, before)
+    out += workload_lines(after, before)
     repeats = max([e.get("repeats", 1) for c in (after, before) if c for e in c.get("episodes", [])] or [1])
     least = f" (the least of {repeats} runs of each episode)" if repeats > 1 else ""
     out += ["", f"val episodes, wall seconds{least}:", f"{'episode':44s}{head}"]
@@ -319,12 +376,14 @@ def format_report(after: dict, before: dict | None, agent: str) -> str:
         out.append(f"NOT DETERMINISTIC: the repeated runs of {', '.join(sorted(set(restless)))} gave different "
                    "simulated times or outcomes")
     out.append(row("p90", [c["p90_wall"] for _, c in cols]))
+    out.append(row("wall ms per simulated s (all episodes)", [wall_per_sim_second(c) for _, c in cols]))
     if before is not None and by_id:
         other = [e["episode"] for e in after["episodes"]
-                 if by_id.get(e["episode"], {}).get("task", e.get("task")) != e.get("task")]
+                 if by_id.get(e["episode"], {}).get("task", e.get("task")) != e.get("task")
+                 or (e["episode"] in by_id and by_id[e["episode"]].get("seed") != e.get("seed"))]
         if other:
             out.append(f"the baseline's {', '.join(other[:3])}{'...' if len(other) > 3 else ''} are other episodes "
-                       f"(its own splits): compare the medians and phases, not episode by episode")
+                       f"(its own splits or seeds): compare the medians and phases, not episode by episode")
         else:
             same = all(by_id.get(e["episode"], {}).get("sim") == e["sim"] and
                        by_id.get(e["episode"], {}).get("success") == e["success"] for e in after["episodes"])

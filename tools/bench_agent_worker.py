@@ -9,8 +9,10 @@ worker itself only uses calls every version since the split of the agent has had
 (``load_split``, ``make_agent``, ``run_sim_episode``, ``FMMPlanner.plan``, ``agent.timings``).
 It reads one JSON request per line on stdin and answers one JSON line on stdout:
 
-- ``{"episode": i}``: run val episode ``i``; wall seconds per phase (and, with ``--profile``,
-  per profiled phase and the top functions), simulated seconds, success;
+- ``{"episode": i, "seed": s, "episode_id": id}``: run val episode ``i`` (which must be ``id``)
+  with the agent's trial seed ``s`` as ``tools trials`` gives it (no ``seed``: the episode's own
+  seed); wall seconds per phase (and, with ``--profile``, per profiled phase and the top
+  functions), simulated seconds, success;
 - ``{"replans": n, "seed": s}``: ``n`` random replans on each of the first two episode maps and
   ``max(3, n // 4)`` on a fully explored 2000 x 2000 grid; per-map times in ms;
 - ``{"quit": true}``.
@@ -106,11 +108,16 @@ class _Worker:
         self.maps: list = []
         self._mapped: set[int] = set()      # episodes whose maps are kept (repeats add none)
 
-    def episode(self, index: int) -> dict:
+    def episode(self, index: int, seed: int | None = None, episode_id: str | None = None) -> dict:
+        """Run val episode ``index``; ``seed`` is the agent's trial seed, given as ``tools trials``
+        gives it (``None``: the episode's own seed, the workload before 2026-12-05)."""
         from tasks.registry import make_agent
         from tasks.runner import run_sim_episode
 
         episode = self.episodes[index]
+        if episode_id is not None and episode.episode_id != episode_id:
+            raise ValueError(f"val episode {index} of this tree is {episode.episode_id}, not {episode_id}: its "
+                             "splits differ, so the trial seeds do not apply (use --agent-seed own)")
         holder: dict = {}
         hal = {"seconds": 0.0, "depth": 0}
 
@@ -130,7 +137,12 @@ class _Worker:
             for name in HAL_COMMANDS:
                 if hasattr(sim.backend, name):
                     setattr(sim.backend, name, timed(getattr(sim.backend, name)))
-            holder["agent"] = make_agent(self.agent_name, sim, **self.options)
+            context = sim
+            if seed is not None:      # what tools trials hands the agent: the episode's trial seed
+                from tasks.registry import RunContext
+
+                context = RunContext.for_episode(sim, seed)
+            holder["agent"] = make_agent(self.agent_name, context, **self.options)
             return holder["agent"]
 
         import sim.camera as sim_camera
@@ -159,7 +171,7 @@ class _Worker:
         sim_camera.raw_render = timed_render
         t0 = time.perf_counter()
         try:
-            result = run_sim_episode(make, episode)
+            result = run_sim_episode(make, episode, seed=seed)
         finally:
             sim_camera.raw_render = raw_render
         total = time.perf_counter() - t0
@@ -169,7 +181,8 @@ class _Worker:
         t = agent.timings
         wall = result.wall_time
         own = {k: float(t.get(k, 0.0)) for k in ("perception", "map", "planning")}
-        out = {"episode": episode.episode_id, "task": f"{episode.scene}|{episode.task}", "wall": wall, "sim": result.sim_time, "success": result.success,
+        out = {"episode": episode.episode_id, "task": f"{episode.scene}|{episode.task}", "seed": seed,
+               "wall": wall, "sim": result.sim_time, "success": result.success,
                "plans": int(t.get("plans", 0)),
                "phases": {"simulator (HAL commands)": hal["seconds"], "agent: perception": own["perception"],
                           "agent: map update": own["map"], "agent: planning": own["planning"],
@@ -262,7 +275,7 @@ def main(argv: list[str]) -> int:
         if request.get("quit"):
             break
         if "episode" in request:
-            answer = worker.episode(int(request["episode"]))
+            answer = worker.episode(int(request["episode"]), request.get("seed"), request.get("episode_id"))
         else:
             answer = worker.replans(int(request["replans"]), int(request["seed"]))
         print(json.dumps(answer), flush=True)
