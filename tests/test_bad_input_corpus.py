@@ -483,6 +483,7 @@ CASES: list[tuple[str, list[str], str]] = [
      "neither a file nor a commit"),
     ("bench-agent-baseline-file", ["bench", "agent", "--agent-baseline", "{ws}/rec.txt"], "--agent-baseline"),
     ("bench-agent-save", ["bench", "agent", "--agent-save", "{ws}/nope/bench.json"], "does not exist"),
+    ("bench-agent-seed", ["bench", "agent", "--agent-seed", "first"], "--agent-seed must be a master seed within"),
     ("bench-maps-device", ["bench", "agent", "maps", "--maps-device", "cuda"], "no CUDA device"),
     ("calibrate-views", ["calibrate-perception", "--views", "0", "--out", "{ws}/new_cal"], "--views"),
     ("calibrate-group", ["calibrate-perception", "--group", "0", "--out", "{ws}/new_cal"], "--group"),

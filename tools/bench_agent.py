@@ -324,7 +324,7 @@ def workload(run: dict) -> str:
 def workload_lines(after: dict, before: dict | None) -> list[str]:
     """The episodes' seeds, and a warning when the baseline ran other ones: a saved file from
     before 2026-12-05 timed the episodes with their own seeds, a heavier workload (5 of the first
-    6 val episodes ran to the 600 s cap, against 3 with the trial seeds)."""
+    6 val episodes ran to the 600 s cap, against 2 with the trial seeds)."""
     lines = [f"episodes: {workload(after)}"]
     if before is not None and workload(before) != workload(after):
         lines.append(f"the baseline's episodes: {workload(before)}: OTHER WORKLOADS, the ratios compare different "
