@@ -42,10 +42,18 @@ class BaseLimits:
 
 @dataclass(frozen=True)
 class ArmLimits:
-    """Joint-space limits for arm moves (Spot's hardware allows up to 10 rad/s; moves are gentler)."""
+    """Joint-space limits for arm moves: the Spot arm's own defaults for a joint move.
 
-    velocity: float = 1.5       # rad/s
-    acceleration: float = 5.0   # rad/s^2
+    ``ArmJointTrajectory`` moves any joint at most ``maximum_velocity`` / ``maximum_acceleration``,
+    2.5 rad/s and 15 rad/s^2 when the command leaves them unset (Boston Dynamics' Spot SDK example
+    ``arm_sensor_inspector``; HomeRobot's Spot client sets the same two values explicitly, see
+    notes/ovmm_vlfm_reference.md), well under the joints' 10 rad/s. Until 2026-12-05 the arm moved
+    at 1.5 rad/s and 5 rad/s^2, our own gentler choice, which made every gaze and stow ~40 %
+    slower than the robot's (``sim.motion.arm.velocity=1.5 sim.motion.arm.acceleration=5``
+    restores it). ``jerk`` is a smoothing knob of ours (the SDK states none)."""
+
+    velocity: float = 2.5       # rad/s
+    acceleration: float = 15.0  # rad/s^2
     jerk: float = 40.0          # rad/s^3
 
     def __post_init__(self) -> None:
