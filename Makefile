@@ -27,7 +27,7 @@ demo: setup
 # twins and HELIOS under the earlier readings, on the first N episodes (seed 0, 2 workers;
 # resumable, and a larger N extends the runs), then one report on the episodes all runs share
 # (one scenario file per run: configs/val_<run>.yaml; more runs: COMPARE="helios helios-place ...").
-# About 20-30 min per run for N=200 on the 2-core machine.
+# About 4-10 min per run for N=200 on the 2-core machine (2026-12-05; trusting runs are the quickest).
 COMPARE ?= helios helios-no-global trusting helios-5050 helios-gt trusting-gt helios-earlier
 N ?= 200
 # The paper's "1 pick" and "5 picks" rows besides the unlimited one (tools report --pick-limits).
