@@ -48,9 +48,10 @@ class ArmLimits:
     2.5 rad/s and 15 rad/s^2 when the command leaves them unset (Boston Dynamics' Spot SDK example
     ``arm_sensor_inspector``; HomeRobot's Spot client sets the same two values explicitly, see
     notes/ovmm_vlfm_reference.md), well under the joints' 10 rad/s. Until 2026-12-05 the arm moved
-    at 1.5 rad/s and 5 rad/s^2, our own gentler choice, which made every gaze and stow ~40 %
-    slower than the robot's (``sim.motion.arm.velocity=1.5 sim.motion.arm.acceleration=5``
-    restores it). ``jerk`` is a smoothing knob of ours (the SDK states none)."""
+    at 1.5 rad/s and 5 rad/s^2, our own gentler choice, slower than the robot's: 1.8 s a gaze and
+    2.0 s a stow on train, 40 % of HELIOS's robot time (``sim.motion.arm.velocity=1.5
+    sim.motion.arm.acceleration=5`` restores it). ``jerk`` is a smoothing knob of ours (the SDK
+    states none)."""
 
     velocity: float = 2.5       # rad/s
     acceleration: float = 15.0  # rad/s^2
