@@ -28,6 +28,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "view": ("tools.view", "open a rerun recording (.rrd) in the viewer, or say how to view it elsewhere"),
     "episodes": ("tools.episodes", "generate an episode split from a seed, or check an episode file"),
     "tsdf": ("tools.tsdf", "TSDF-reconstruct what an episode saw; report true-surface coverage, write the mesh"),
+    "arm-envelope": ("tools.arm_envelope", "measure where the simulated arm goes when it looks and check the "
+                                           "agent's table of it (arm_model=measured); writes a picture"),
     "calibrate-perception": ("tools.calibrate_perception",
                              "measure the simulated detector: per-class precision/recall, 5-view majority; plot"),
 }

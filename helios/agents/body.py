@@ -17,6 +17,8 @@ from typing import Sequence
 
 import numpy as np
 
+from helios.agents import arm_room
+from helios.agents.arm_room import look_pitch, pitch_ahead
 from helios.agents.config import AgentConfig
 from helios.agents.frontier_goals import unseen_bearing
 from helios.agents.geometry import approach_poses, body_rectangle, turn_in_progress, turn_sweep
@@ -270,7 +272,8 @@ class Body:
         if abs(wrap_angle(direction - self.pose.yaw)) > MAX_GAZE_YAW:
             self.log.append("gaze point: could not turn to face the object")
             return False
-        if not self.make_room(robot) or not self.arm_clear(direction):
+        pitch = look_pitch(self.pose.x, self.pose.y, self.pose.yaw, self.body_height, gp.look_at)
+        if not self.make_room(robot, pitch) or not self.arm_clear(direction, pitch):
             self.log.append("gaze point: the arm has no room to look from here")
             return False
         if not self.gaze(robot, gp.look_at).success:
@@ -282,14 +285,16 @@ class Body:
              near_yaws_deg: Sequence[float] = (0.0,)) -> None:
         """Point the hand camera in several directions and observe each (plus the near floor)."""
         view = self.config.view
-        if not self.make_room(robot):
+        far = pitch_ahead(self.body_height, view.look_distance, view.look_height)
+        near = pitch_ahead(self.body_height, view.near_look_distance, 0.0)
+        if not self.make_room(robot, far):     # the near-floor views are skipped where the arm cannot dip
             return
         base = self.pose.yaw if facing is None else facing
         for deg in sorted(yaws_deg, key=abs):     # front first: each view reveals walls for the next
             a = base + math.radians(deg)
             if abs(wrap_angle(a - self.pose.yaw)) > MAX_GAZE_YAW:
                 continue
-            if not self.arm_clear(a):
+            if not self.arm_clear(a, far):
                 continue
             point = [self.pose.x + view.look_distance * math.cos(a), self.pose.y + view.look_distance * math.sin(a),
                      view.look_height]
@@ -298,7 +303,7 @@ class Body:
                 self.observe(robot)
         for deg in sorted(near_yaws_deg, key=abs) if view.near_look_distance > 0 else ():
             a = base + math.radians(deg)      # the floor close by, which the far views miss
-            if abs(wrap_angle(a - self.pose.yaw)) > MAX_GAZE_YAW or not self.arm_clear(a):
+            if abs(wrap_angle(a - self.pose.yaw)) > MAX_GAZE_YAW or not self.arm_clear(a, near):
                 continue
             res = self.gaze(robot, [self.pose.x + view.near_look_distance * math.cos(a),
                                     self.pose.y + view.near_look_distance * math.sin(a), 0.0])
@@ -369,61 +374,32 @@ class Body:
         return res
 
     # ================================================================== arm room
-    def _shoulder(self, x: float, y: float, yaw: float) -> tuple[float, float]:
-        ahead = self.config.view.shoulder_ahead
-        return x + ahead * math.cos(yaw), y + ahead * math.sin(yaw)
+    def elbow_clear(self, x: float, y: float, yaw: float, pitch: float | None = None) -> bool:
+        """Moving the arm at all has room with the body at (x, y, yaw), for a look pitched
+        ``pitch`` degrees down (:func:`helios.agents.arm_room.elbows_clear`)."""
+        return bool(self._elbows_clear(np.array([x]), np.array([y]), yaw, pitch)[0])
 
-    def elbow_clear(self, x: float, y: float, yaw: float) -> bool:
-        """No tall obstacle within ``elbow_radius`` of the shoulder: moving the arm at all swings
-        its links up to 0.34 m round the shoulder, on any side (measured along gaze moves in sim)."""
-        return bool(self._elbows_clear(np.array([x]), np.array([y]), yaw)[0])
+    def _elbows_clear(self, xs: np.ndarray, ys: np.ndarray, yaw: float, pitch: float | None = None) -> np.ndarray:
+        """``elbow_clear`` for several body positions at one heading."""
+        return arm_room.elbows_clear(self.config.view, self.map.occupancy, self.map.geometry, xs, ys, yaw, pitch)
 
-    def _elbows_clear(self, xs: np.ndarray, ys: np.ndarray, yaw: float) -> np.ndarray:
-        """``elbow_clear`` for several body positions at one heading, on the same samples."""
-        view = self.config.view
-        sx, sy = self._shoulder(xs, ys, yaw)
-        ring = np.linspace(0.0, 2 * math.pi, 32, endpoint=False)
-        rr = np.linspace(0.1, view.elbow_radius, 4)
-        disc = np.stack([sx[:, None, None] + np.outer(rr, np.cos(ring)),
-                         sy[:, None, None] + np.outer(rr, np.sin(ring))], axis=-1).reshape(-1, 2)
-        rows, cols = self.map.geometry.world_to_cell(disc)
-        occ = self.map.occupancy
-        tall = occ.obstacle[rows, cols] & (occ.max_height[rows, cols] > view.arm_swing_height)
-        return ~tall.reshape(len(xs), -1).any(axis=1)
-
-    def arm_clear(self, direction: float) -> bool:
-        """The arm can point the camera in ``direction`` (world yaw): the elbow has room, and no
-        tall obstacle lies on the arc the hand sweeps from where it points now (out to
-        ``arm_swing_radius`` from the shoulder). Far to the side, unseen cells count as blocked too
-        (a wall the camera has not looked at yet)."""
-        if not self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw):
+    def arm_clear(self, direction: float, pitch: float | None = None) -> bool:
+        """The arm can point the camera in ``direction`` (world yaw): the elbow has room, and (the
+        radius model) no tall obstacle lies on the arc the hand sweeps from where it points now."""
+        if not self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw, pitch):
             return False
         now = self.pose.yaw if self.arm_direction is None else self.arm_direction
         return self._sweep_clear(self.pose.x, self.pose.y, self.pose.yaw, now, direction)
 
     def _sweep_clear(self, x: float, y: float, yaw: float, now: float, direction: float) -> bool:
-        """No tall obstacle on the arc the hand sweeps from world yaw ``now`` to ``direction``
-        with the body at (x, y, yaw), nor unseen cells far to the side (see ``arm_clear``)."""
-        view = self.config.view
-        sx, sy = self._shoulder(x, y, yaw)
-        sweep = float(wrap_angle(direction - now))
-        lo, hi = min(0.0, sweep) - 0.3, max(0.0, sweep) + 0.3
-        angles = now + np.linspace(lo, hi, max(7, int((hi - lo) / 0.1) + 1))
-        r, a = np.meshgrid(np.linspace(0.1, view.arm_swing_radius, 10), angles)
-        pts = np.stack([sx + r * np.cos(a), sy + r * np.sin(a)], axis=-1).reshape(-1, 2)
-        side = np.abs(wrap_angle(a.reshape(-1) - yaw)) > math.radians(75)
-        rows, cols = self.map.geometry.world_to_cell(pts)
-        occ = self.map.occupancy
-        blocked = occ.obstacle[rows, cols] & (occ.max_height[rows, cols] > view.arm_swing_height)
-        blocked |= side & ~occ.explored[rows, cols]
-        return not bool(blocked.any())
+        return arm_room.sweep_clear(self.config.view, self.map.occupancy, self.map.geometry, x, y, yaw, now, direction)
 
-    def make_room(self, robot: RobotBackend) -> bool:
+    def make_room(self, robot: RobotBackend, pitch: float | None = None) -> bool:
         """Before looking around: if a wall or a tall piece of furniture is too close for the arm,
         step straight away from it (at the current heading) to the nearest pose where the elbow
         has room. False if there is none within ``make_room_distance``."""
         yaw = self.pose.yaw
-        room = self._room_at(self.pose.x, self.pose.y, yaw)
+        room = self._room_at(self.pose.x, self.pose.y, yaw, pitch)
         if room is None:
             self.log.append("no room for the arm to look around here")
             return False
@@ -432,20 +408,21 @@ class Body:
             return True
         ok = self._step_to(robot, SE2Pose(nx, ny, yaw))
         self.log.append(f"made room for the arm: stepped ({dx:+.1f}, {dy:+.1f}) m")
-        return ok and self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw)
+        return ok and self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw, pitch)
 
-    def _room_at(self, x: float, y: float, yaw: float) -> tuple[float, float, float, float] | None:
+    def _room_at(self, x: float, y: float, yaw: float,
+                 pitch: float | None = None) -> tuple[float, float, float, float] | None:
         """Where ``make_room`` would look from, standing at (x, y, yaw): here if the elbow has room,
         else the nearest pose within ``make_room_distance`` (body-frame step dx, dy at the same
         heading) where it has and the straight step there is free; (x', y', dx, dy), None if none."""
-        if self.elbow_clear(x, y, yaw):
+        if self.elbow_clear(x, y, yaw, pitch):
             return x, y, 0.0, 0.0
         offsets = np.array(_offsets_nearest_first(self.config.view.make_room_distance))
         c, s = math.cos(yaw), math.sin(yaw)
         nx = x + offsets[:, 0] * c - offsets[:, 1] * s
         ny = y + offsets[:, 0] * s + offsets[:, 1] * c
         checker = self.checker().clear_under((x, y, yaw))
-        for j in np.flatnonzero(self._elbows_clear(nx, ny, yaw)):
+        for j in np.flatnonzero(self._elbows_clear(nx, ny, yaw, pitch)):
             if checker.segment_free(x, y, float(nx[j]), float(ny[j]), yaw):
                 return float(nx[j]), float(ny[j]), float(offsets[j, 0]), float(offsets[j, 1])
         return None
@@ -459,7 +436,8 @@ class Body:
         poses = np.atleast_2d(np.asarray(poses, dtype=float))
         out = np.zeros(len(poses), dtype=bool)
         for i, (x, y, yaw) in enumerate(poses):
-            room = self._room_at(float(x), float(y), float(yaw))
+            room = self._room_at(float(x), float(y), float(yaw),
+                                 look_pitch(float(x), float(y), float(yaw), self.body_height, look_at))
             if room is not None:
                 direction = math.atan2(look_at[1] - y, look_at[0] - x)     # as view_from: aimed on arrival
                 out[i] = self._sweep_clear(room[0], room[1], float(yaw), float(yaw), direction)

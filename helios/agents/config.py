@@ -48,6 +48,12 @@ class ViewConfig:
     arm_swing_height: float = 0.76
     """Obstacles taller than this (m) count for the arm checks: the arm never goes below ~0.69 m
     while looking, so tables (<= 0.74 m) pass and counters, shelves and walls do not."""
+    arm_model: Literal["radius", "measured"] = "radius"
+    """How the agent predicts where the arm goes when it looks. ``radius`` (default, the earlier
+    model): ``elbow_radius`` round the shoulder on any side and ``arm_swing_radius`` towards the
+    look, for obstacles over ``arm_swing_height``. ``measured``: the simulated arm's swept envelope
+    per look-target height (:mod:`helios.agents.arm_room`): a strip ahead of the body, lower
+    for looks at the floor, higher for looks at counter tops."""
     make_room_distance: float = 0.5
     """When a wall is too close to look around, the robot steps up to this far (m) away first."""
     self_mask_margin: float = 0.08
@@ -73,6 +79,7 @@ class ViewConfig:
         require_range(self, "shoulder_ahead elbow_radius arm_swing_radius make_room_distance self_mask_margin",
                       0.0, 3.0)
         require_range(self, "face_tolerance", 0.0, 3.1416)
+        require(self.arm_model in ("radius", "measured"), f"arm_model must be 'radius' or 'measured', got {self.arm_model!r}")
         require(all(abs(v) <= 2.0 for v in self.camera_in_body), "camera_in_body must lie within 2 m of the body")
 
 

@@ -1,0 +1,97 @@
+"""Measure where the simulated Spot arm goes when it points the hand camera, and check the agent's
+table of it (``helios.agents.arm_envelope.BANDS``, the ``agent_config.view.arm_model=measured``
+arm-room model): per band of the look's pitch, the lowest arm point in 5 cm slices ahead of the
+body, and every measured cell the table's boxes miss. Writes arm_envelope.png (the lowest arm
+height over the ground, per band, with the table's boxes) and exits 1 if the table misses any.
+
+    python -m tools arm-envelope                    # 450 looks (~5 min)
+    python -m tools arm-envelope --quick --out runs/arm   # 63 looks (~30 s)
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quick", action="store_true", help="63 looks instead of 450 (a smoke check, not the table)")
+    parser.add_argument("--out", default="runs/arm_envelope", help="output folder for arm_envelope.png")
+
+
+def run(args: argparse.Namespace) -> int:
+    from helios.agents.arm_room import BANDS, MARGIN
+    from tasks.arm_sweep import QUICK, Targets, measure, slices, uncovered
+    from tools.cli import check_output_dir, check_output_file
+    from tools.tables import format_table
+
+    out = check_output_dir(args.out)
+    picture = check_output_file(out / "arm_envelope.png", "--out")
+    targets = QUICK if args.quick else Targets()
+    print(f"[arm-envelope] {targets.count} looks (stow -> gaze -> stow) on an empty floor; "
+          f"lowest arm point per 2.5 cm cell, per band of the look's pitch")
+    step = max(1, targets.count // 10)
+
+    def progress(done: int, total: int) -> None:
+        if done % step == 0 or done == total:
+            print(f"[arm-envelope] {done}/{total} looks", file=sys.stderr, flush=True)
+
+    env = measure(targets, progress=progress)
+    misses = 0
+    lo = -90.0
+    for band, (below, boxes) in enumerate(BANDS):
+        name = f"pitch {lo:g} to {below:g} deg down" if below != float("inf") else f"pitch over {lo:g} deg down"
+        lo = below
+        rows = []
+        for x0, x1, half, z in slices(env, band):
+            table = [b for b in boxes if b[0] - MARGIN <= (x0 + x1) / 2 <= b[1] + MARGIN]
+            rows.append([f"{x0:.2f}-{x1:.2f}", f"{half:.2f}", f"{z:.2f}",
+                         ", ".join(f"{b[3] - MARGIN:.2f}" for b in table) or "-"])
+        bad = uncovered(env, band, MARGIN)
+        misses += len(bad)
+        print(f"\n{name}: {env.looks[band]} looks; {len(bad)} measured cells the table misses")
+        print(format_table(["x ahead (m)", "half width (m)", "lowest arm (m)", "table blocks above (m)"], rows))
+        for x, y, z in bad[:5]:
+            print(f"  missed: x {x:+.3f} y {y:+.3f} lowest arm {z:.3f} m")
+    if env.failed:
+        print(f"\n{env.failed} of {targets.count} looks failed (no arm solution); their moves are counted up to the failure")
+    out.mkdir(parents=True, exist_ok=True)
+    _plot(env, picture)
+    print(f"\npicture: {picture}")
+    if misses:
+        print(f"the table (helios/agents/arm_envelope.py) misses {misses} measured cells: update BANDS")
+        return 1
+    print("the table covers every measured cell (with its 3 cm margins)")
+    return 0
+
+
+def _plot(env, path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from helios.agents.arm_room import BANDS, MARGIN
+
+    fig, axes = plt.subplots(1, len(BANDS), figsize=(4 * len(BANDS), 4.2), constrained_layout=True)
+    lo = -90.0
+    for ax, (band, (below, boxes)) in zip(axes, enumerate(BANDS)):
+        grid = np.where(np.isfinite(env.lowest[band]), env.lowest[band], np.nan)
+        im = ax.imshow(grid.T, origin="lower", extent=(env.xs[0], env.xs[-1], env.ys[0], env.ys[-1]),
+                       cmap="viridis_r", vmin=0.6, vmax=1.1)
+        for x0, x1, half, low in boxes:
+            ax.add_patch(plt.Rectangle((x0 - MARGIN, -half - MARGIN), x1 - x0 + 2 * MARGIN, 2 * (half + MARGIN),
+                                       fill=False, edgecolor="red", lw=1))
+            ax.text(x1 + MARGIN, half + MARGIN, f"{low - MARGIN:.2f}", color="red", fontsize=7, va="bottom")
+        ax.add_patch(plt.Rectangle((-0.55, -0.25), 1.1, 0.5, fill=False, edgecolor="white", ls="--", lw=1))
+        ax.set_xlim(-0.6, 1.1)
+        ax.set_ylim(-0.6, 0.6)
+        ax.set_title(f"pitch < {below:g} deg" if below != float("inf") else f"pitch >= {lo:g} deg", fontsize=9)
+        lo = below
+        ax.set_xlabel("ahead of the body centre (m)")
+    axes[0].set_ylabel("left (m)")
+    fig.colorbar(im, ax=list(axes), label="lowest arm point (m); red: the agent's table, blocks above")
+    fig.suptitle("Spot's arm pointing the hand camera: where it passes, how low (body outline dashed)")
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
