@@ -48,12 +48,15 @@ class ViewConfig:
     arm_swing_height: float = 0.76
     """Obstacles taller than this (m) count for the arm checks: the arm never goes below ~0.69 m
     while looking, so tables (<= 0.74 m) pass and counters, shelves and walls do not."""
-    arm_model: Literal["radius", "measured"] = "radius"
-    """How the agent predicts where the arm goes when it looks. ``radius`` (default, the earlier
-    model): ``elbow_radius`` round the shoulder on any side and ``arm_swing_radius`` towards the
-    look, for obstacles over ``arm_swing_height``. ``measured``: the simulated arm's swept envelope
-    per look-target height (:mod:`helios.agents.arm_room`): a strip ahead of the body, lower
-    for looks at the floor, higher for looks at counter tops."""
+    arm_model: Literal["radius", "measured"] = "measured"
+    """How the agent predicts where the arm goes when it looks (:mod:`helios.agents.arm_room`).
+    ``measured`` (default since 2026-12-05): the simulated arm's swept envelope per band of the
+    look's pitch, a strip ahead of the body, lower for steep looks at the floor, higher for looks
+    at counter tops (``python -m tools arm-envelope`` measures it). ``radius`` (the earlier model):
+    ``elbow_radius`` round the shoulder on any side and ``arm_swing_radius`` towards the look, for
+    obstacles over ``arm_swing_height``; it refused looks at objects on counters and cabinets from
+    their gaze points and let the arm hit walls and tables (16 gaze collisions in 100 train
+    episodes against none; docs/search-experiments.md, "The arm's room, measured")."""
     make_room_distance: float = 0.5
     """When a wall is too close to look around, the robot steps up to this far (m) away first."""
     self_mask_margin: float = 0.08
