@@ -287,13 +287,17 @@ def test_arm_room_treats_a_point_the_arm_cannot_look_from_as_blocked():
         gaze_points(fp, TOP, GEO, g.obstacle, g.max_height, g.checker(), cfg)
 
 
-def test_can_look_from_predicts_what_a_visit_finds():
+@pytest.mark.parametrize("arm_model", ["measured", "radius"])
+def test_can_look_from_predicts_what_a_visit_finds(arm_model):
     """``Body.can_look_from`` on a pose says what ``view_from`` would find on arrival there: room
-    for the elbow (or a step ``make_room`` takes to get it) and a clear sweep towards the look
-    point. Checked pose by pose against the visit's own calls near a tall wall and a shelf."""
+    for the arm (or a step ``make_room`` takes to get it) and a clear sweep towards the look
+    point, for a look at that pitch. Checked pose by pose against the visit's own calls near a
+    tall wall and a shelf, with either arm-room model."""
     from collections import Counter
+    from dataclasses import replace
     from types import SimpleNamespace
 
+    from helios.agents.arm_room import look_pitch
     from helios.agents.body import Body
     from helios.agents.config import AgentConfig
     from robots.hal import NavigateResult, Reason
@@ -302,7 +306,8 @@ def test_can_look_from_predicts_what_a_visit_finds():
     occupancy = SimpleNamespace(obstacle=g.obstacle, max_height=g.max_height, explored=np.ones(GEO.shape, bool),
                                 revision=0, geometry=GEO, explored_bounds=(0, GEO.size, 0, GEO.size))
     observer = SimpleNamespace(map=SimpleNamespace(occupancy=occupancy, geometry=GEO))
-    body = Body(AgentConfig(), None, observer, [], Counter())
+    config = AgentConfig()
+    body = Body(replace(config, view=replace(config.view, arm_model=arm_model)), None, observer, [], Counter())
 
     class Robot:           # make_room's step always arrives
         def navigate_to(self, goal, via=()):
@@ -316,7 +321,8 @@ def test_can_look_from_predicts_what_a_visit_finds():
     for x, y, yaw in poses:
         body.pose, body.arm_stowed, body.arm_direction = SE2Pose(x, y, yaw), True, None
         direction = math.atan2(look_at[1] - y, look_at[0] - x)
-        actual.append(body.make_room(Robot()) and body.arm_clear(direction))
+        pitch = look_pitch(x, y, yaw, body.body_height, look_at)          # as view_from, on arrival
+        actual.append(body.make_room(Robot(), pitch) and body.arm_clear(direction, pitch))
     assert predicted.tolist() == actual
     assert 30 < int(predicted.sum()) < 270            # both answers occur
     assert body.can_look_from(np.zeros((0, 3)), look_at).shape == (0,)
