@@ -4,7 +4,7 @@ arm-room model): per band of the look's pitch, the lowest arm point in 5 cm slic
 body, and every measured cell the table's boxes miss. Writes arm_envelope.png (the lowest arm
 height over the ground, per band, with the table's boxes) and exits 1 if the table misses any.
 
-    python -m tools arm-envelope                    # 450 looks (~5 min)
+    python -m tools arm-envelope                    # 450 looks (~3 min)
     python -m tools arm-envelope --quick --out runs/arm   # 63 looks (~30 s)
 """
 
@@ -84,14 +84,14 @@ def _plot(env, path) -> None:
             ax.add_patch(plt.Rectangle((x0 - MARGIN, -half - MARGIN), x1 - x0 + 2 * MARGIN, 2 * (half + MARGIN),
                                        fill=False, edgecolor="red", lw=1))
             ax.text(x1 + MARGIN, half + MARGIN, f"{low - MARGIN:.2f}", color="red", fontsize=7, va="bottom")
-        ax.add_patch(plt.Rectangle((-0.55, -0.25), 1.1, 0.5, fill=False, edgecolor="white", ls="--", lw=1))
+        ax.add_patch(plt.Rectangle((-0.55, -0.25), 1.1, 0.5, fill=False, edgecolor="0.45", ls="--", lw=1))
         ax.set_xlim(-0.6, 1.1)
         ax.set_ylim(-0.6, 0.6)
         ax.set_title(f"pitch < {below:g} deg" if below != float("inf") else f"pitch >= {lo:g} deg", fontsize=9)
         lo = below
         ax.set_xlabel("ahead of the body centre (m)")
     axes[0].set_ylabel("left (m)")
-    fig.colorbar(im, ax=list(axes), label="lowest arm point (m); red: the agent's table, blocks above")
-    fig.suptitle("Spot's arm pointing the hand camera: where it passes, how low (body outline dashed)")
+    fig.colorbar(im, ax=list(axes), label="lowest arm point (m)")
+    fig.suptitle("Spot's arm pointing the hand camera: lowest point over the ground (body dashed; red: the agent's table, blocks above)")
     fig.savefig(path, dpi=90)
     plt.close(fig)
