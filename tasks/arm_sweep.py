@@ -16,7 +16,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from helios.agents.arm_room import BANDS, HAND_ABOVE, HAND_AHEAD
+from helios.agents.arm_room import BANDS, HAND_ABOVE, HAND_AHEAD, band_of
 from helios.planning.footprint import FootprintConfig
 from robots.hal import SE2Pose
 
@@ -85,18 +85,21 @@ def measure(targets: Targets = Targets(), progress: Callable[[int, int], None] |
         sample()
 
     world.step, spot.set_arm_state = stepped, arm_set
-    hand_z = spot.T_world_body()[2, 3] + HAND_ABOVE
+    body_z = spot.T_world_body()[2, 3]
     failed, done = 0, 0
     try:
         for bearing in targets.bearings_deg:
             for dist in targets.distances:
                 for h in targets.heights:
-                    pitch = math.degrees(math.atan2(hand_z - h, dist - HAND_AHEAD))
-                    band = next(i for i, (below, _) in enumerate(BANDS) if pitch < below)
+                    b = math.radians(bearing)
+                    target = (dist * math.cos(b), dist * math.sin(b), h)
+                    # binned by the target's distance ahead of the body, as the table was made;
+                    # the agent bins by its distance from the hand (look_pitch), which for side
+                    # looks is a shallower pitch: the two differ, see the README's arm-room caveat
+                    band = band_of(math.degrees(math.atan2(body_z + HAND_ABOVE - h, dist - HAND_AHEAD)))
                     current[0] = lowest[band]
                     looks[band] += 1
-                    b = math.radians(bearing)
-                    if not backend.gaze_at([dist * math.cos(b), dist * math.sin(b), h]).success:
+                    if not backend.gaze_at(target).success:
                         failed += 1
                     backend.stow_arm()
                     done += 1

@@ -20,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from helios.agents.arm_room import BANDS, MARGIN
+    from helios.agents.arm_room import BANDS, MARGIN, band_name
     from tasks.arm_sweep import QUICK, Targets, measure, slices, uncovered
     from tools.cli import check_output_dir, check_output_file
     from tools.tables import format_table
@@ -38,10 +38,7 @@ def run(args: argparse.Namespace) -> int:
 
     env = measure(targets, progress=progress)
     misses = 0
-    lo = -90.0
-    for band, (below, boxes) in enumerate(BANDS):
-        name = f"pitch {lo:g} to {below:g} deg down" if below != float("inf") else f"pitch over {lo:g} deg down"
-        lo = below
+    for band, (_, boxes) in enumerate(BANDS):
         rows = []
         for x0, x1, half, z in slices(env, band):
             table = [b for b in boxes if b[0] - MARGIN <= (x0 + x1) / 2 <= b[1] + MARGIN]
@@ -49,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
                          ", ".join(f"{b[3] - MARGIN:.2f}" for b in table) or "-"])
         bad = uncovered(env, band, MARGIN)
         misses += len(bad)
-        print(f"\n{name}: {env.looks[band]} looks; {len(bad)} measured cells the table misses")
+        print(f"\n{band_name(band)}: {env.looks[band]} looks; {len(bad)} measured cells the table misses")
         print(format_table(["x ahead (m)", "half width (m)", "lowest arm (m)", "table blocks above (m)"], rows))
         for x, y, z in bad[:5]:
             print(f"  missed: x {x:+.3f} y {y:+.3f} lowest arm {z:.3f} m")
@@ -59,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     _plot(env, picture)
     print(f"\npicture: {picture}")
     if misses:
-        print(f"the table (helios/agents/arm_envelope.py) misses {misses} measured cells: update BANDS")
+        print(f"the table (helios/agents/arm_room.py) misses {misses} measured cells: update BANDS")
         return 1
     print("the table covers every measured cell (with its 3 cm margins)")
     return 0
@@ -72,11 +69,10 @@ def _plot(env, path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from helios.agents.arm_room import BANDS, MARGIN
+    from helios.agents.arm_room import BANDS, MARGIN, band_name
 
     fig, axes = plt.subplots(1, len(BANDS), figsize=(4 * len(BANDS), 4.2), constrained_layout=True)
-    lo = -90.0
-    for ax, (band, (below, boxes)) in zip(axes, enumerate(BANDS)):
+    for ax, (band, (_, boxes)) in zip(axes, enumerate(BANDS)):
         grid = np.where(np.isfinite(env.lowest[band]), env.lowest[band], np.nan)
         im = ax.imshow(grid.T, origin="lower", extent=(env.xs[0], env.xs[-1], env.ys[0], env.ys[-1]),
                        cmap="viridis_r", vmin=0.6, vmax=1.1)
@@ -87,8 +83,7 @@ def _plot(env, path) -> None:
         ax.add_patch(plt.Rectangle((-0.55, -0.25), 1.1, 0.5, fill=False, edgecolor="0.45", ls="--", lw=1))
         ax.set_xlim(-0.6, 1.1)
         ax.set_ylim(-0.6, 0.6)
-        ax.set_title(f"pitch < {below:g} deg" if below != float("inf") else f"pitch >= {lo:g} deg", fontsize=9)
-        lo = below
+        ax.set_title(band_name(band), fontsize=9)
         ax.set_xlabel("ahead of the body centre (m)")
     axes[0].set_ylabel("left (m)")
     fig.colorbar(im, ax=list(axes), label="lowest arm point (m)")

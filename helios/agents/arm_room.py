@@ -75,6 +75,8 @@ def radius_clear(view, occupancy, geometry, xs: np.ndarray, ys: np.ndarray, yaw:
     tall = occupancy.obstacle[rows, cols] & (occupancy.max_height[rows, cols] > view.arm_swing_height)
     return ~tall.reshape(len(xs), -1).any(axis=1)
 
+
+# ---------------------------------------------------------------------------- the measured model
 MARGIN = 0.03
 """Metres added round every measured box and taken off every measured lowest height."""
 
@@ -104,14 +106,21 @@ def look_pitch(x: float, y: float, yaw: float, body_z: float, target) -> float:
 
 def pitch_ahead(body_z: float, ahead: float, height: float) -> float:
     """``look_pitch`` of a point ``ahead`` m in front of the body origin at ``height`` m."""
-    return math.degrees(math.atan2(body_z + HAND_ABOVE - height, max(ahead - HAND_AHEAD, 1e-6)))
+    return look_pitch(0.0, 0.0, 0.0, body_z, (ahead, 0.0, height))
 
 
-def _band(pitch: float | None) -> int:
+def band_of(pitch: float | None) -> int:
     """The band of a look pitched ``pitch`` degrees down (None: the steepest, the most cautious)."""
     if pitch is None:
         return len(BANDS) - 1
     return next(i for i, (below, _) in enumerate(BANDS) if pitch < below)
+
+
+def band_name(band: int) -> str:
+    """``BANDS[band]`` in words, e.g. "pitch 15 to 45 deg down"."""
+    lo = BANDS[band - 1][0] if band > 0 else -90.0
+    below = BANDS[band][0]
+    return f"pitch over {lo:g} deg down" if below == math.inf else f"pitch {lo:g} to {below:g} deg down"
 
 
 def _samples(band: int, step: float = 0.025) -> tuple[np.ndarray, np.ndarray]:
@@ -135,7 +144,7 @@ def envelope_clear(obstacle: np.ndarray, max_height: np.ndarray, geometry, xs, y
     """(N,) bool: with the body at (xs[i], ys[i]) heading ``yaw``, no occupied cell under the
     arm's measured envelope for a look pitched ``pitch`` degrees down is taller than the arm
     passes there."""
-    local, limit = _SAMPLES[_band(pitch)]
+    local, limit = _SAMPLES[band_of(pitch)]
     c, s = math.cos(yaw), math.sin(yaw)
     wx = local[:, 0] * c - local[:, 1] * s
     wy = local[:, 0] * s + local[:, 1] * c

@@ -46,8 +46,9 @@ class ViewConfig:
     """... nor on the arc the hand sweeps towards the look direction, out to this (m) from the
     shoulder (link frames 0.34 m plus the gripper)."""
     arm_swing_height: float = 0.76
-    """Obstacles taller than this (m) count for the arm checks: the arm never goes below ~0.69 m
-    while looking, so tables (<= 0.74 m) pass and counters, shelves and walls do not."""
+    """Obstacles taller than this (m) count for the radius model's arm checks (tables, <= 0.74 m,
+    pass; counters, shelves and walls do not). The measured model keeps its own heights per look
+    pitch: steep looks at the floor take the gripper down to 0.63 m."""
     arm_model: Literal["radius", "measured"] = "measured"
     """How the agent predicts where the arm goes when it looks (:mod:`helios.agents.arm_room`).
     ``measured`` (default since 2026-12-05): the simulated arm's swept envelope per band of the
