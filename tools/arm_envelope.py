@@ -1,5 +1,5 @@
 """Measure where the simulated Spot arm goes when it points the hand camera, and check the agent's
-table of it (``helios.agents.arm_envelope.BANDS``, the ``agent_config.view.arm_model=measured``
+table of it (``helios.agents.arm_room.BANDS``, the ``agent_config.view.arm_model=measured``
 arm-room model): per band of the look's pitch, the lowest arm point in 5 cm slices ahead of the
 body, and every measured cell the table's boxes miss. Writes arm_envelope.png (the lowest arm
 height over the ground, per band, with the table's boxes) and exits 1 if the table misses any.
