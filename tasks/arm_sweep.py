@@ -16,7 +16,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from helios.agents.arm_room import BANDS, HAND_ABOVE, HAND_AHEAD, band_of
+from helios.agents.arm_room import BANDS, band_of, look_pitch
 from helios.planning.footprint import FootprintConfig
 from robots.hal import SE2Pose
 
@@ -93,10 +93,8 @@ def measure(targets: Targets = Targets(), progress: Callable[[int, int], None] |
                 for h in targets.heights:
                     b = math.radians(bearing)
                     target = (dist * math.cos(b), dist * math.sin(b), h)
-                    # binned by the target's distance ahead of the body, as the table was made;
-                    # the agent bins by its distance from the hand (look_pitch), which for side
-                    # looks is a shallower pitch: the two differ, see the README's arm-room caveat
-                    band = band_of(math.degrees(math.atan2(body_z + HAND_ABOVE - h, dist - HAND_AHEAD)))
+                    # binned as the agent bins a look (``look_pitch``)
+                    band = band_of(look_pitch(0.0, 0.0, body_z, target))
                     current[0] = lowest[band]
                     looks[band] += 1
                     if not backend.gaze_at(target).success:

@@ -60,7 +60,7 @@ def test_a_look_the_envelope_allows_does_not_touch_the_furniture(height, dist, y
     look = [front + 0.1, 0.0, height + 0.03] if target == "top" else \
         [pose.x + 1.2 * math.cos(pose.yaw), pose.y + 1.2 * math.sin(pose.yaw), 0.0]
     obstacle, max_height = _grid_with_box(front, front + 0.6, -1.5, 1.5, height)
-    pitch = look_pitch(pose.x, pose.y, pose.yaw, BODY_Z, look)
+    pitch = look_pitch(pose.x, pose.y, BODY_Z, look)
     clear = bool(envelope_clear(obstacle, max_height, GEO, [pose.x], [pose.y], pose.yaw, pitch)[0])
     assert clear is expected
     if clear:
@@ -71,11 +71,11 @@ def test_the_envelope_gives_room_over_a_counter_top_the_radius_model_refused():
     # body centre 0.7 m from a 0.9 m counter's front, looking at something on it: the radius
     # model's sweep (0.55 m from a shoulder 0.29 m ahead) reaches 0.84 m and refused the look
     obstacle, max_height = _grid_with_box(1.0, 1.6, -1.5, 1.5, 0.9)
-    top = look_pitch(0.3, 0.0, 0.0, BODY_Z, [1.1, 0.0, 0.93])
+    top = look_pitch(0.3, 0.0, BODY_Z, [1.1, 0.0, 0.93])
     assert envelope_clear(obstacle, max_height, GEO, [0.3], [0.0], 0.0, top)[0]
     assert not _gaze_touches((1.3, 0.0), (0.3, 1.5), 0.9, SE2Pose(0.3, 0.0, 0.0), [1.1, 0.0, 0.93])
     # the same counter refuses a steep look at the floor from there: the gripper dips to 0.63 m
-    steep = look_pitch(0.3, 0.0, 0.0, BODY_Z, [1.2, 0.0, 0.0])
+    steep = look_pitch(0.3, 0.0, BODY_Z, [1.2, 0.0, 0.0])
     assert steep > 60 and not envelope_clear(obstacle, max_height, GEO, [0.3], [0.0], 0.0, steep)[0]
     # a table top (0.72 m) 0.6 m ahead of the body centre refuses a steep look, not a level one
     obstacle, max_height = _grid_with_box(0.6, 1.2, -1.5, 1.5, 0.72)
@@ -108,3 +108,18 @@ def test_the_table_covers_where_the_simulated_arm_goes():
     # and the measurement is not vacuous: a steep look dips the arm below a table top ahead
     steep = env.lowest[len(BANDS) - 1]
     assert np.nanmin(np.where(np.isfinite(steep), steep, np.nan)) < 0.70
+
+
+def test_a_look_is_binned_by_its_distance_not_its_bearing():
+    """The agent bins a look as ``tasks.arm_sweep`` binned the measured ones: from the hand swung
+    towards the target, whatever the body's heading. A floor point 0.7 m to the side is a steep
+    look (the arm dips for it, as for the same point ahead), not the moderate one a hand fixed
+    ahead of the body would see."""
+    from helios.agents.arm_room import BANDS, band_of
+
+    ahead = look_pitch(0.0, 0.0, BODY_Z, [0.7, 0.0, 0.0])
+    for bearing in (-100, -45, 30, 90):
+        b = math.radians(bearing)
+        assert look_pitch(0.0, 0.0, BODY_Z, [0.7 * math.cos(b), 0.7 * math.sin(b), 0.0]) == pytest.approx(ahead)
+    assert band_of(look_pitch(0.0, 0.0, BODY_Z, [0.0, 0.7, 0.0])) == len(BANDS) - 1
+    assert look_pitch(2.0, -1.0, BODY_Z, [2.0, -0.3, 0.0]) == pytest.approx(ahead)     # anywhere on the map

@@ -321,7 +321,7 @@ def test_can_look_from_predicts_what_a_visit_finds(arm_model):
     for x, y, yaw in poses:
         body.pose, body.arm_stowed, body.arm_direction = SE2Pose(x, y, yaw), True, None
         direction = math.atan2(look_at[1] - y, look_at[0] - x)
-        pitch = look_pitch(x, y, yaw, body.body_height, look_at)          # as view_from, on arrival
+        pitch = look_pitch(x, y, body.body_height, look_at)          # as view_from, on arrival
         actual.append(body.make_room(Robot(), pitch) and body.arm_clear(direction, pitch))
     assert predicted.tolist() == actual
     assert 30 < int(predicted.sum()) < 270            # both answers occur

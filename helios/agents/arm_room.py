@@ -81,8 +81,9 @@ MARGIN = 0.03
 """Metres added round every measured box and taken off every measured lowest height."""
 
 HAND_AHEAD, HAND_ABOVE = 0.45, 0.50
-"""Where the hand sits while it points the camera (body frame, m ahead of and above the body
-origin): the look's pitch is measured from here."""
+"""Where the hand sits while it points the camera: ``HAND_AHEAD`` m from the body origin towards
+the look (the arm swings to the look's bearing), ``HAND_ABOVE`` m above it. A look's pitch is
+measured from there, by the agent and by the sweep that made ``BANDS`` alike."""
 
 BANDS: tuple[tuple[float, tuple[tuple[float, float, float, float], ...]], ...] = (
     # (looks pitched down less than this (degrees; negative: up), boxes (x0, x1, half width,
@@ -96,17 +97,18 @@ BANDS: tuple[tuple[float, tuple[tuple[float, float, float, float], ...]], ...] =
 )
 
 
-def look_pitch(x: float, y: float, yaw: float, body_z: float, target) -> float:
-    """Degrees below horizontal from the hand (body at (x, y, yaw), origin ``body_z`` high) to a
-    world point ``target`` (x, y, z)."""
-    hx, hy = x + HAND_AHEAD * math.cos(yaw), y + HAND_AHEAD * math.sin(yaw)
-    return math.degrees(math.atan2(body_z + HAND_ABOVE - float(target[2]),
-                                   max(math.hypot(float(target[0]) - hx, float(target[1]) - hy), 1e-6)))
+def look_pitch(x: float, y: float, body_z: float, target) -> float:
+    """Degrees below horizontal from the hand (body origin at (x, y), ``body_z`` high; the hand
+    ``HAND_AHEAD`` m towards the target, ``HAND_ABOVE`` m up) to a world point ``target`` (x, y, z).
+    The body's heading does not enter: a look to the side is binned like the same look ahead,
+    which is how ``tasks.arm_sweep`` binned the measured looks (one measure for both)."""
+    horizontal = math.hypot(float(target[0]) - x, float(target[1]) - y) - HAND_AHEAD
+    return math.degrees(math.atan2(body_z + HAND_ABOVE - float(target[2]), max(horizontal, 1e-6)))
 
 
 def pitch_ahead(body_z: float, ahead: float, height: float) -> float:
     """``look_pitch`` of a point ``ahead`` m in front of the body origin at ``height`` m."""
-    return look_pitch(0.0, 0.0, 0.0, body_z, (ahead, 0.0, height))
+    return look_pitch(0.0, 0.0, body_z, (ahead, 0.0, height))
 
 
 def band_of(pitch: float | None) -> int:

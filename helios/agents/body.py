@@ -272,7 +272,7 @@ class Body:
         if abs(wrap_angle(direction - self.pose.yaw)) > MAX_GAZE_YAW:
             self.log.append("gaze point: could not turn to face the object")
             return False
-        pitch = look_pitch(self.pose.x, self.pose.y, self.pose.yaw, self.body_height, gp.look_at)
+        pitch = look_pitch(self.pose.x, self.pose.y, self.body_height, gp.look_at)
         if not self.make_room(robot, pitch) or not self.arm_clear(direction, pitch):
             self.log.append("gaze point: the arm has no room to look from here")
             return False
@@ -437,7 +437,7 @@ class Body:
         out = np.zeros(len(poses), dtype=bool)
         for i, (x, y, yaw) in enumerate(poses):
             room = self._room_at(float(x), float(y), float(yaw),
-                                 look_pitch(float(x), float(y), float(yaw), self.body_height, look_at))
+                                 look_pitch(float(x), float(y), self.body_height, look_at))
             if room is not None:
                 direction = math.atan2(look_at[1] - y, look_at[0] - x)     # as view_from: aimed on arrival
                 out[i] = self._sweep_clear(room[0], room[1], float(yaw), float(yaw), direction)
