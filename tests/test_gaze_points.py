@@ -297,7 +297,6 @@ def test_can_look_from_predicts_what_a_visit_finds(arm_model):
     from dataclasses import replace
     from types import SimpleNamespace
 
-    from helios.agents.arm_room import look_pitch
     from helios.agents.body import Body
     from helios.agents.config import AgentConfig
     from robots.hal import NavigateResult, Reason
@@ -319,10 +318,51 @@ def test_can_look_from_predicts_what_a_visit_finds(arm_model):
     predicted = body.can_look_from(poses, look_at)
     actual = []
     for x, y, yaw in poses:
-        body.pose, body.arm_stowed, body.arm_direction = SE2Pose(x, y, yaw), True, None
-        direction = math.atan2(look_at[1] - y, look_at[0] - x)
-        pitch = look_pitch(x, y, body.body_height, look_at)          # as view_from, on arrival
-        actual.append(body.make_room(Robot(), pitch) and body.arm_clear(direction, pitch))
+        body.pose, body.arm_stowed, body.arm_direction = SE2Pose(x, y, yaw), True, None   # as on arrival
+        actual.append(body.room_to_look(Robot(), look_at))          # view_from's own test
     assert predicted.tolist() == actual
     assert 30 < int(predicted.sum()) < 270            # both answers occur
     assert body.can_look_from(np.zeros((0, 3)), look_at).shape == (0,)
+
+
+def test_a_look_from_a_raised_arm_is_judged_on_the_table_of_every_bearing():
+    """``Body.room_to_look`` (view_from's test): a steep look at the floor past a table top 0.5 m
+    ahead has room from the stowed arm where it stands (the front table: the forearm stays above
+    0.77 m ahead); an arm still raised by an earlier look is judged on the any-bearing table (a
+    side look's gripper dips to 0.63 m there), and so is every look with ``arm_front_table`` off:
+    the robot first steps back from the table."""
+    from collections import Counter
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from helios.agents.body import Body
+    from helios.agents.config import AgentConfig
+    from robots.hal import NavigateResult, Reason
+
+    g = Grid().box(0.5, 1.5, -1.0, 1.0, 0.72)
+    occupancy = SimpleNamespace(obstacle=g.obstacle, max_height=g.max_height, explored=np.ones(GEO.shape, bool),
+                                revision=0, geometry=GEO, explored_bounds=(0, GEO.size, 0, GEO.size))
+    observer = SimpleNamespace(map=SimpleNamespace(occupancy=occupancy, geometry=GEO))
+    steps = []
+
+    class Robot:           # records make_room's steps; they always arrive
+        def navigate_to(self, goal, via=()):
+            steps.append(goal)
+            return NavigateResult(True, Reason.OK, final_pose=goal)
+
+        def stow_arm(self):
+            return NavigateResult(True, Reason.OK)
+
+    look_at = np.array([1.2, 0.0, 0.0])
+    stepped = {}
+    for front_table in (True, False):
+        config = AgentConfig()
+        body = Body(replace(config, view=replace(config.view, arm_front_table=front_table)), None, observer, [], Counter())
+        for stowed in (True, False):
+            body.pose, body.arm_stowed, body.arm_direction = SE2Pose(0.0, 0.0, 0.0), stowed, None
+            steps.clear()
+            assert body.room_to_look(Robot(), look_at)
+            stepped[front_table, stowed] = [round(p.x, 2) for p in steps]
+    assert stepped[True, True] == []
+    assert stepped[True, False] and stepped[False, True] and stepped[False, False]
+    assert all(x < 0 for k in stepped for x in stepped[k])      # straight back, away from the table
