@@ -5,8 +5,7 @@ The measurement behind :mod:`helios.agents.arm_room` (``python -m tools arm-enve
 robot alone on an empty floor points the camera at each target (bearing, distance, height) and
 stows again; at every control sample a vertical ray from the floor through each 2.5 cm cell of a
 body-frame window finds the lowest arm link above it. The body's own cells are hidden (a ray hits
-the body first), which is where no obstacle can be anyway. Each look counts for its band of
-``BANDS`` (every bearing) and, within ``FRONT_BEARING`` of the heading, of ``FRONT_BANDS`` too.
+the body first), which is where no obstacle can be anyway.
 """
 
 from __future__ import annotations
@@ -17,7 +16,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from helios.agents.arm_room import BANDS, FRONT_BANDS, FRONT_BEARING, band_of, look_pitch
+from helios.agents.arm_room import BANDS, band_of, look_pitch
 from helios.planning.footprint import FootprintConfig
 from robots.hal import SE2Pose
 
@@ -46,12 +45,7 @@ class Envelope:
     ys: np.ndarray              # ... and y (left), m
     lowest: list[np.ndarray]    # per band of ``helios.agents.arm_room.BANDS``: (len(xs), len(ys)) m, inf: never
     looks: list[int]            # looks per band
-    front_lowest: list[np.ndarray]  # the same over the looks within ``FRONT_BEARING`` (``FRONT_BANDS``)
-    front_looks: list[int]
     failed: int                 # looks the arm could not make (no IK solution, or a touch)
-
-    def grid(self, band: int, front: bool = False) -> np.ndarray:
-        return (self.front_lowest if front else self.lowest)[band]
 
 
 def measure(targets: Targets = Targets(), progress: Callable[[int, int], None] | None = None) -> Envelope:
@@ -69,8 +63,7 @@ def measure(targets: Targets = Targets(), progress: Callable[[int, int], None] |
     ends = np.stack([X.ravel(), Y.ravel(), np.full(X.size, 2.0)], axis=1).tolist()
     arm_links = {i for name, i in spot.link_index.items() if name.startswith("arm0")}
     lowest = [np.full(X.size, np.inf) for _ in BANDS]
-    front = [np.full(X.size, np.inf) for _ in BANDS]
-    looks, front_looks = [0] * len(BANDS), [0] * len(BANDS)
+    looks = [0] * len(BANDS)
     current: list[np.ndarray] = [lowest[0]]
 
     def sample() -> None:
@@ -102,28 +95,22 @@ def measure(targets: Targets = Targets(), progress: Callable[[int, int], None] |
                     target = (dist * math.cos(b), dist * math.sin(b), h)
                     # binned as the agent bins a look (``look_pitch``)
                     band = band_of(look_pitch(0.0, 0.0, body_z, target))
-                    current[0] = np.full(X.size, np.inf)
+                    current[0] = lowest[band]
+                    looks[band] += 1
                     if not backend.gaze_at(target).success:
                         failed += 1
                     backend.stow_arm()
-                    np.minimum(lowest[band], current[0], out=lowest[band])
-                    looks[band] += 1
-                    if abs(bearing) <= FRONT_BEARING:
-                        np.minimum(front[band], current[0], out=front[band])
-                        front_looks[band] += 1
                     done += 1
                     if progress is not None:
                         progress(done, targets.count)
     finally:
         backend.close()
-    return Envelope(xs, ys, [m.reshape(X.shape) for m in lowest], looks,
-                    [m.reshape(X.shape) for m in front], front_looks, failed)
+    return Envelope(xs, ys, [m.reshape(X.shape) for m in lowest], looks, failed)
 
 
-def slices(env: Envelope, band: int, width: float = 0.05, front: bool = False) -> list[tuple[float, float, float, float]]:
-    """(x0, x1, half width, lowest height) of the band's measured cells in ``width`` slices along x
-    (``front``: over the looks within ``FRONT_BEARING`` only)."""
-    grid = env.grid(band, front)
+def slices(env: Envelope, band: int, width: float = 0.05) -> list[tuple[float, float, float, float]]:
+    """(x0, x1, half width, lowest height) of the band's measured cells in ``width`` slices along x."""
+    grid = env.lowest[band]
     out = []
     for x0 in np.arange(WINDOW_X[0], WINDOW_X[1], width):
         sel = (env.xs >= x0 - 1e-9) & (env.xs < x0 + width - 1e-9)
@@ -136,21 +123,18 @@ def slices(env: Envelope, band: int, width: float = 0.05, front: bool = False) -
     return out
 
 
-def uncovered(env: Envelope, band: int, margin: float, body=FootprintConfig().body,
-              front: bool = False) -> list[tuple[float, float, float]]:
+def uncovered(env: Envelope, band: int, margin: float, body=FootprintConfig().body) -> list[tuple[float, float, float]]:
     """Measured cells of a band outside the body's footprint (``body``: x0, x1, y0, y1, where no
     obstacle can stand) that the table's boxes (grown by ``margin``) do not cover at or below the
-    measured height: (x, y, measured lowest height) each, the table's errors (``front``:
-    ``FRONT_BANDS`` against the looks within ``FRONT_BEARING``)."""
-    grid = env.grid(band, front)
-    table = FRONT_BANDS if front else BANDS
+    measured height: (x, y, measured lowest height) each, the table's errors."""
+    grid = env.lowest[band]
     bad = []
     for i, j in zip(*np.nonzero(np.isfinite(grid))):
         x, y, z = float(env.xs[i]), float(env.ys[j]), float(grid[i, j])
         if body[0] <= x <= body[1] and body[2] <= y <= body[3]:
             continue
         covered = any(x0 - margin <= x <= x1 + margin and abs(y) <= half + margin and z >= low - margin
-                      for x0, x1, half, low in table[band][1])
+                      for x0, x1, half, low in BANDS[band][1])
         if not covered:
             bad.append((x, y, z))
     return bad

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from helios.agents.arm_room import BANDS, FRONT_BANDS, envelope_clear, look_pitch
+from helios.agents.arm_room import envelope_clear, look_pitch
 from helios.maps.grid import GridGeometry
 from robots.hal import Reason, SE2Pose
 from robots.spot.sim_backend import SimSpotBackend
@@ -67,44 +67,6 @@ def test_a_look_the_envelope_allows_does_not_touch_the_furniture(height, dist, y
         assert not _gaze_touches(centre, half, height, pose, look), "the envelope gave room the arm did not have"
 
 
-# single looks near the heading (a gaze point's view), judged on FRONT_BANDS: (counter height, body
-# centre's distance to the counter front, look target, whether the front table gives room,
-# whether the any-bearing table does)
-FRONT_CASES = [(0.72, 0.50, "floor", True, False), (0.72, 0.60, "floor", True, False),
-               (0.9, 0.70, "floor", True, False), (0.9, 0.55, "floor", False, False),
-               (0.9, 0.66, "top", True, True), (1.05, 0.45, "top", False, False)]
-
-
-@pytest.mark.parametrize("height,dist,target,expected,any_bearing", FRONT_CASES)
-def test_a_look_ahead_the_front_table_allows_does_not_touch_the_furniture(height, dist, target, expected, any_bearing):
-    front = 1.0
-    pose = SE2Pose(front - dist, 0.0, 0.0)
-    look = [front + 0.1, 0.0, height + 0.03] if target == "top" else [pose.x + 1.2, 0.0, 0.0]
-    obstacle, max_height = _grid_with_box(front, front + 0.6, -1.5, 1.5, height)
-    pitch = look_pitch(pose.x, pose.y, BODY_Z, look)
-    bearing = math.degrees(math.atan2(look[1] - pose.y, look[0] - pose.x) - pose.yaw)
-    clear = bool(envelope_clear(obstacle, max_height, GEO, [pose.x], [pose.y], pose.yaw, pitch, bearing)[0])
-    assert clear is expected
-    assert bool(envelope_clear(obstacle, max_height, GEO, [pose.x], [pose.y], pose.yaw, pitch)[0]) is any_bearing
-    if clear:
-        assert not _gaze_touches((front + 0.3, 0.0), (0.3, 1.5), height, pose, look), \
-            "the front table gave room the arm did not have"
-
-
-def test_a_look_to_the_side_is_judged_on_the_table_of_every_bearing():
-    """The front table's room ahead is only for looks near the heading: a steep look at the floor
-    to the side dips the gripper to 0.63 m ahead of the body, so a 0.72 m table top 0.55 m ahead
-    refuses it, as it refuses any look of unknown direction."""
-    obstacle, max_height = _grid_with_box(0.55, 1.2, -1.5, 1.5, 0.72)
-    side = [0.0, 0.7, 0.0]
-    pitch = look_pitch(0.0, 0.0, BODY_Z, side)
-    assert pitch > 60
-    assert envelope_clear(obstacle, max_height, GEO, [0.0], [0.0], 0.0, pitch, 0.0)[0]
-    for bearing in (90.0, -90.0, 16.0, None):
-        assert not envelope_clear(obstacle, max_height, GEO, [0.0], [0.0], 0.0, pitch, bearing)[0]
-    assert [b for b, _ in FRONT_BANDS] == [b for b, _ in BANDS]      # the same pitch bands
-
-
 def test_the_envelope_gives_room_over_a_counter_top_the_radius_model_refused():
     # body centre 0.7 m from a 0.9 m counter's front, looking at something on it: the radius
     # model's sweep (0.55 m from a shoulder 0.29 m ahead) reaches 0.84 m and refused the look
@@ -140,11 +102,9 @@ def test_the_table_covers_where_the_simulated_arm_goes():
 
     env = measure(Targets(bearings_deg=(-100, 0, 60), distances=(0.7, 1.3, 3.5), heights=(0.0, 0.9)))
     assert all(n > 0 for n in env.looks), env.looks          # every band was exercised
-    assert all(n > 0 for n in env.front_looks), env.front_looks
     assert env.failed == 0
     for band in range(len(BANDS)):
         assert uncovered(env, band, MARGIN) == [], f"band {band}"
-        assert uncovered(env, band, MARGIN, front=True) == [], f"front band {band}"
     # and the measurement is not vacuous: a steep look dips the arm below a table top ahead
     steep = env.lowest[len(BANDS) - 1]
     assert np.nanmin(np.where(np.isfinite(steep), steep, np.nan)) < 0.70

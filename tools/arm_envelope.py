@@ -1,9 +1,8 @@
 """Measure where the simulated Spot arm goes when it points the hand camera, and check the agent's
-tables of it (``helios.agents.arm_room.BANDS`` for looks in any direction, ``FRONT_BANDS`` for
-single looks near the body's heading; the ``agent_config.view.arm_model=measured`` arm-room
-model): per band of the look's pitch, the lowest arm point in 5 cm slices ahead of the body, and
-every measured cell the tables' boxes miss. Writes arm_envelope.png (the lowest arm height over
-the ground, per band and table, with the table's boxes) and exits 1 if a table misses any.
+table of it (``helios.agents.arm_room.BANDS``, the ``agent_config.view.arm_model=measured``
+arm-room model): per band of the look's pitch, the lowest arm point in 5 cm slices ahead of the
+body, and every measured cell the table's boxes miss. Writes arm_envelope.png (the lowest arm
+height over the ground, per band, with the table's boxes) and exits 1 if the table misses any.
 
     python -m tools arm-envelope                    # 450 looks (~3 min)
     python -m tools arm-envelope --quick --out runs/arm   # 63 looks (~30 s)
@@ -21,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from helios.agents.arm_room import BANDS, FRONT_BANDS, FRONT_BEARING, MARGIN, band_name
+    from helios.agents.arm_room import BANDS, MARGIN, band_name
     from tasks.arm_sweep import QUICK, Targets, measure, slices, uncovered
     from tools.cli import check_output_dir, check_output_file
     from tools.tables import format_table
@@ -39,31 +38,27 @@ def run(args: argparse.Namespace) -> int:
 
     env = measure(targets, progress=progress)
     misses = 0
-    for front, table, label in ((False, BANDS, "every bearing (BANDS)"),
-                                (True, FRONT_BANDS, f"looks within {FRONT_BEARING:g} deg of the heading (FRONT_BANDS)")):
-        print(f"\n== {label}")
-        for band, (_, boxes) in enumerate(table):
-            rows = []
-            for x0, x1, half, z in slices(env, band, front=front):
-                cover = [b for b in boxes if b[0] - MARGIN <= (x0 + x1) / 2 <= b[1] + MARGIN]
-                rows.append([f"{x0:.2f}-{x1:.2f}", f"{half:.2f}", f"{z:.2f}",
-                             ", ".join(f"{b[3] - MARGIN:.2f}" for b in cover) or "-"])
-            bad = uncovered(env, band, MARGIN, front=front)
-            misses += len(bad)
-            count = (env.front_looks if front else env.looks)[band]
-            print(f"\n{band_name(band)}: {count} looks; {len(bad)} measured cells the table misses")
-            print(format_table(["x ahead (m)", "half width (m)", "lowest arm (m)", "table blocks above (m)"], rows))
-            for x, y, z in bad[:5]:
-                print(f"  missed: x {x:+.3f} y {y:+.3f} lowest arm {z:.3f} m")
+    for band, (_, boxes) in enumerate(BANDS):
+        rows = []
+        for x0, x1, half, z in slices(env, band):
+            table = [b for b in boxes if b[0] - MARGIN <= (x0 + x1) / 2 <= b[1] + MARGIN]
+            rows.append([f"{x0:.2f}-{x1:.2f}", f"{half:.2f}", f"{z:.2f}",
+                         ", ".join(f"{b[3] - MARGIN:.2f}" for b in table) or "-"])
+        bad = uncovered(env, band, MARGIN)
+        misses += len(bad)
+        print(f"\n{band_name(band)}: {env.looks[band]} looks; {len(bad)} measured cells the table misses")
+        print(format_table(["x ahead (m)", "half width (m)", "lowest arm (m)", "table blocks above (m)"], rows))
+        for x, y, z in bad[:5]:
+            print(f"  missed: x {x:+.3f} y {y:+.3f} lowest arm {z:.3f} m")
     if env.failed:
         print(f"\n{env.failed} of {targets.count} looks failed (no arm solution); their moves are counted up to the failure")
     out.mkdir(parents=True, exist_ok=True)
     _plot(env, picture)
     print(f"\npicture: {picture}")
     if misses:
-        print(f"the tables (helios/agents/arm_room.py) miss {misses} measured cells: update BANDS / FRONT_BANDS")
+        print(f"the table (helios/agents/arm_room.py) misses {misses} measured cells: update BANDS")
         return 1
-    print("the tables cover every measured cell (with their 3 cm margins)")
+    print("the table covers every measured cell (with its 3 cm margins)")
     return 0
 
 
@@ -74,29 +69,24 @@ def _plot(env, path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from helios.agents.arm_room import BANDS, FRONT_BANDS, FRONT_BEARING, MARGIN, band_name
+    from helios.agents.arm_room import BANDS, MARGIN, band_name
 
-    fig, axes = plt.subplots(2, len(BANDS), figsize=(4 * len(BANDS), 8.0), constrained_layout=True)
-    for row, (front, table) in enumerate(((False, BANDS), (True, FRONT_BANDS))):
-        for ax, (band, (_, boxes)) in zip(axes[row], enumerate(table)):
-            lowest = env.grid(band, front)
-            grid = np.where(np.isfinite(lowest), lowest, np.nan)
-            im = ax.imshow(grid.T, origin="lower", extent=(env.xs[0], env.xs[-1], env.ys[0], env.ys[-1]),
-                           cmap="viridis_r", vmin=0.6, vmax=1.1)
-            for x0, x1, half, low in boxes:
-                ax.add_patch(plt.Rectangle((x0 - MARGIN, -half - MARGIN), x1 - x0 + 2 * MARGIN, 2 * (half + MARGIN),
-                                           fill=False, edgecolor="red", lw=1))
-                ax.text(x1 + MARGIN, half + MARGIN, f"{low - MARGIN:.2f}", color="red", fontsize=7, va="bottom")
-            ax.add_patch(plt.Rectangle((-0.55, -0.25), 1.1, 0.5, fill=False, edgecolor="0.45", ls="--", lw=1))
-            ax.set_xlim(-0.6, 1.1)
-            ax.set_ylim(-0.6, 0.6)
-            looks = (env.front_looks if front else env.looks)[band]
-            ax.set_title(f"{band_name(band)}, {'within %g deg of the heading' % FRONT_BEARING if front else 'any bearing'} "
-                         f"({looks} looks)", fontsize=8)
-            ax.set_xlabel("ahead of the body centre (m)")
-        axes[row][0].set_ylabel("left (m)")
-    fig.colorbar(im, ax=list(axes.ravel()), label="lowest arm point (m)")
-    fig.suptitle("Spot's arm pointing the hand camera: lowest point over the ground (body dashed; red: the agent's "
-                 "tables, blocks above; top BANDS, bottom FRONT_BANDS)")
+    fig, axes = plt.subplots(1, len(BANDS), figsize=(4 * len(BANDS), 4.2), constrained_layout=True)
+    for ax, (band, (_, boxes)) in zip(axes, enumerate(BANDS)):
+        grid = np.where(np.isfinite(env.lowest[band]), env.lowest[band], np.nan)
+        im = ax.imshow(grid.T, origin="lower", extent=(env.xs[0], env.xs[-1], env.ys[0], env.ys[-1]),
+                       cmap="viridis_r", vmin=0.6, vmax=1.1)
+        for x0, x1, half, low in boxes:
+            ax.add_patch(plt.Rectangle((x0 - MARGIN, -half - MARGIN), x1 - x0 + 2 * MARGIN, 2 * (half + MARGIN),
+                                       fill=False, edgecolor="red", lw=1))
+            ax.text(x1 + MARGIN, half + MARGIN, f"{low - MARGIN:.2f}", color="red", fontsize=7, va="bottom")
+        ax.add_patch(plt.Rectangle((-0.55, -0.25), 1.1, 0.5, fill=False, edgecolor="0.45", ls="--", lw=1))
+        ax.set_xlim(-0.6, 1.1)
+        ax.set_ylim(-0.6, 0.6)
+        ax.set_title(band_name(band), fontsize=9)
+        ax.set_xlabel("ahead of the body centre (m)")
+    axes[0].set_ylabel("left (m)")
+    fig.colorbar(im, ax=list(axes), label="lowest arm point (m)")
+    fig.suptitle("Spot's arm pointing the hand camera: lowest point over the ground (body dashed; red: the agent's table, blocks above)")
     fig.savefig(path, dpi=90)
     plt.close(fig)

@@ -20,11 +20,6 @@ band of the look's pitch: body-frame boxes (x0, x1, half width, lowest arm heigh
 round each box and taken off each height; an occupied cell inside a box blocks the look when the
 map's height there exceeds the box's height. Unseen cells are not blocked (as in the radius model
 ahead of the body): the envelope lies ahead of the body, where the camera looks.
-``BANDS`` holds looks in every direction; a single look from the stowed arm within
-``FRONT_BEARING`` of the heading (a gaze point's view) is judged on ``FRONT_BANDS``, measured over
-those looks alone, where the arm never passes lower than 0.77 m ahead of the body: the dips of
-``BANDS`` come from looks to the side (``ViewConfig.arm_front_table``). A look's pitch is taken
-from the hand swung towards its target, the same for the agent and the sweep (``look_pitch``).
 """
 
 from __future__ import annotations
@@ -36,15 +31,12 @@ import numpy as np
 from robots.transforms import wrap_angle
 
 
-def elbows_clear(view, occupancy, geometry, xs, ys, yaw: float, pitch: float | None = None,
-                 bearing: float | None = None) -> np.ndarray:
+def elbows_clear(view, occupancy, geometry, xs, ys, yaw: float, pitch: float | None = None) -> np.ndarray:
     """(N,) bool: with the body at (xs[i], ys[i]) heading ``yaw``, moving the arm at all has room
     (``view``: the agent's ``ViewConfig``; ``pitch``: the look's, degrees down, used by the
-    measured model; None: its steepest band; ``bearing``: the look's direction from the body's
-    heading, degrees, for a single look from the stowed arm; None: any direction)."""
+    measured model; None: its steepest band)."""
     if view.arm_model == "measured":
-        return envelope_clear(occupancy.obstacle, occupancy.max_height, geometry, xs, ys, yaw, pitch,
-                              bearing if view.arm_front_table else None)
+        return envelope_clear(occupancy.obstacle, occupancy.max_height, geometry, xs, ys, yaw, pitch)
     return radius_clear(view, occupancy, geometry, np.asarray(xs, dtype=float), np.asarray(ys, dtype=float), yaw)
 
 
@@ -133,33 +125,11 @@ def band_name(band: int) -> str:
     return f"pitch over {lo:g} deg down" if below == math.inf else f"pitch {lo:g} to {below:g} deg down"
 
 
-FRONT_BEARING = 15.0
-"""Degrees: a single look from the stowed arm this close to the body's heading (a gaze point's
-view, taken facing its target) is judged on ``FRONT_BANDS``."""
-
-FRONT_BANDS: tuple[tuple[float, tuple[tuple[float, float, float, float], ...]], ...] = (
-    # the same pitch bands as BANDS, boxes measured over the looks within FRONT_BEARING only: the
-    # elbow beside the body for level looks, the forearm over a narrow strip ahead, never lower
-    # than 0.77 m there (the dips of BANDS come from looks to the side)
-    (15.0, ((0.05, 0.25, 0.33, 0.69), (0.25, 0.40, 0.33, 0.72), (0.40, 0.60, 0.13, 0.77))),
-    (45.0, ((0.05, 0.45, 0.33, 0.72), (0.45, 0.60, 0.13, 0.77))),
-    (60.0, ((0.40, 0.60, 0.08, 0.77),)),
-    (math.inf, ((0.40, 0.60, 0.08, 0.77),)),
-)
-
-
-def bands_for(bearing: float | None):
-    """The table for a look ``bearing`` degrees off the body's heading (None: any direction, or a
-    look that does not start from the stowed arm): ``FRONT_BANDS`` within ``FRONT_BEARING``, else
-    ``BANDS``, which holds every bearing."""
-    return FRONT_BANDS if bearing is not None and abs(bearing) <= FRONT_BEARING else BANDS
-
-
-def _samples(boxes, step: float = 0.025) -> tuple[np.ndarray, np.ndarray]:
-    """Body-frame sample points (N, 2) covering a band's boxes (margin included) and the map
+def _samples(band: int, step: float = 0.025) -> tuple[np.ndarray, np.ndarray]:
+    """Body-frame sample points (N, 2) covering the band's boxes (margin included) and the map
     height above which each blocks (N,)."""
     pts, limits = [], []
-    for x0, x1, half, low in boxes:
+    for x0, x1, half, low in BANDS[band][1]:
         xs = np.arange(x0 - MARGIN, x1 + MARGIN + 1e-9, step)
         ys = np.arange(-half - MARGIN, half + MARGIN + 1e-9, step)
         X, Y = np.meshgrid(xs, ys, indexing="ij")
@@ -168,15 +138,15 @@ def _samples(boxes, step: float = 0.025) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(pts), np.concatenate(limits)
 
 
-_SAMPLES = {"any": [_samples(boxes) for _, boxes in BANDS], "front": [_samples(boxes) for _, boxes in FRONT_BANDS]}
+_SAMPLES = [_samples(i) for i in range(len(BANDS))]
 
 
 def envelope_clear(obstacle: np.ndarray, max_height: np.ndarray, geometry, xs, ys, yaw: float,
-                   pitch: float | None = None, bearing: float | None = None) -> np.ndarray:
+                   pitch: float | None = None) -> np.ndarray:
     """(N,) bool: with the body at (xs[i], ys[i]) heading ``yaw``, no occupied cell under the
-    arm's measured envelope for a look pitched ``pitch`` degrees down, ``bearing`` degrees off
-    the heading (see ``bands_for``), is taller than the arm passes there."""
-    local, limit = _SAMPLES["front" if bands_for(bearing) is FRONT_BANDS else "any"][band_of(pitch)]
+    arm's measured envelope for a look pitched ``pitch`` degrees down is taller than the arm
+    passes there."""
+    local, limit = _SAMPLES[band_of(pitch)]
     c, s = math.cos(yaw), math.sin(yaw)
     wx = local[:, 0] * c - local[:, 1] * s
     wy = local[:, 0] * s + local[:, 1] * c

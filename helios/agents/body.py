@@ -281,13 +281,11 @@ class Body:
         return True
 
     def room_to_look(self, robot: RobotBackend, look_at) -> bool:
-        """Before one look at ``look_at`` from here: room for the arm at the look's pitch (after a
-        ``make_room`` step if needed) and a clear sweep towards it. A look from the stowed arm (a
-        walk stows it) is judged by its bearing too (``ViewConfig.arm_front_table``)."""
+        """Before one look at ``look_at`` from here (``view_from``'s test on arrival): room for the
+        arm at the look's pitch, after a ``make_room`` step if needed, and a clear sweep towards it."""
         direction = math.atan2(look_at[1] - self.pose.y, look_at[0] - self.pose.x)
         pitch = look_pitch(self.pose.x, self.pose.y, self.body_height, look_at)
-        bearing = math.degrees(wrap_angle(direction - self.pose.yaw)) if self.arm_stowed else None
-        return self.make_room(robot, pitch, bearing) and self.arm_clear(direction, pitch, bearing)
+        return self.make_room(robot, pitch) and self.arm_clear(direction, pitch)
 
     def look(self, robot: RobotBackend, yaws_deg: Sequence[float], facing: float | None = None,
              near_yaws_deg: Sequence[float] = (0.0,)) -> None:
@@ -382,22 +380,19 @@ class Body:
         return res
 
     # ================================================================== arm room
-    def elbow_clear(self, x: float, y: float, yaw: float, pitch: float | None = None,
-                    bearing: float | None = None) -> bool:
+    def elbow_clear(self, x: float, y: float, yaw: float, pitch: float | None = None) -> bool:
         """Moving the arm at all has room with the body at (x, y, yaw), for a look pitched
-        ``pitch`` degrees down, ``bearing`` degrees off the heading from the stowed arm (None: any
-        look; :func:`helios.agents.arm_room.elbows_clear`)."""
-        return bool(self._elbows_clear(np.array([x]), np.array([y]), yaw, pitch, bearing)[0])
+        ``pitch`` degrees down (:func:`helios.agents.arm_room.elbows_clear`)."""
+        return bool(self._elbows_clear(np.array([x]), np.array([y]), yaw, pitch)[0])
 
-    def _elbows_clear(self, xs: np.ndarray, ys: np.ndarray, yaw: float, pitch: float | None = None,
-                      bearing: float | None = None) -> np.ndarray:
+    def _elbows_clear(self, xs: np.ndarray, ys: np.ndarray, yaw: float, pitch: float | None = None) -> np.ndarray:
         """``elbow_clear`` for several body positions at one heading."""
-        return arm_room.elbows_clear(self.config.view, self.map.occupancy, self.map.geometry, xs, ys, yaw, pitch, bearing)
+        return arm_room.elbows_clear(self.config.view, self.map.occupancy, self.map.geometry, xs, ys, yaw, pitch)
 
-    def arm_clear(self, direction: float, pitch: float | None = None, bearing: float | None = None) -> bool:
+    def arm_clear(self, direction: float, pitch: float | None = None) -> bool:
         """The arm can point the camera in ``direction`` (world yaw): the elbow has room, and (the
         radius model) no tall obstacle lies on the arc the hand sweeps from where it points now."""
-        if not self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw, pitch, bearing):
+        if not self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw, pitch):
             return False
         now = self.pose.yaw if self.arm_direction is None else self.arm_direction
         return self._sweep_clear(self.pose.x, self.pose.y, self.pose.yaw, now, direction)
@@ -405,12 +400,12 @@ class Body:
     def _sweep_clear(self, x: float, y: float, yaw: float, now: float, direction: float) -> bool:
         return arm_room.sweep_clear(self.config.view, self.map.occupancy, self.map.geometry, x, y, yaw, now, direction)
 
-    def make_room(self, robot: RobotBackend, pitch: float | None = None, bearing: float | None = None) -> bool:
+    def make_room(self, robot: RobotBackend, pitch: float | None = None) -> bool:
         """Before looking around: if a wall or a tall piece of furniture is too close for the arm,
         step straight away from it (at the current heading) to the nearest pose where the elbow
         has room. False if there is none within ``make_room_distance``."""
         yaw = self.pose.yaw
-        room = self._room_at(self.pose.x, self.pose.y, yaw, pitch, bearing)
+        room = self._room_at(self.pose.x, self.pose.y, yaw, pitch)
         if room is None:
             self.log.append("no room for the arm to look around here")
             return False
@@ -419,21 +414,21 @@ class Body:
             return True
         ok = self._step_to(robot, SE2Pose(nx, ny, yaw))
         self.log.append(f"made room for the arm: stepped ({dx:+.1f}, {dy:+.1f}) m")
-        return ok and self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw, pitch, bearing)
+        return ok and self.elbow_clear(self.pose.x, self.pose.y, self.pose.yaw, pitch)
 
-    def _room_at(self, x: float, y: float, yaw: float, pitch: float | None = None,
-                 bearing: float | None = None) -> tuple[float, float, float, float] | None:
+    def _room_at(self, x: float, y: float, yaw: float,
+                 pitch: float | None = None) -> tuple[float, float, float, float] | None:
         """Where ``make_room`` would look from, standing at (x, y, yaw): here if the elbow has room,
         else the nearest pose within ``make_room_distance`` (body-frame step dx, dy at the same
         heading) where it has and the straight step there is free; (x', y', dx, dy), None if none."""
-        if self.elbow_clear(x, y, yaw, pitch, bearing):
+        if self.elbow_clear(x, y, yaw, pitch):
             return x, y, 0.0, 0.0
         offsets = np.array(_offsets_nearest_first(self.config.view.make_room_distance))
         c, s = math.cos(yaw), math.sin(yaw)
         nx = x + offsets[:, 0] * c - offsets[:, 1] * s
         ny = y + offsets[:, 0] * s + offsets[:, 1] * c
         checker = self.checker().clear_under((x, y, yaw))
-        for j in np.flatnonzero(self._elbows_clear(nx, ny, yaw, pitch, bearing)):
+        for j in np.flatnonzero(self._elbows_clear(nx, ny, yaw, pitch)):
             if checker.segment_free(x, y, float(nx[j]), float(ny[j]), yaw):
                 return float(nx[j]), float(ny[j]), float(offsets[j, 0]), float(offsets[j, 1])
         return None
@@ -447,10 +442,10 @@ class Body:
         poses = np.atleast_2d(np.asarray(poses, dtype=float))
         out = np.zeros(len(poses), dtype=bool)
         for i, (x, y, yaw) in enumerate(poses):
-            direction = math.atan2(look_at[1] - y, look_at[0] - x)     # as view_from: aimed on arrival
-            room = self._room_at(float(x), float(y), float(yaw), look_pitch(float(x), float(y), self.body_height, look_at),
-                                 math.degrees(wrap_angle(direction - yaw)))
+            room = self._room_at(float(x), float(y), float(yaw),
+                                 look_pitch(float(x), float(y), self.body_height, look_at))
             if room is not None:
+                direction = math.atan2(look_at[1] - y, look_at[0] - x)     # as view_from: aimed on arrival
                 out[i] = self._sweep_clear(room[0], room[1], float(yaw), float(yaw), direction)
         return out
 

@@ -58,12 +58,6 @@ class ViewConfig:
     obstacles over ``arm_swing_height``; it refused looks at objects on counters and cabinets from
     their gaze points and let the arm hit walls and tables (16 gaze collisions in 100 train
     episodes against none; docs/search-experiments.md, "The arm's room, measured")."""
-    arm_front_table: bool = True
-    """Measured model: a single look from the stowed arm within ``arm_room.FRONT_BEARING`` of the
-    body's heading (a gaze point's view, taken facing its target) is judged on the envelope of such
-    looks (``arm_room.FRONT_BANDS``: nothing below 0.77 m ahead of the body), every other look on
-    the envelope of all directions (``BANDS``, whose dips to 0.63 m come from looks to the side);
-    false judges every look on ``BANDS`` (the model of 2026-12-05)."""
     make_room_distance: float = 0.5
     """When a wall is too close to look around, the robot steps up to this far (m) away first."""
     self_mask_margin: float = 0.08
