@@ -70,7 +70,9 @@ def _plot(env, path) -> None:
     import numpy as np
 
     from helios.agents.arm_room import BANDS, MARGIN, band_name
+    from helios.planning.footprint import FootprintConfig
 
+    x_lo, x_hi, y_lo, y_hi = FootprintConfig().body     # the footprint `uncovered` leaves out
     fig, axes = plt.subplots(1, len(BANDS), figsize=(4 * len(BANDS), 4.2), constrained_layout=True)
     for ax, (band, (_, boxes)) in zip(axes, enumerate(BANDS)):
         grid = np.where(np.isfinite(env.lowest[band]), env.lowest[band], np.nan)
@@ -80,7 +82,7 @@ def _plot(env, path) -> None:
             ax.add_patch(plt.Rectangle((x0 - MARGIN, -half - MARGIN), x1 - x0 + 2 * MARGIN, 2 * (half + MARGIN),
                                        fill=False, edgecolor="red", lw=1))
             ax.text(x1 + MARGIN, half + MARGIN, f"{low - MARGIN:.2f}", color="red", fontsize=7, va="bottom")
-        ax.add_patch(plt.Rectangle((-0.55, -0.25), 1.1, 0.5, fill=False, edgecolor="0.45", ls="--", lw=1))
+        ax.add_patch(plt.Rectangle((x_lo, y_lo), x_hi - x_lo, y_hi - y_lo, fill=False, edgecolor="0.45", ls="--", lw=1))
         ax.set_xlim(-0.6, 1.1)
         ax.set_ylim(-0.6, 0.6)
         ax.set_title(band_name(band), fontsize=9)
