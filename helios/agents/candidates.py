@@ -6,10 +6,8 @@ likely class is c and its class score S_c reaches the role's threshold (cs_a for
 receptacle, cs_g for the target object, cs_b for the goal receptacle); ``DecisionConfig.
 candidate_class = "score_only"`` drops the first test. A target-object candidate must also rest on
 a start-receptacle candidate (``AgentConfig.require_start_support``), since the task says "move X
-*from* Y"; with ``AgentConfig.goal_not_pick_site`` a goal-receptacle candidate must not be the
-receptacle the held object was taken from ("... *to* Z", Z another piece of furniture).
-Candidates are ordered by Psi, best first, which is the order the paper's decision rule examines
-them in.
+*from* Y". Candidates are ordered by Psi, best first, which is the order the paper's decision
+rule examines them in.
 """
 
 from __future__ import annotations
@@ -54,8 +52,6 @@ def candidate_targets(observer: Observer, cls: str, config: AgentConfig, method:
         if cls == observer.object_class and config.require_start_support and \
                 not rests_on_start_receptacle(observer, inst, config, method):
             continue
-        if cls != observer.object_class and config.goal_not_pick_site and is_pick_site(observer, inst, config):
-            continue
         points = observer.map.objects.means[inst.gaussian_indices].cpu().numpy().astype(float)
         out.append(Target(key, inst.centre, inst.footprint_xy, inst.max_height, inst.psi[cls], points, inst.id))
     return sorted(out, key=lambda t: -t.psi)
@@ -71,12 +67,3 @@ def rests_on_start_receptacle(observer: Observer, obj: Instance, config: AgentCo
         if d <= config.support_radius:
             return True
     return False
-
-
-def is_pick_site(observer: Observer, inst: Instance, config: AgentConfig) -> bool:
-    """The instance reaches within ``support_radius`` of where the held object was grasped: it is
-    (part of) the receptacle the object was taken from, seen now under a look-alike label."""
-    xy = observer.picked_from
-    if xy is None or not len(inst.footprint_xy):
-        return False
-    return bool(np.min(np.linalg.norm(inst.footprint_xy - xy, axis=1)) <= config.support_radius)

@@ -188,15 +188,6 @@ class AgentConfig:
     require_start_support: bool = True
     """HELIOS variants only grasp a target candidate that rests on a mapped start-receptacle
     candidate ('move X *from* Y'); the trusting agent grasps the first detection wherever it is."""
-    goal_not_pick_site: bool = False
-    """HELIOS variants leave out goal-receptacle candidates that reach within ``support_radius``
-    of where the held object was grasped: the receptacle it was taken from, which a detector that
-    confuses look-alikes (cabinet / filing cabinet, table / desk / counter, ...) also labels as the
-    goal class, so its own look-alike instance becomes a goal candidate right under the hand.
-    False (default): the paper's rule, which has no such test. Why one might: in train-00078
-    ("move the apple from the cabinet to the filing cabinet") the first six extra views of the
-    place phase went to the cabinet the apple had just been taken from (goal Psi 0.41-0.46), and
-    start and goal categories are look-alikes in 19 % of the val episodes."""
     support_radius: float = 0.35
     """Horizontal distance (m) from a target candidate to the footprint of its supporting receptacle."""
     frontier_reach: float = 0.8

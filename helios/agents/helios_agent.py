@@ -123,7 +123,8 @@ class HeliosAgent:
         self._frontier_cells: dict[int, np.ndarray] = {}
         self.last_frontier: np.ndarray | None = None
         self.stall = StallWatch(self.config) if self.config.stall_steps else None
-        self._logged = self.decisions = 0
+        self._logged = 0
+        self.decisions = 0
         self.activity = "start_scan"
         """What the latest ``act`` did, one of ``ACTIVITIES`` (the runner times each)."""
         self.stats: Counter = Counter()   # decision counts, see decision_stats()
@@ -188,7 +189,7 @@ class HeliosAgent:
             outcome = pick(robot, self.body, self.observer, target, self.config)
             self.pick_attempts += outcome.attempted
             if outcome.ok:
-                self.phase, self.observer.picked_from = Phase.PLACE, np.asarray(target.centre[:2], dtype=float)
+                self.phase = Phase.PLACE
             else:
                 self._fail(target, outcome.reason)
             return

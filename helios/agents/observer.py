@@ -56,9 +56,6 @@ class Observer:
         self.trusted: dict[str, list[Target]] = {self.object_class: [], self.goal_class: []}
         self.cache: dict = {}
         """Values derived from the map (instances, gaze points); cleared with every new frame."""
-        self.picked_from: np.ndarray | None = None
-        """(x, y) where the object held now was grasped (None before a grasp); see
-        ``AgentConfig.goal_not_pick_site``."""
 
     def observe(self, robot: RobotBackend) -> Observation:
         """One frame through the detector and scorer into the map."""
