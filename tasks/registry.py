@@ -124,7 +124,7 @@ def _helios_factory(variant: str, ground_truth: bool) -> Callable:
         from helios.agents.helios_agent import HeliosAgent
         from helios.agents.variants import VARIANTS
         from helios.config import HeliosConfig
-        from sim.perception import SimPerceptionConfig, make_sim_perception
+        from sim.perception import SimPerceptionConfig, make_sim_perception, role_classes_of
 
         agent_fields, search_fields, _ = VARIANTS[variant]
         agent_config = agent_config or AgentConfig()
@@ -144,8 +144,9 @@ def _helios_factory(variant: str, ground_truth: bool) -> Callable:
             raise UnknownAgentError(f"{name} with simulated perception needs the simulator (a task episode); on a "
                                     f"real robot give it real perception")
         perception_config = replace(perception_config or SimPerceptionConfig(), mode="gt" if ground_truth else "noisy")
+        roles = role_classes_of(context.episode) if perception_config.gt_roles and context.episode is not None else None
         detector, scorer = make_sim_perception(context.backend, seed=context.seed, config=perception_config,
-                                               rooms=context.scene.layout.rooms)
+                                               rooms=context.scene.layout.rooms, role_classes=roles)
         return HeliosAgent(detector, scorer, agent_config, method_config, name=name)
 
     return factory

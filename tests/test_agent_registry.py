@@ -86,3 +86,18 @@ def test_trials_and_spot_list_and_check_the_same_registry(capsys):
     assert capsys.readouterr().err.strip() == expected
     assert main(["spot", "--fake", "--episode", "smoke-00001", "--agent", "nope"]) == 2
     assert capsys.readouterr().err.strip() == expected
+
+
+def test_gt_roles_give_the_agent_exact_detections_of_those_roles_classes(sim):
+    from sim.perception import PartlyTrueDetector, SimDetector, SimImageTextScorer, SimPerceptionConfig
+
+    ep = sim.episode
+    agent = make_agent("helios", RunContext.for_episode(sim, seed=3),
+                       perception_config=SimPerceptionConfig(gt_roles=("goal_receptacle", "object")))
+    assert isinstance(agent.detector, PartlyTrueDetector) and isinstance(agent.detector.noisy, SimDetector)
+    assert agent.detector.true_classes == {ep.goal_receptacle_category, ep.object_category}
+    assert isinstance(agent.scorer, SimImageTextScorer)                 # the value maps stay noisy
+    trusting = make_agent("trusting", RunContext.for_episode(sim, seed=3),
+                          perception_config=SimPerceptionConfig(gt_roles=("start_receptacle",)))
+    assert trusting.detector.true_classes == {ep.start_receptacle_category}
+    assert isinstance(make_agent("helios", RunContext.for_episode(sim, seed=3)).detector, SimDetector)

@@ -169,6 +169,30 @@ def test_gt_mode_detects_a_fully_visible_large_object_with_its_true_class(home):
     assert scorer(obs.rgb, [value_prompt(absent)])[0] == 0.0
 
 
+def test_gt_roles_detect_those_classes_exactly_and_leave_the_others_to_the_noisy_detector(home):
+    world, backend = home.world, home.backend
+    table = home.scene.receptacle_ids[home.table]
+    cat = world.bodies[home.scene.object_ids[home.table_objects[0]]].category
+    roles = {"object": cat, "start_receptacle": "table", "goal_receptacle": "counter"}
+    config = SimPerceptionConfig(gt_roles=("start_receptacle",))
+    partly, scorer = make_sim_perception(backend, 5, config, rooms=home.scene.layout.rooms, role_classes=roles)
+    noisy = SimDetector(backend, 5, SimPerceptionConfig())
+    truth = GroundTruthDetector(backend, SimPerceptionConfig())
+    assert isinstance(scorer, SimImageTextScorer)
+    query, differed = [cat, "table", "counter"], 0
+    for yaw in (0.0, 1.6, 3.14, 4.7):
+        obs = backend.render_at(camera_around(_centre(world, table), 2.2, yaw, math.radians(35)))
+        out = partly(obs.rgb, obs.depth, query)
+        noisy_dets, true_dets = noisy(obs.rgb, obs.depth, query), truth(obs.rgb, obs.depth, ["table"])
+        assert _det_tuple([d for d in out if d.class_name == "table"]) == _det_tuple(true_dets)
+        assert _det_tuple([d for d in out if d.class_name != "table"]) == \
+            _det_tuple([d for d in noisy_dets if d.class_name != "table"])
+        differed += _det_tuple([d for d in noisy_dets if d.class_name == "table"]) != _det_tuple(true_dets)
+    assert differed >= 1            # the noisy detector's tables are not the truth, so the role matters
+    with pytest.raises(ValueError, match="needs the task's classes by role"):
+        make_sim_perception(backend, 5, config)
+
+
 # --------------------------------------------------------------------------------- view-dependent errors
 def test_a_bad_viewpoint_bin_repeats_its_wrong_label_while_the_majority_over_8_views_is_right(home):
     world, backend = home.world, home.backend

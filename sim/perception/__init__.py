@@ -14,18 +14,26 @@ from __future__ import annotations
 from sim.perception.config import SimPerceptionConfig
 from sim.perception.detector import GroundTruthDetector, SimDetector
 from sim.perception.frames import FrameAnalyzer
+from sim.perception.partial_gt import PartlyTrueDetector, role_classes_of, true_classes
 from sim.perception.scorer import GroundTruthScorer, SimImageTextScorer
 
 
-def make_sim_perception(backend, seed: int, config: SimPerceptionConfig = SimPerceptionConfig(), rooms=None):
+def make_sim_perception(backend, seed: int, config: SimPerceptionConfig = SimPerceptionConfig(), rooms=None,
+                        role_classes=None):
     """(detector, scorer) for a simulated backend, seeded per episode; ``config.mode`` picks noisy
     or ground-truth semantics. ``rooms`` (``scene.layout.rooms``) lets the scorer tell which room
-    the camera looks into; without it the room tags of visible furniture are used."""
+    the camera looks into; without it the room tags of visible furniture are used.
+    ``role_classes`` (role -> class, ``partial_gt.role_classes_of(episode)``) is needed with
+    ``config.gt_roles``: those roles' classes are then detected exactly."""
     analyzer = FrameAnalyzer(backend, config)
     if config.mode == "gt":
         return GroundTruthDetector(backend, config, analyzer), GroundTruthScorer(backend, config, analyzer, rooms)
-    return SimDetector(backend, seed, config, analyzer), SimImageTextScorer(backend, seed, config, analyzer, rooms)
+    detector = SimDetector(backend, seed, config, analyzer)
+    if config.gt_roles:
+        detector = PartlyTrueDetector(detector, GroundTruthDetector(backend, config, analyzer),
+                                      true_classes(config.gt_roles, role_classes))
+    return detector, SimImageTextScorer(backend, seed, config, analyzer, rooms)
 
 
 __all__ = ["SimPerceptionConfig", "SimDetector", "GroundTruthDetector", "SimImageTextScorer", "GroundTruthScorer",
-           "FrameAnalyzer", "make_sim_perception"]
+           "FrameAnalyzer", "PartlyTrueDetector", "role_classes_of", "make_sim_perception"]

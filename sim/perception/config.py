@@ -57,6 +57,10 @@ class SimPerceptionConfig:
     """``noisy``: the simulated detector and scorer below. ``gt``: ground-truth semantics (exact
     masks of every visible instance of a queried class with score 1.0; scorer = true visibility
     of the category): the paper's "with gt" rows."""
+    gt_roles: tuple[Literal["object", "start_receptacle", "goal_receptacle"], ...] = ()
+    """With ``noisy``: the task roles whose class is detected exactly (ground-truth masks, score
+    1) while the others keep the noisy detector (``sim.perception.partial_gt``); the scorer stays
+    noisy. Splits what the "with gt" rows gain by role. Empty (default): every role noisy."""
 
     # ------------------------------------------------------------ detection probability
     p_detect_object: float = 0.95
@@ -196,6 +200,13 @@ class SimPerceptionConfig:
     """Ground-truth mode: instances with at least this many visible pixels are detected."""
 
     def __post_init__(self) -> None:
+        from sim.perception.partial_gt import GT_ROLES
+
+        require(isinstance(self.gt_roles, tuple) and all(r in GT_ROLES for r in self.gt_roles)
+                and len(set(self.gt_roles)) == len(self.gt_roles),
+                f"gt_roles must list distinct roles among {list(GT_ROLES)}, got {short_repr(self.gt_roles, 80)}")
+        require(not (self.gt_roles and self.mode == "gt"),
+                f"gt_roles={list(self.gt_roles)} needs mode=noisy: with mode=gt every role is ground truth already")
         # Every number has a range: the lower bound is what the model needs, the upper bound what
         # makes sense (camera images are at most 4096 x 4096 px, homes tens of metres across); an
         # absurd value (mask_morph_px=100000 made OpenCV run out of memory) is refused here, before
