@@ -86,3 +86,17 @@ def test_a_side_that_fails_is_one_line_with_its_own_error(head_tree, tmp_path):
     scenario.write_text(scenario.read_text() + "\nrunner:\n  max_sim_tme: 20\n")
     with pytest.raises(CliError, match=r"trusting \(broken\): `tools trials` exited with status 2: .*max_sim_tme"):
         compare(tmp_path / "c", ["trusting"], 1, 1, frozenset(), base=(broken, "broken"), now=(head_tree, "HEAD"))
+
+
+def test_a_relative_out_is_made_absolute_before_the_sides_run_in_their_own_trees(tmp_path, monkeypatch):
+    """The default --out is relative; each side runs `tools trials` with its tree as the working
+    directory, so the scenario path under --out must not be relative (it named nothing there)."""
+    import argparse
+
+    from tools.unchanged import check_arguments
+
+    _head()
+    monkeypatch.chdir(tmp_path)
+    args = argparse.Namespace(base="HEAD", runs="helios", out="runs/unchanged", ignore="", episodes=3, workers=1)
+    _, runs, out, _ = check_arguments(args)
+    assert runs == ["helios"] and out.is_absolute() and out == tmp_path / "runs" / "unchanged"

@@ -83,7 +83,9 @@ def check_arguments(args: argparse.Namespace) -> tuple[str, list[str], Path, fro
     if not 1 <= args.workers <= 64:
         raise CliError(f"--workers must be 1-64, got {args.workers}")
     runs = parse_runs(args.runs)
-    out = check_output_dir(args.out)
+    # absolute: each side's `tools trials` runs in its own tree, where a relative path (the
+    # default --out) would name a folder that does not exist
+    out = check_output_dir(args.out).resolve()
     if out.is_dir() and any(out.iterdir()) and not (out / MARKER).is_file():
         raise CliError(f"--out {str(out)!r} holds files that are not an earlier `tools unchanged` check's; "
                        f"name an empty or new folder")
