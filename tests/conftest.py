@@ -7,10 +7,19 @@ from helios.runtime import configure_threads, pin_cpu_dispatch
 
 pin_cpu_dispatch()   # before NumPy and torch load: the code paths `python -m tools` runs (helios.runtime)
 
+import signal  # noqa: E402
+
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 configure_threads(1)
+
+# A test run started in the background by a non-interactive shell (`nohup make test &`, a CI
+# job launched with `&`) inherits SIGINT ignored, and Python then leaves it ignored; the Ctrl-C
+# tests of `tools spot` (tests/test_spot_realtime_faults.py) and the subprocesses they start
+# would never see it. Nobody can press Ctrl-C on such a run, so give it Python's default back.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture
