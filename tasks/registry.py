@@ -144,7 +144,7 @@ def _helios_factory(variant: str, ground_truth: bool) -> Callable:
             raise UnknownAgentError(f"{name} with simulated perception needs the simulator (a task episode); on a "
                                     f"real robot give it real perception")
         perception_config = replace(perception_config or SimPerceptionConfig(), mode="gt" if ground_truth else "noisy")
-        roles = role_classes_of(context.episode) if perception_config.gt_roles and context.episode is not None else None
+        roles = role_classes_of(context.episode) if context.episode is not None else None   # for gt_roles
         detector, scorer = make_sim_perception(context.backend, seed=context.seed, config=perception_config,
                                                rooms=context.scene.layout.rooms, role_classes=roles)
         return HeliosAgent(detector, scorer, agent_config, method_config, name=name)

@@ -55,14 +55,15 @@ class TrialConfig:
         require(bool(self.agent.strip()), "agent must be a non-empty name")
         require_range(self, "episodes", 1, 10_000_000)
         require_range(self, "seed", 0, 2 ** 32 - 1)     # numpy seeds are non-negative
+        # a "-gt" agent forces perception.mode=gt, with which gt_roles means nothing
+        require(not (self.perception.gt_roles and self.agent.endswith("-gt")),
+                f"perception.gt_roles={list(self.perception.gt_roles)} with agent {short_repr(self.agent, 40)}: a "
+                f"'-gt' agent detects every role exactly already; use {short_repr(self.agent.removesuffix('-gt'), 40)}")
         from sim.scenes.catalog import ALL_CATEGORIES
 
         # A task's classes are categories of the simulator (tasks.spec); HELIOS's map refuses a
         # task class named like its background class (helios.maps.classes.ClassSet.from_task), so
         # such a background name would end every episode that names it on a MapInputError.
-        require(not (self.perception.gt_roles and self.agent.endswith("-gt")),
-                f"perception.gt_roles={list(self.perception.gt_roles)} with agent {short_repr(self.agent, 40)}: a "
-                f"'-gt' agent detects every role exactly already; use {short_repr(self.agent.removesuffix('-gt'), 40)}")
         require(self.helios.background_class not in ALL_CATEGORIES,
                 f"helios.background_class {short_repr(self.helios.background_class, 40)} is a category of the "
                 f"simulator, which clashes with the task classes of the episodes that name it; use a name that "
