@@ -21,7 +21,7 @@ run: setup
 
 # Scripted single pick-and-place in a two-table scene with a rerun recording.
 demo: setup
-	$(PY) -m tools demo --out runs/demo $(ARGS)
+	$(PY) -m tools demo $(ARGS)
 
 # The paper's ablation table on val: HELIOS, w/o global objective, trusting, 50-50 IG, two -gt
 # twins and HELIOS under the earlier readings, on the first N episodes (seed 0, 2 workers;

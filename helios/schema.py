@@ -264,7 +264,8 @@ def with_overrides(cfg: T, overrides: Iterable[str] | Mapping[str, Any]) -> T:
 
 
 def read_config_file(path: str | Path) -> dict:
-    """The top-level mapping of a YAML config file; errors name the file."""
+    """The top-level mapping of a YAML config file; errors name the file. An empty file is refused
+    rather than read as "all defaults": an explicit `{}` says that."""
     p = Path(path)
     name = short_repr(str(p))
     if p.is_dir():
@@ -272,10 +273,13 @@ def read_config_file(path: str | Path) -> dict:
     if not p.is_file():     # /dev/null, a FIFO (reading one would block), a socket: not a config file
         raise ConfigError(f"config file {name} {'is not a regular file' if p.exists() else 'does not exist'}")
     loaded = yaml_load_text(read_text(p, f"config file {name}"), f"config file {name}", ConfigError)
-    if loaded is not None and not isinstance(loaded, Mapping):
+    if loaded is None:      # empty or comments only: most likely the wrong file, or a save that failed
+        raise ConfigError(f"config file {name} holds no settings (empty or only comments); "
+                          "write '{}' in it to mean all defaults, or leave out --config")
+    if not isinstance(loaded, Mapping):
         raise ConfigError(f"config file {str(p)!r} must hold a mapping at the top level, "
                           f"not a {type(loaded).__name__}")
-    return dict(loaded or {})
+    return dict(loaded)
 
 
 def read_text(path: str | Path, what: str, error: type[Exception] = ConfigError) -> str:

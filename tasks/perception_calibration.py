@@ -63,6 +63,11 @@ class CalibrationSettings:
     sampling: ViewSampling = field(default_factory=ViewSampling)
 
 
+def scene_count(split: str) -> int:
+    """The distinct scenes (homes) of ``split``: the most ``CalibrationSettings.scenes`` can ask for."""
+    return len({ep.scene.seed for ep in load_split(split)})
+
+
 def _match(ids: np.ndarray, mask: np.ndarray) -> int | None:
     under = ids[mask]
     if under.size == 0:
@@ -90,6 +95,9 @@ def calibrate(settings: CalibrationSettings = CalibrationSettings(),
               progress: Callable[[str], None] | None = print) -> dict:
     """Run the measurement (``settings.views`` rendered views in all) and return the numbers."""
     rng = np.random.default_rng(settings.seed)
+    available = scene_count(settings.split)
+    if settings.scenes > available:      # else fewer scenes would be viewed than the result records
+        raise ValueError(f"scenes={settings.scenes}: split {settings.split!r} has {available} distinct scenes")
     episodes = load_split(settings.split)
     chosen, seen = [], set()
     for i in rng.permutation(len(episodes)):

@@ -13,7 +13,7 @@ An entry runs on one kind of run (``runs_on``):
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, NamedTuple, Protocol, runtime_checkable
+from typing import Callable, Iterable, NamedTuple, Protocol, runtime_checkable
 
 from helios.schema import short_repr
 
@@ -226,3 +226,67 @@ def make_agent(name: str, context, **options):
     if not isinstance(context, AgentContext):
         context = RunContext.for_episode(context)
     return entry.factory(context, **options)
+
+
+IGNORED = "ignored"
+"""``replaced_settings``: a whole section the agent never reads."""
+
+# sections of TrialConfig the oracle never reads: it acts on ground truth, with no map or detector
+_ORACLE_IGNORES = ("agent_config", "helios", "perception")
+
+
+def replaced_settings(name: str) -> dict[str, object]:
+    """TrialConfig settings (dotted keys, or whole sections) that agent ``name`` does not take from
+    the run's config: the value its factory forces (a HELIOS variant's fields, ``perception.mode``
+    of a ``-gt`` agent), or :data:`IGNORED` for a section it never reads (the oracle's). A run
+    setting one of them otherwise would record in config.yaml a setting that changed nothing."""
+    if name == "oracle":
+        return {section: IGNORED for section in _ORACLE_IGNORES}
+    from helios.agents.variants import VARIANTS
+
+    variant = name.removesuffix("-gt")
+    if variant not in VARIANTS:
+        return {}
+    agent_fields, search_fields, _ = VARIANTS[variant]
+    out: dict[str, object] = {}
+    for key, value in agent_fields.items():
+        if isinstance(value, dict):
+            out.update({f"agent_config.{key}.{sub}": v for sub, v in value.items()})
+        else:
+            out[f"agent_config.{key}"] = value
+    out.update({f"helios.search.{key}": value for key, value in search_fields.items()})
+    if name.endswith("-gt"):
+        out["perception.mode"] = "gt"
+    return out
+
+
+def check_agent_settings(config, explicit: Iterable[str] = ()) -> None:
+    """ConfigError, before any work, when a TrialConfig sets what its agent replaces or never reads
+    (:func:`replaced_settings`): ``explicit`` (the KEY of each KEY=VALUE given on the command line)
+    names such a setting, or the config's value there differs from the default (a scenario file's
+    setting), and it is not the value the agent forces anyway."""
+    from helios.schema import ConfigError
+    from tasks.trial_config import TrialConfig
+
+    default = TrialConfig(agent=config.agent)
+
+    def value_at(cfg, key):
+        for part in key.split("."):
+            cfg = getattr(cfg, part)
+        return cfg
+
+    named = {key.strip() for key in explicit}
+    for key, forced in replaced_settings(config.agent).items():
+        given = sorted(k for k in named if k == key or k.startswith(key + "."))
+        value = value_at(config, key)
+        if not given and value == value_at(default, key):
+            continue
+        agent = short_repr(config.agent, 40)
+        if forced is IGNORED:
+            where = given[0] if given else f"{key}.*"
+            raise ConfigError(f"{where}: agent {agent} reads no {key}.* settings (it acts on ground truth, with no map "
+                              f"or detector), so this would change nothing; leave it out or run a HELIOS agent")
+        if value != forced:
+            other = config.agent.removesuffix("-gt") if key == "perception.mode" else "helios"
+            raise ConfigError(f"{key}={value!r} with agent {agent}, which sets {key}={forced!r} itself; leave it out, "
+                              f"or run agent {short_repr(other, 40)} with it")

@@ -12,6 +12,7 @@ from tasks.episodes import load_split
 from tasks.registry import (AGENTS, DEMO, EPISODE, RUNS_ON, AgentContext, RunContext, UnknownAgentError, agent_names,
                             check_agent, make_agent)
 from tasks.runner import SimEpisode
+from tasks.trial_config import TrialConfig
 from tasks.scripted_demo import DemoHints, ScriptedDemo
 from tools.cli import build_parser, main
 
@@ -101,3 +102,45 @@ def test_gt_roles_give_the_agent_exact_detections_of_those_roles_classes(sim):
                           perception_config=SimPerceptionConfig(gt_roles=("start_receptacle",)))
     assert trusting.detector.true_classes == {ep.start_receptacle_category}
     assert isinstance(make_agent("helios", RunContext.for_episode(sim, seed=3)).detector, SimDetector)
+
+
+def test_replaced_settings_name_what_each_agent_forces_or_never_reads():
+    from helios.agents.variants import VARIANTS
+    from tasks.registry import IGNORED, replaced_settings
+
+    assert replaced_settings("oracle") == {"agent_config": IGNORED, "helios": IGNORED, "perception": IGNORED}
+    assert replaced_settings("helios") == {}
+    assert replaced_settings("helios-gt") == {"perception.mode": "gt"}
+    assert replaced_settings("helios-5050") == {"helios.search.information_gain": "fifty_fifty"}
+    assert replaced_settings("helios-place-gt") == {"agent_config.place.mode": "improved", "perception.mode": "gt"}
+    assert replaced_settings("trusting") == {"agent_config.variant": "trusting"}
+    assert replaced_settings("no-such-agent") == {}
+    for variant in VARIANTS:      # each forced key exists in TrialConfig (a renamed field would slip past)
+        for key in replaced_settings(variant + "-gt"):
+            section, _, name = key.rpartition(".")
+            cfg = TrialConfig()
+            for part in section.split("."):
+                cfg = getattr(cfg, part)
+            assert hasattr(cfg, name), f"{variant}: TrialConfig has no {key}"
+
+
+def test_check_agent_settings_refuses_what_would_change_nothing_and_allows_the_rest():
+    from helios.schema import ConfigError, with_overrides
+    from tasks.registry import check_agent_settings
+
+    def check(agent, *overrides, explicit=True):
+        cfg = with_overrides(TrialConfig(agent=agent), list(overrides))
+        check_agent_settings(cfg, [o.partition("=")[0] for o in overrides] if explicit else ())
+
+    check("oracle", "runner.max_sim_time=100", "sim.camera.width=160")       # the oracle's robot and budget
+    check("helios-gt", "perception.mode=gt")                  # what the agent forces anyway: harmless
+    check("helios-5050", "helios.search.information_gain=fifty_fifty", "helios.search.cs_start_receptacle=0.4")
+    check("helios", "agent_config.variant=trusting", "perception.mode=gt")     # helios reads them
+    with pytest.raises(ConfigError, match=r"agent_config.max_pick_attempts: agent 'oracle' reads no agent_config"):
+        check("oracle", "agent_config.max_pick_attempts=3")     # even at its default: it was asked for
+    with pytest.raises(ConfigError, match=r"perception.\*: agent 'oracle' reads no perception"):
+        check("oracle", "perception.mask_morph_px=3", explicit=False)          # from a scenario file
+    with pytest.raises(ConfigError, match="which sets perception.mode='gt' itself; leave it out, or run agent 'trusting'"):
+        check("trusting-gt", "perception.mode=noisy")
+    with pytest.raises(ConfigError, match="sets agent_config.variant='no_global' itself"):
+        check("helios-no-global-gt", "agent_config.variant=trusting", explicit=False)

@@ -75,11 +75,11 @@ def test_saved_results_are_a_baseline_and_foreign_files_are_refused(tmp_path):
     after = _run("x", [5.0], [600.0], [20.0])
     saved = tmp_path / "bench.json"
     saved.write_text(json.dumps({"format": bench_agent.SAVE_FORMAT, **after}))
-    label, tree, data = bench_agent._resolve_baseline(str(saved), tmp_path)
-    assert tree is None and data["median_wall"] == 5.0
+    label, commit, data = bench_agent._check_baseline(str(saved))
+    assert commit is None and data["median_wall"] == 5.0
     (tmp_path / "other.json").write_text(json.dumps({"median_wall": 1}))
     with pytest.raises(CliError, match="not a file written by"):
-        bench_agent._resolve_baseline(str(tmp_path / "other.json"), tmp_path)
+        bench_agent._check_baseline(str(tmp_path / "other.json"))
 
 
 def test_profiled_phases_add_up_the_planner_pieces():
@@ -250,3 +250,56 @@ def test_the_report_names_the_workload_and_flags_a_baseline_with_other_seeds():
     same = {**before, "agent_seed": "0", "episodes": [dict(e, seed=100 + i) for i, e in enumerate(before["episodes"])]}
     text = bench_agent.format_report(after, same, "helios")
     assert "OTHER WORKLOADS" not in text and "are other episodes" not in text
+
+
+@pytest.mark.parametrize("option, fragment", [
+    (["--agent-repeats", "0"], "--agent-repeats must be within 1..20, got 0"),
+    (["--agent-seed", "banana"], "--agent-seed must be a master seed"),
+    (["--agent-set", "foo=1"], "--agent-set 'foo=1': give KEY=VALUE"),
+    (["--agent-save", "/nonexistent-helios-dir/x.json"], "does not exist"),
+    (["--agent-baseline", "{empty}"], "not a readable JSON file"),
+])
+def test_agent_options_are_checked_before_the_first_suite_runs(option, fragment, tmp_path, monkeypatch, capsys):
+    """``bench scenes agent --agent-repeats 0`` once ran the whole scenes suite before refusing."""
+    from tools import bench_scenes
+    from tools.cli import main
+
+    (tmp_path / "empty.json").write_text("")
+    ran = []
+    monkeypatch.setattr(bench_scenes, "run", lambda args: ran.append("scenes") or "")
+    option = [o.replace("{empty}", str(tmp_path / "empty.json")) for o in option]
+    assert main(["bench", "scenes", "agent", "--quick", *option]) == 2
+    err = capsys.readouterr().err
+    assert fragment in err and len(err.splitlines()) == 1
+    assert ran == [], "the scenes suite ran before the agent suite's options were checked"
+
+
+def test_options_of_a_suite_not_selected_are_refused_not_ignored(capsys):
+    from tools import bench
+    from tools.cli import build_parser, main, parse_arguments
+
+    assert main(["bench", "scenes", "--quick", "--agent-repeats", "0", "--agent-seed", "banana"]) == 2
+    assert capsys.readouterr().err.strip() == \
+        "error: --agent-repeats applies to the 'agent' suite, which is not selected"
+    owned = bench.suite_options()
+    # the message names the flag by its dest: every suite option is --<suite>-..., of its suite
+    assert all(dest.startswith(suite + "_") for dest, (suite, _) in owned.items())
+    assert {suite for suite, _ in owned.values()} == {"agent", "maps", "trials"}
+    # an option at its default changes nothing, so it is no reason to refuse
+    args = parse_arguments(build_parser(), ["bench", "sim", "--agent-name", "helios", "--maps-device", "cpu"])
+    bench._check_unselected(args)
+
+
+def test_quick_only_changes_the_defaults_an_explicit_count_wins():
+    import argparse
+
+    from tools.bench_trials import episode_count
+
+    def ns(quick, episodes=None, replans=None):
+        return argparse.Namespace(quick=quick, agent_episodes=episodes, agent_replans=replans,
+                                  trials_episodes=episodes)
+
+    assert bench_agent.episode_counts(ns(False)) == (6, 40)
+    assert bench_agent.episode_counts(ns(True)) == (2, 10)
+    assert bench_agent.episode_counts(ns(True, 5, 7)) == (5, 7)
+    assert (episode_count(ns(False)), episode_count(ns(True)), episode_count(ns(True, 5))) == (12, 3, 5)

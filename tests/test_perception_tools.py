@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
+import pytest
+
 from tools.cli import main
 
 
@@ -20,6 +22,10 @@ def test_calibrate_perception_writes_a_table_json_and_plot(tmp_path, capsys):
     from sim.perception.config import SimPerceptionConfig
 
     assert result["config"]["bad_view_object"] == SimPerceptionConfig().bad_view_object   # the config is recorded
+    from tools.calibrate_perception import load_baseline, receptacle_lines
+
+    baseline = load_baseline(str(out / "calibration.json"))       # a run's own file is a valid --baseline
+    assert "(before / after)" in receptacle_lines(result, baseline)
 
 
 def test_calibrate_perception_bad_input_is_one_line(tmp_path, capsys):
@@ -28,6 +34,49 @@ def test_calibrate_perception_bad_input_is_one_line(tmp_path, capsys):
     assert main(["calibrate-perception", "--views", "10", "--out", str(tmp_path), "bad_view_object=2"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: ") and "bad_view_object must be in [0, 1]" in err and len(err.splitlines()) == 1
+
+
+ROW = {"precision": 0.5, "recall": None, "tp": 1, "fp": 1, "instances": 2}
+
+
+@pytest.mark.parametrize("doc, fragment", [
+    ({"task_query": {"start receptacle": 1}, "pooled": {"receptacles": 3}},
+     "['task_query']['start receptacle'] is 1, not an object"),
+    ({"task_query": {"start receptacle": ROW}, "pooled": {"receptacles": ROW}}, "['task_query']['goal receptacle'] is missing"),
+    ({"task_query": {"start receptacle": ROW, "goal receptacle": ROW}, "pooled": {"receptacles": 3}},
+     "['pooled']['receptacles'] is 3, not an object"),
+    ({"task_query": {"start receptacle": ROW, "goal receptacle": {**ROW, "tp": "1"}}, "pooled": {"receptacles": ROW}},
+     "['task_query']['goal receptacle']['tp'] is \"1\", not a whole number >= 0"),
+    ({"task_query": {"start receptacle": {**ROW, "recall": 7}, "goal receptacle": ROW}, "pooled": {"receptacles": ROW}},
+     "['task_query']['start receptacle']['recall'] is 7, not null or a number within 0..1"),
+    ([], "it holds a list, not an object"),
+    ("", "--baseline must not be empty"),
+])
+def test_calibrate_perception_refuses_a_wrong_baseline_before_any_view(doc, fragment, tmp_path, capsys, monkeypatch):
+    """A parseable but wrong --baseline once failed with a traceback after the whole calibration."""
+    import tasks.perception_calibration as pc
+
+    monkeypatch.setattr(pc, "calibrate", lambda *a, **k: pytest.fail("the calibration ran"))
+    path = tmp_path / "calibration.json"
+    path.write_text(json.dumps(doc))
+    arg = "" if doc == "" else str(path)
+    assert main(["calibrate-perception", "--views", "5", "--out", str(tmp_path / "out"), "--baseline", arg]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and fragment in err, err
+    assert doc == "" or f"--baseline '{path}': not a calibration.json of this tool: " in err
+
+
+def test_calibrate_perception_refuses_more_scenes_than_the_split_has(tmp_path, capsys, monkeypatch):
+    """``--scenes 500`` of the 20 smoke homes was silently capped, and 500 recorded."""
+    import tasks.perception_calibration as pc
+
+    monkeypatch.setattr(pc, "SimEpisode", None)          # calibrate() must refuse before building a scene
+    with pytest.raises(ValueError, match="scenes=21: split 'smoke' has 20 distinct scenes"):
+        pc.calibrate(pc.CalibrationSettings(split="smoke", views=25, scenes=21))
+    monkeypatch.setattr(pc, "calibrate", lambda *a, **k: pytest.fail("the calibration ran"))
+    assert main(["calibrate-perception", "--split", "smoke", "--scenes", "21", "--views", "25",
+                 "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err.strip() == "error: --scenes 21 is more than the 20 distinct scenes of split 'smoke'"
 
 
 def test_bench_perception_quick_reports_median_and_p90():

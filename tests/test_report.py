@@ -93,6 +93,19 @@ def test_report_common_compares_runs_on_the_episodes_they_share(tmp_path):
     assert "| short | 0.0 ± 0.0 |" in shared["markdown"]
 
 
+def test_report_says_when_runs_share_no_episode_and_when_a_run_is_unfinished(tmp_path):
+    a = _make_run(tmp_path / "a", [(5, None)] * 4)                                     # val-00000..3
+    b = tmp_path / "b"
+    prepare_run_folder(b, TrialConfig(agent="oracle", split="val", episodes=10))       # 3 of 10 done
+    for i in range(6, 9):
+        append_result(b / "episodes.jsonl", _record(i, 0, "not_found", False))
+    warnings = make_report([a, b], tmp_path / "rep")["warnings"]
+    assert any("the runs share no episode" in w and "no episode to pair" in w for w in warnings), warnings
+    assert not any("--common compares them" in w for w in warnings), "--common would find nothing to compare"
+    assert any(w.startswith("b: 3 of its 10 episodes finished") for w in warnings), warnings
+    assert not any(w.startswith("a: ") for w in warnings), "a finished run is not flagged"
+
+
 def test_sign_test_matches_the_binomial_tails_by_hand():
     from tools.report_stats import sign_test_p
 

@@ -40,8 +40,8 @@ def test_every_example_file_loads_and_says_what_it_is():
             load_config(SimBackendConfig, path)
         elif path.name.startswith("spot"):
             load_config(SdkBackendConfig, path)
-        else:
-            load_trial_config(path)
+        else:       # as `tools trials --config` reads it: no setting its agent ignores or replaces
+            resolve_config(_trial_args("--config", str(path)))
 
 
 def test_the_ablation_set_is_one_file_per_agent_of_make_compare():
@@ -89,8 +89,11 @@ def test_precedence_defaults_file_flags_then_key_value(tmp_path):
     # flags override the file only where given
     cfg = resolve_config(_trial_args("--config", str(path), "--episodes", "7"))
     assert (cfg.agent, cfg.episodes, cfg.seed) == ("helios", 7, 3)
-    cfg = resolve_config(_trial_args("--config", str(path), "--agent", "oracle", "--seed", "0"))
-    assert (cfg.agent, cfg.split, cfg.seed) == ("oracle", "val", 0)
+    cfg = resolve_config(_trial_args("--config", str(path), "--agent", "helios-no-global", "--seed", "0"))
+    assert (cfg.agent, cfg.split, cfg.seed) == ("helios-no-global", "val", 0)
+    # ... but not into settings the agent never reads (the oracle has no detector to tune)
+    with pytest.raises(ConfigError, match="agent 'oracle' reads no helios"):
+        resolve_config(_trial_args("--config", str(path), "--agent", "oracle"))
     # key=value overrides come last
     cfg = resolve_config(_trial_args("--config", str(path), "--episodes", "7", "episodes=9",
                                      "runner.max_sim_time=60", "helios.detection.od_object=0.5"))

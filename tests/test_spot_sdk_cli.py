@@ -194,6 +194,24 @@ def test_bad_arguments_are_one_clear_error(args, fragment, capsys, monkeypatch, 
     assert err.startswith("error: ") and "\n" not in err and fragment in err, err
 
 
+@pytest.mark.parametrize("key, value", [("hostname", "10.1.2.3"), ("port", "1234"), ("cert_path", "/x.pem")])
+@pytest.mark.parametrize("mode", [["--task", TASK], ["--episode", "smoke-00001"]])
+def test_fake_refuses_connection_keys_from_the_config_file(key, value, mode, capsys, monkeypatch, tmp_path):
+    """The fake Spot replaces hostname, port and cert_path with its own (as it does --port/--cert):
+    a scenario file setting one is refused before anything starts, not silently overridden."""
+    from tools.spot import FAKE_CONNECTION_KEYS
+
+    assert key in FAKE_CONNECTION_KEYS
+    monkeypatch.chdir(tmp_path)
+    cfg = tmp_path / "robot.yaml"
+    cfg.write_text(f"rpc_timeout: 2.0\n{key}: {value}\n")
+    assert main(["spot", "--fake", *mode, "--config", str(cfg), "--out", str(tmp_path / "runs")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "\n" not in err, err
+    assert f"config file '{cfg}' sets {key}, which --fake ignores" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["robot.yaml"]       # no run folder, nothing started
+
+
 def test_nothing_listening(capsys, monkeypatch, tmp_path):
     with socket.socket() as s:            # a port that was free a moment ago: connection refused
         s.bind(("127.0.0.1", 0))

@@ -24,7 +24,9 @@ SUITES: dict[str, str] = {
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("suites", nargs="+", metavar="SUITE", help=f"one or more of: {', '.join(SUITES)}")
-    parser.add_argument("--quick", action="store_true", help="fewer repetitions (smoke-test the benchmark)")
+    parser.add_argument("--quick", action="store_true",
+                        help="fewer repetitions (smoke-test the benchmark); an explicit --agent-episodes, "
+                             "--agent-replans or --trials-episodes still wins")
     parser.add_argument("--seed", type=int, default=0, help="seed for scenes and trajectories")
     for module in SUITES.values():   # suite-specific options (e.g. --maps-recording)
         suite = importlib.import_module(module)
@@ -58,6 +60,7 @@ def _check_options(args: argparse.Namespace) -> None:
     twice = _first_repeat(args.suites)
     if twice is not None:
         raise CliError(f"suite {short_repr(twice, 40)} is given twice")
+    _check_unselected(args)
     workers = getattr(args, "trials_workers", None)
     if workers is not None:
         try:
@@ -72,8 +75,9 @@ def _check_options(args: argparse.Namespace) -> None:
     _check_agents(args)
     if "trials" in args.suites:
         from tasks.episodes import load_split
+        from tools.bench_trials import episode_count
 
-        n = 3 if getattr(args, "quick", False) else args.trials_episodes
+        n = episode_count(args)
         available = len(load_split(args.trials_split))        # an unknown split is one line too
         if n > available:
             raise CliError(f"--trials-episodes must be in 1..{available} (split {args.trials_split!r}), got {n}")
@@ -84,6 +88,31 @@ def _check_options(args: argparse.Namespace) -> None:
         from tools.bench_maps import check_inputs
 
         check_inputs(args)
+    if "agent" in args.suites:
+        from tools.bench_agent import check_inputs as check_agent_inputs
+
+        check_agent_inputs(args)         # repeats, seed, --agent-set, --agent-save, --agent-baseline
+
+
+def suite_options() -> dict[str, tuple[str, object]]:
+    """Each suite's own option (its ``add_arguments``: ``agent_repeats``, ``maps_device``, ...) ->
+    (that suite, the option's default)."""
+    owned: dict[str, tuple[str, object]] = {}
+    for suite, module in SUITES.items():
+        mod = importlib.import_module(module)
+        if hasattr(mod, "add_arguments"):
+            parser = argparse.ArgumentParser(add_help=False)
+            mod.add_arguments(parser)
+            owned.update((dest, (suite, default)) for dest, default in vars(parser.parse_args([])).items())
+    return owned
+
+
+def _check_unselected(args: argparse.Namespace) -> None:
+    """A suite's option given (other than its default) while that suite is not selected would be
+    ignored: refused instead (``bench scenes --agent-repeats 0`` once ran scenes and exited 0)."""
+    for dest, (suite, default) in suite_options().items():
+        if suite not in args.suites and getattr(args, dest, default) != default:
+            raise CliError(f"--{dest.replace('_', '-')} applies to the {suite!r} suite, which is not selected")
 
 
 def _first_repeat(values):

@@ -33,6 +33,7 @@ import sys
 import tempfile
 import threading
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -43,13 +44,18 @@ WORKER = Path(__file__).resolve().with_name("bench_agent_worker.py")
 TABLE_RUNS, TABLE_EPISODES, TABLE_WORKERS = 10, 1000, 2     # the paper's table: 5 agents + gt twins
 EPISODE_TIMEOUT_S = 1800.0
 SAVE_FORMAT = "helios-bench-agent/1"
+DEFAULT_EPISODES, DEFAULT_REPLANS = 6, 40
+QUICK_EPISODES, QUICK_REPLANS = 2, 10          # --quick's defaults; an explicit value still wins
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("agent suite")
     group.add_argument("--agent-name", default="helios", help="registered agent to time (default helios)")
-    group.add_argument("--agent-episodes", type=int, default=6, help="val episodes to run (default 6; --quick: 2)")
-    group.add_argument("--agent-replans", type=int, default=40, help="planner calls per map (default 40)")
+    # default None, so that an explicit value is known and wins over --quick (see episode_counts)
+    group.add_argument("--agent-episodes", type=int, default=None,
+                       help=f"val episodes to run (default {DEFAULT_EPISODES}; --quick: {QUICK_EPISODES})")
+    group.add_argument("--agent-replans", type=int, default=None,
+                       help=f"planner calls per map (default {DEFAULT_REPLANS}; --quick: {QUICK_REPLANS})")
     group.add_argument("--agent-repeats", type=int, default=1, metavar="N",
                        help="run each episode N times per tree (interleaved) and keep the run with the least "
                             "wall time: steadier ratios on a shared or busy machine (default 1)")
@@ -152,8 +158,9 @@ def check_agent_sets(agent: str, sets: list[str]) -> tuple[str, ...]:
     return tuple(sets)
 
 
-def _resolve_baseline(ref: str | None, tmp: Path) -> tuple[str, Path | None, dict | None]:
-    """(label, source tree to run, or saved results) of ``--agent-baseline``; checked before any work."""
+def _check_baseline(ref: str | None) -> tuple[str, str | None, dict | None]:
+    """(label, commit to run, or saved results) of ``--agent-baseline``: reads the file or asks git
+    for the commit, but extracts nothing, so :func:`check_inputs` can call it before any suite runs."""
     if ref is None:
         return "", None, None
     path = Path(ref)
@@ -166,15 +173,22 @@ def _resolve_baseline(ref: str | None, tmp: Path) -> tuple[str, Path | None, dic
             raise CliError(f"--agent-baseline {ref!r}: not a file written by `bench agent --agent-save` "
                            f"(format {SAVE_FORMAT!r})")
         return saved.get("label", path.name), None, saved
-    from tools.commit_tree import extract_commit, resolve_commit
+    from tools.commit_tree import resolve_commit
 
     commit = resolve_commit(ref, "--agent-baseline")
     if not commit:
         raise CliError(f"--agent-baseline {ref!r} is neither a file nor a commit of {ROOT}")
+    return f"{ref} ({commit[:10]})", commit, None
+
+
+def _baseline_tree(ref: str, commit: str, tmp: Path) -> Path:
+    """The files of the ``--agent-baseline`` commit (checked by :func:`_check_baseline`) under ``tmp``."""
+    from tools.commit_tree import extract_commit
+
     tree = extract_commit(commit, tmp / commit[:12], f"--agent-baseline {ref!r}")
     if not (tree / "tasks" / "runner.py").is_file():
         raise CliError(f"--agent-baseline {ref!r} ({commit[:12]}) has no tasks/runner.py: too old to bench")
-    return f"{ref} ({commit[:10]})", tree, None
+    return tree
 
 
 MAX_REPEATS = 20
@@ -230,14 +244,35 @@ def _summary(episodes: list[dict], replans: list[dict]) -> dict:
                         for r in replans]}
 
 
-def run(args: argparse.Namespace) -> str:
+def episode_counts(args: argparse.Namespace) -> tuple[int, int]:
+    """(val episodes, planner calls per map) to run. ``--quick`` only changes the defaults: an
+    explicit ``--agent-episodes`` or ``--agent-replans`` wins (``--quick`` once replaced it silently)."""
+    quick = getattr(args, "quick", False)
+    n_eps = args.agent_episodes if args.agent_episodes is not None else QUICK_EPISODES if quick else DEFAULT_EPISODES
+    n_plans = args.agent_replans if args.agent_replans is not None else QUICK_REPLANS if quick else DEFAULT_REPLANS
+    return n_eps, n_plans
+
+
+class AgentInputs(NamedTuple):
+    """The agent suite's options, checked: what :func:`run` needs of them."""
+    sets: tuple[str, ...]
+    episodes: int
+    replans: int
+    requests: list[dict]
+    baseline: tuple[str, str | None, dict | None]      # (label, commit, saved results): _check_baseline
+
+
+def check_inputs(args: argparse.Namespace) -> AgentInputs:
+    """Every agent-suite option, a CliError naming the first bad one. ``tools bench`` calls it
+    before its first suite (``bench scenes agent --agent-repeats 0`` once ran the scenes suite
+    first), :func:`run` again for the values; it is cheap (no episode, no ``git archive``). The
+    episode and replan counts' ranges are checked by ``tools.bench._check_options``."""
     from tasks.episodes import load_split
     from tasks.registry import check_agent
 
     check_agent(args.agent_name)
     sets = check_agent_sets(args.agent_name, args.agent_set)
-    n_eps = 2 if args.quick else args.agent_episodes
-    n_plans = 10 if args.quick else args.agent_replans
+    n_eps, n_plans = episode_counts(args)
     n_val = len(load_split("val"))
     if n_eps > n_val:
         raise CliError(f"--agent-episodes {n_eps} is more than the {n_val} val episodes")
@@ -249,9 +284,17 @@ def run(args: argparse.Namespace) -> str:
         save = Path(args.agent_save)
         if not save.parent.is_dir():
             raise CliError(f"--agent-save {args.agent_save!r}: folder {str(save.parent)!r} does not exist")
+    return AgentInputs(sets, n_eps, n_plans, requests, _check_baseline(args.agent_baseline))
+
+
+def run(args: argparse.Namespace) -> str:
+    inputs = check_inputs(args)
+    sets, n_eps, n_plans, requests = inputs.sets, inputs.episodes, inputs.replans, inputs.requests
+    repeats = args.agent_repeats
     after_label = "this checkout" + (f" ({', '.join(sets)})" if sets else "")
     with tempfile.TemporaryDirectory(prefix="bench-agent-") as tmp:
-        base_label, base_tree, base_saved = _resolve_baseline(args.agent_baseline, Path(tmp))
+        base_label, base_commit, base_saved = inputs.baseline
+        base_tree = _baseline_tree(args.agent_baseline, base_commit, Path(tmp)) if base_commit else None
         workers = {"after": _WorkerProcess(ROOT, args.agent_name, args.agent_profile, after_label, sets=sets)}
         try:
             if base_tree is not None:

@@ -16,12 +16,25 @@ import tempfile
 import time
 from pathlib import Path
 
+DEFAULT_EPISODES, QUICK_EPISODES = 12, 3
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--trials-episodes", type=int, default=12, help="trials suite: episodes per configuration")
+    # default None, so that an explicit value is known and wins over --quick (see episode_count)
+    parser.add_argument("--trials-episodes", type=int, default=None,
+                        help=f"trials suite: episodes per configuration (default {DEFAULT_EPISODES}; "
+                             f"--quick: {QUICK_EPISODES})")
     parser.add_argument("--trials-agent", default="oracle", help="trials suite: agent")
     parser.add_argument("--trials-split", default="smoke", help="trials suite: split")
     parser.add_argument("--trials-workers", default="1,2", help="trials suite: worker counts to compare")
+
+
+def episode_count(args: argparse.Namespace) -> int:
+    """Episodes per configuration. ``--quick`` only changes the default: an explicit
+    ``--trials-episodes`` wins (``--quick`` once replaced it silently)."""
+    if args.trials_episodes is not None:
+        return args.trials_episodes
+    return QUICK_EPISODES if getattr(args, "quick", False) else DEFAULT_EPISODES
 
 
 def spin(n: int) -> float:
@@ -63,7 +76,7 @@ def run(args: argparse.Namespace) -> str:
     from tools.cli import CliError
     from tools.tables import format_table
 
-    n = 3 if args.quick else args.trials_episodes
+    n = episode_count(args)
     episodes = load_split(args.trials_split)
     if n < 1 or n > len(episodes):
         raise CliError(f"--trials-episodes must be in 1..{len(episodes)}, got {n}")

@@ -77,6 +77,68 @@ def tables(result: dict) -> str:
     return "\n\n".join(out)
 
 
+# The rows receptacle_lines prints, of a result and of a --baseline file: (section, key, row name), each
+# with RATE_FIELDS and COUNT_FIELDS. load_baseline checks a baseline has them all before the calibration runs.
+RECEPTACLE_ROWS = (("task_query", "start receptacle", "start receptacle"),
+                   ("task_query", "goal receptacle", "goal receptacle"),
+                   ("pooled", "receptacles", "all receptacles (full vocabulary)"))
+RATE_FIELDS, COUNT_FIELDS = ("precision", "recall"), ("tp", "fp", "instances")
+
+
+def _baseline_problem(doc) -> str | None:
+    """The first key of a baseline's ``RECEPTACLE_ROWS`` that is missing or of the wrong type (a
+    rate: null or a number within 0..1; a count: a whole number >= 0), in words; None if all are fine."""
+    from helios.schema import finite
+
+    if not isinstance(doc, dict):
+        return f"it holds a {type(doc).__name__}, not an object"
+    for section, key, _ in RECEPTACLE_ROWS:
+        row, where = doc, ""
+        for k in (section, key):
+            where += f"[{k!r}]"
+            if k not in row:
+                return f"{where} is missing"
+            row = row[k]
+            if not isinstance(row, dict):
+                return f"{where} is {_short(row)}, not an object"
+        for field in RATE_FIELDS + COUNT_FIELDS:
+            where = f"[{section!r}][{key!r}][{field!r}]"
+            if field not in row:
+                return f"{where} is missing"
+            v = row[field]
+            if field in RATE_FIELDS and not (v is None or (finite(v) and 0 <= v <= 1)):
+                return f"{where} is {_short(v)}, not null or a number within 0..1"
+            if field in COUNT_FIELDS and not (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
+                return f"{where} is {_short(v)}, not a whole number >= 0"
+    return None
+
+
+def _short(value) -> str:
+    """A JSON value as the file writes it, shortened."""
+    from helios.schema import shorten
+
+    return shorten(json.dumps(value), 40)
+
+
+def load_baseline(path: str) -> dict:
+    """The ``--baseline`` calibration.json, with everything :func:`receptacle_lines` reads of it
+    checked: a CliError naming the file and the first bad key, before the calibration runs (a
+    parseable but wrong file once failed with a traceback after it)."""
+    from helios.schema import short_repr
+
+    if not path.strip():
+        raise CliError("--baseline must not be empty")
+    name = short_repr(path, 100)
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, ValueError, RecursionError) as exc:
+        raise CliError(f"--baseline {name}: not a calibration.json of this tool ({short_repr(str(exc), 100)})") from None
+    problem = _baseline_problem(doc)
+    if problem is not None:
+        raise CliError(f"--baseline {name}: not a calibration.json of this tool: {problem}")
+    return doc
+
+
 def receptacle_lines(result: dict, baseline: dict | None = None) -> str:
     """Targets vs measured for the targeted receptacle role, plus before/after rows when given a
     baseline result (the same settings on other code or parameters)."""
@@ -96,12 +158,9 @@ def receptacle_lines(result: dict, baseline: dict | None = None) -> str:
     for label, res in (("before", baseline), ("after" if baseline else "measured", result)):
         if res is None:
             continue
-        for role in ("start receptacle", "goal receptacle"):
-            x = res["task_query"][role]
-            rows.append((label, role, _pct(x["precision"]), _pct(x["recall"]), x["tp"], x["fp"], x["instances"]))
-        x = res["pooled"]["receptacles"]
-        rows.append((label, "all receptacles (full vocabulary)", _pct(x["precision"]), _pct(x["recall"]), x["tp"],
-                     x["fp"], x["instances"]))
+        for section, key, name in RECEPTACLE_ROWS:
+            x = res[section][key]
+            rows.append((label, name, _pct(x["precision"]), _pct(x["recall"]), x["tp"], x["fp"], x["instances"]))
     lines.append(format_table(["run", "receptacles", "precision %", "recall %", "TP", "FP", "instances"], rows,
                               title="Receptacles, single view" + (" (before / after)" if baseline else "")))
     return "\n".join(lines)
@@ -160,7 +219,7 @@ def plot(result: dict, path: Path) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from helios.schema import with_overrides
-    from tasks.perception_calibration import CalibrationSettings, calibrate
+    from tasks.perception_calibration import CalibrationSettings, calibrate, scene_count
     from sim.perception.config import SimPerceptionConfig
 
     if args.views < args.group or args.group < 1:
@@ -172,22 +231,16 @@ def run(args: argparse.Namespace) -> int:
     check_seed(args.seed)
     if args.min_pixels < 1:
         raise CliError(f"--min-pixels must be >= 1, got {args.min_pixels}")
-    baseline = None
-    if args.baseline:
-        from helios.schema import short_repr
-
-        try:
-            baseline = json.loads(Path(args.baseline).read_text())
-            baseline["task_query"]["start receptacle"], baseline["pooled"]["receptacles"]
-        except (OSError, ValueError, KeyError, TypeError, RecursionError) as exc:
-            raise CliError(f"--baseline {short_repr(args.baseline, 100)}: not a calibration.json of this tool "
-                           f"({short_repr(str(exc), 100)})") from None
+    baseline = None if args.baseline is None else load_baseline(args.baseline)
     config = with_overrides(SimPerceptionConfig(), args.overrides)
     if config.mode != "noisy":
         raise CliError("calibration measures the noisy simulated detector; mode=gt is perfect by construction")
     from tasks.episodes import split_path
 
     split_path(args.split)                     # an unknown split is one clear error before any work
+    available = scene_count(args.split)
+    if args.scenes > available:                # one line here, not calibrate()'s ValueError
+        raise CliError(f"--scenes {args.scenes} is more than the {available} distinct scenes of split {args.split!r}")
     out = check_output_dir(args.out)
     for name in ("calibration.json", "calibration.png"):
         check_output_file(out / name, "--out")

@@ -196,6 +196,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _command_parser(parser: argparse.ArgumentParser, command: str) -> argparse.ArgumentParser:
+    """The sub-parser of ``command``, so that its usage errors name it (``helios trials: ...``)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return action.choices.get(command, parser)
+    return parser
+
+
 def parse_arguments(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
     """``parser.parse_args``, except that ``KEY=VALUE`` overrides may stand anywhere among the flags
     (argparse gives a positional list only its first run: ``trials a=1 --out X b=2`` would refuse
@@ -205,7 +213,7 @@ def parse_arguments(parser: argparse.ArgumentParser, argv: list[str] | None) -> 
         overrides = getattr(args, "overrides", None)
         if args.command == "spot" or not isinstance(overrides, list) or \
                 not all("=" in e and not e.startswith("-") for e in extras):
-            parser.error(f"unrecognized arguments: {' '.join(extras)}")
+            _command_parser(parser, args.command).error(f"unrecognized arguments: {' '.join(extras)}")
         args.overrides = [*overrides, *extras]
     return args
 

@@ -137,15 +137,38 @@ def format_outcome(o: DemoOutcome) -> str:
     return format_table(["outcome", "value"], rows, title="Physical outcome")
 
 
+DEFAULT_OUT = "runs/demo"       # --out: the folder the recording demo_seed<SEED>.rrd is written in
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="scene seed (mug placement)")
-    parser.add_argument("--out", default="runs/demo", help="folder for the .rrd recording")
+    parser.add_argument("--out", default=None, metavar="DIR",
+                        help=f"folder for the .rrd recording, written as {DEFAULT_OUT}/demo_seed<SEED>.rrd by "
+                             f"default (not with --no-record)")
     parser.add_argument("--no-record", action="store_true", help="do not write a rerun recording")
     parser.add_argument("--config", default=None, metavar="FILE.yaml",
                         help="simulator scenario file (schema: robots/spot/sim_backend.py SimBackendConfig, "
                              "e.g. configs/demo.yaml); KEY=VALUE overrides apply on top")
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
                         help="simulator config overrides, e.g. camera.width=640 camera.height=480 stream_hz=5")
+
+
+def _check_out(args: argparse.Namespace) -> None:
+    """``--out`` is a folder (README: ``runs/demo/demo_seed0.rrd``). One that names the recording
+    itself (``--out x.rrd``) would become a folder ``x.rrd/`` holding ``demo_seed0.rrd``, and one
+    given with ``--no-record`` would be silently ignored: both are one error instead
+    (``--out`` defaults to None so that an explicit one can be told apart)."""
+    from helios.schema import short_repr
+    from tools.cli import CliError
+
+    if args.out is None:
+        return
+    if args.no_record:
+        raise CliError("--out is where the recording goes; with --no-record nothing is written and --out would be "
+                       "ignored: give one of them")
+    if str(args.out).rstrip("/").lower().endswith(".rrd"):
+        raise CliError(f"--out {short_repr(str(args.out), 80)} is a folder, not the recording: the recording is "
+                       f"named demo_seed{args.seed}.rrd inside it (e.g. --out {DEFAULT_OUT})")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -155,7 +178,9 @@ def run(args: argparse.Namespace) -> int:
 
     check_seed(args.seed)
     load_config(SimBackendConfig, getattr(args, "config", None), list(args.overrides))   # bad config: fail first
-    record = None if args.no_record else check_output_file(Path(args.out) / f"demo_seed{args.seed}.rrd", "--out")
+    _check_out(args)
+    out = DEFAULT_OUT if args.out is None else args.out
+    record = None if args.no_record else check_output_file(Path(out) / f"demo_seed{args.seed}.rrd", "--out")
     outcome = run_demo(args.seed, args.overrides, record, config_file=getattr(args, "config", None))
     print()
     print(format_outcome(outcome))

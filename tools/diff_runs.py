@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 MAX_EPISODES_LISTED = 20     # differing episodes named one by one; the rest are counted
 MAX_FIELDS_LISTED = 5        # differing fields shown per episode
@@ -130,19 +131,45 @@ class RunDiff:
 
 
 def parse_ignore(text: str) -> frozenset[str]:
-    """``--ignore``'s comma-separated dotted paths; CliError for an empty one or stray spaces."""
-    from helios.schema import short_repr
+    """``--ignore``'s comma-separated dotted paths; CliError for an empty one, stray spaces, or a
+    path whose first name (under ``metrics``, first two) no episode record has."""
+    from helios.schema import short_repr, shorten
     from tools.cli import CliError
 
     if not text.strip():
         return frozenset()
     paths = [p.strip() for p in text.split(",")]
+    record_fields = _record_fields()
     for p in paths:
         if not p:
             raise CliError(f"--ignore {short_repr(text)} has an empty field name (two commas, or one at an end)")
         if any(c.isspace() for c in p) or p.startswith(".") or p.endswith(".") or ".." in p:
             raise CliError(f"--ignore: {short_repr(p)} is not a dotted field path such as extra.decisions")
+    for p in paths:
+        top, _, rest = p.partition(".")
+        known = record_fields.get(top)
+        if known is None or (rest and known and rest.partition(".")[0] not in known):
+            where = f"a field of {top}" if known else "a field of an episode record"
+            valid = ", ".join(sorted(known) if known else sorted(record_fields))
+            raise CliError(f"--ignore {short_repr(p)} names no field: {short_repr(rest or top)} is not {where} "
+                           f"({shorten(valid, 300)})")
     return frozenset(paths)
+
+
+def _record_fields() -> dict[str, frozenset[str]]:
+    """The top-level fields of an episode record (``tasks.trials.run_one``, ``tasks.hardware.
+    hardware_record``), each with the names it holds where those are fixed (``metrics``), so that a
+    misspelt ``--ignore`` is refused before ``tools unchanged`` runs anything."""
+    from dataclasses import fields
+
+    from tasks.metrics import EpisodeMetrics
+    from tasks.runner import EpisodeResult
+    from tasks.trial_config import FINGERPRINT_FIELD, NONDETERMINISTIC_FIELDS
+
+    top = {f.name for f in fields(EpisodeResult)} | {"success", "collision_events", "hardware", FINGERPRINT_FIELD}
+    out = {name: frozenset() for name in top | set(NONDETERMINISTIC_FIELDS)}
+    out["metrics"] = frozenset(f.name for f in fields(EpisodeMetrics))
+    return out
 
 
 def diff_runs(a, b, episodes: int | None = None, ignore: frozenset[str] = frozenset(),
@@ -279,6 +306,10 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.tolerance) and 0.0 <= args.tolerance < 1.0):
         raise CliError(f"--tolerance must be a relative tolerance in [0, 1), got {args.tolerance}")
     ignore = parse_ignore(args.ignore)
+    # a folder against itself is identical by construction: a pasted-twice path would pass the check
+    if Path(args.run_a).exists() and Path(args.run_a).resolve() == Path(args.run_b).resolve():
+        raise CliError(f"RUN_A and RUN_B are the same folder ({str(Path(args.run_a).resolve())!r}); "
+                       f"compare two different runs")
     warnings: list[str] = []
     a = load_run(args.run_a, warnings=warnings)
     b = load_run(args.run_b, warnings=warnings)

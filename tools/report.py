@@ -444,9 +444,17 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     if common:
         n = restrict_to_common(runs)
         note.append(f"compared on the {n} episode(s) all runs finished")
+    elif len(runs) > 1 and not set.intersection(*({r["episode_id"] for r in run.records} for run in runs)):
+        note.append("the runs share no episode (different splits or episode files?): each row stands alone, "
+                    "and the paired comparisons have no episode to pair")
     elif len(counts) > 1:
         note.append(f"the runs cover different numbers of episodes ({', '.join(map(str, counts))}); "
                     f"--common compares them on the episodes they share")
+    for r in runs:          # a run still going (or stopped): its rates are of the episodes done so far
+        planned = (r.config or {}).get("episodes")
+        if isinstance(planned, int) and len(r.records) < planned:
+            note.append(f"{r.name}: {len(r.records)} of its {planned} episodes finished (a run in progress, "
+                        f"or stopped; the same command resumes it)")
     seen: dict[str, int] = {}
     for r in runs:                                   # two folders with the same name: keep rows apart
         seen[r.name] = seen.get(r.name, 0) + 1

@@ -58,6 +58,10 @@ from tasks.scripted_demo import DemoHints, physical_outcome
 
 _LOG = logging.getLogger("helios.spot")
 DEFAULT_MAX_TIME = 600.0        # s of robot time per task-episode run (the paper's 10 minutes)
+FAKE_CONNECTION_KEYS = ("hostname", "port", "cert_path")
+"""The SdkBackendConfig keys ``--fake`` replaces with the fake Spot's own (127.0.0.1, its ephemeral
+port, its throwaway CA: ``_start_fake``, and ``tasks.fake_sdk`` for ``--fake --episode``). Given
+with ``--fake`` (``--set``, ``--config``) they would be silently dropped, so they are refused."""
 
 
 # ============================================================================ command line
@@ -93,7 +97,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", default=None, metavar="FILE.yaml",
                         help="SDK backend scenario file (SdkBackendConfig YAML, e.g. configs/spot_fake.yaml or a run "
                              "folder's robot.yaml); HOSTNAME, --port, --cert, --estop, --take-lease and --set "
-                             "override it")
+                             "override it. With --fake neither it nor --set may set hostname, port or cert_path "
+                             "(the fake Spot's own)")
     hw = parser.add_argument_group("task-episode agents on a robot (HELIOS with real perception)")
     hw.add_argument("--perception", choices=("real", "sim"), default=None,
                     help="real: OWLv2 + CLIP from local weights (the default on a robot); sim: the simulated detector "
@@ -192,6 +197,14 @@ def _refuse_ignored(args: argparse.Namespace) -> None:
 def _validate(args: argparse.Namespace):
     from tools.cli import CliError, check_seed
 
+    if args.hostname is not None and "=" in args.hostname:
+        # `spot --task ... rpc_timeout=2`: argparse takes the override for the hostname; caught
+        # here, before any other check would name the wrong problem (an unresolvable host, or
+        # "leave out the hostname" with --fake).
+        from helios.schema import short_repr
+
+        raise CliError(f"hostname {short_repr(args.hostname, 80)} looks like a setting; pass settings with "
+                       f"--set KEY=VALUE")
     if args.episode is not None:
         if not args.fake:
             raise CliError("--episode needs --fake: an episode's scene exists only in the simulator")
@@ -251,6 +264,7 @@ def _validate(args: argparse.Namespace):
             if given:
                 raise CliError(f"{flag} is ignored with --fake: the fake Spot listens on a port of its own with a "
                                f"throwaway certificate")
+        _refuse_fake_connection_keys(args)
     check_seed(args.seed)
     if args.name is not None:
         import re
@@ -260,6 +274,28 @@ def _validate(args: argparse.Namespace):
         if not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}", args.name):
             raise CliError(f"--name {short_repr(args.name, 80)} must be 1-100 letters, digits, '-', '_' or '.' "
                            f"(it names a folder under --out)")
+
+
+def _refuse_fake_connection_keys(args: argparse.Namespace) -> None:
+    """With ``--fake``, a connection key (``FAKE_CONNECTION_KEYS``) from ``--set`` or the ``--config``
+    file is one error, as ``--port``/``--cert`` are: the fake Spot replaces them with its own, so
+    the value given would be silently ignored. The file is only read here (``_run`` loads it)."""
+    from tools.cli import CliError
+
+    why = ("the fake Spot sets hostname, port and cert_path itself (127.0.0.1, a port of its own, a throwaway "
+           "certificate)")
+    for item in args.overrides:
+        key = item.split("=", 1)[0].strip()
+        if key in FAKE_CONNECTION_KEYS:
+            raise CliError(f"--set {key}=... is ignored with --fake: {why}")
+    config_file = getattr(args, "config", None)
+    if config_file:
+        from helios.schema import read_config_file, short_repr
+
+        given = [key for key in FAKE_CONNECTION_KEYS if key in read_config_file(config_file)]
+        if given:
+            raise CliError(f"config file {short_repr(str(config_file))} sets {', '.join(given)}, which --fake "
+                           f"ignores: {why}; leave {'it' if len(given) == 1 else 'them'} out of the file for --fake")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -688,7 +724,7 @@ def _start_fake(args, config, user_env: str, password_env: str):
         demo = start_demo_fake(pki_dir, user, password, seed=args.seed, time_scale=args.time_scale)
         from helios.schema import with_overrides
 
-        config = with_overrides(config, {"hostname": "127.0.0.1", "port": demo.port,
+        config = with_overrides(config, {"hostname": "127.0.0.1", "port": demo.port,     # FAKE_CONNECTION_KEYS
                                          "cert_path": str(demo.pki.ca_cert)})
         print(f"[spot] fake Spot (demo scene, seed {args.seed}) on 127.0.0.1:{demo.port}, test CA {demo.pki.ca_cert}")
     except BaseException:                # also Ctrl-C before _run holds the fake: stop it, remove the CA

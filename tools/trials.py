@@ -39,7 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the flags below and KEY=VALUE override it")
     parser.add_argument("--agent", default=None, help=f"agent (default oracle): {', '.join(agent_names())}")
     parser.add_argument("--split", default=None, help=f"episode split (default smoke): {', '.join(SPLITS)}")
-    parser.add_argument("--episodes-file", default=None, help="JSONL episode file (overrides --split)")
+    parser.add_argument("--episodes-file", default=None,
+                        help="JSONL episode file, instead of --split (it replaces a scenario file's split)")
     parser.add_argument("--episodes", type=int, default=None,
                         help="number of episodes from the start of the split (default 20)")
     parser.add_argument("--seed", type=int, default=None, help="master seed (per-episode seeds derive from it; default 0)")
@@ -73,8 +74,11 @@ CONFIG_FLAGS = ("agent", "split", "episodes_file", "episodes", "seed")
 
 
 def resolve_config(args: argparse.Namespace):
-    """Defaults < ``--config`` file < flags given on the command line < ``KEY=VALUE`` overrides."""
-    from helios.schema import with_overrides
+    """Defaults < ``--config`` file < flags given on the command line < ``KEY=VALUE`` overrides.
+    Settings the agent would not use (``tasks.registry.check_agent_settings``) are refused."""
+    from helios.schema import ConfigError, short_repr, with_overrides
+    from tasks.episodes import SPLITS
+    from tasks.registry import check_agent_settings
     from tasks.trial_config import TrialConfig, load_trial_config
 
     base = TrialConfig()
@@ -82,7 +86,13 @@ def resolve_config(args: argparse.Namespace):
         header, base = load_trial_config(args.config)
         _check_provenance(args.config, header)
     flags = {name: getattr(args, name) for name in CONFIG_FLAGS if getattr(args, name, None) is not None}
-    return with_overrides(with_overrides(base, flags), list(args.overrides))
+    if flags.get("split") is not None and flags.get("episodes_file") is not None:
+        raise ConfigError("--split and --episodes-file both name the episodes; give one")
+    config = with_overrides(with_overrides(base, flags), list(args.overrides))
+    if config.episodes_file and config.split not in SPLITS:     # replaced by the file, but never misspelt unseen
+        raise ConfigError(f"unknown split {short_repr(config.split, 40)}; valid splits: {', '.join(SPLITS)}")
+    check_agent_settings(config, explicit=[o.partition("=")[0] for o in args.overrides])
+    return config
 
 
 def _check_provenance(path: str, header: dict) -> None:

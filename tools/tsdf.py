@@ -12,8 +12,10 @@ import argparse
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("episode", help="episode id, e.g. smoke-00003")
-    parser.add_argument("--split", default="", help="split to look the id up in (default: from the id's prefix)")
-    parser.add_argument("--episodes-file", default="", help="JSONL episode file to look the id up in")
+    parser.add_argument("--split", default=None,       # None: an explicit --split can be told apart
+                        help="split to look the id up in (default: from the id's prefix; not with --episodes-file)")
+    parser.add_argument("--episodes-file", default="", help="JSONL episode file to look the id up in (instead of a "
+                                                            "split)")
     parser.add_argument("--out", default="runs/tsdf", help="folder for the mesh")
     parser.add_argument("--stream-hz", type=float, default=2.0, help="hand-camera frames integrated per simulated second")
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="TSDF config overrides, e.g. voxel_size=0.02")
@@ -33,16 +35,22 @@ def run(args: argparse.Namespace) -> int:
     from tools.cli import CliError, check_finite, check_output_dir, check_output_file
     from tools.tables import format_table
 
+    if args.split is not None and args.episodes_file:
+        # the id is looked up in one place: the file, which would leave --split silently ignored
+        raise CliError("--split and --episodes-file both say where to look the episode id up; give one of them "
+                       "(with --episodes-file, --split is ignored)")
     cfg = with_overrides(TsdfConfig(), list(args.overrides))
     check_finite(args.stream_hz, "--stream-hz", positive=True)
     if args.stream_hz > 1000:
         raise CliError(f"--stream-hz must be at most 1000 frames per simulated second, got {args.stream_hz:g}")
     out = check_output_dir(args.out)
-    episodes = load_episodes(args.episodes_file) if args.episodes_file else load_split(
-        args.split or args.episode.split("-")[0])
+    split = args.split or args.episode.split("-")[0]
+    episodes = load_episodes(args.episodes_file) if args.episodes_file else load_split(split)
     matches = [e for e in episodes if e.episode_id == args.episode]
     if not matches:
-        raise CliError(f"no episode {short_repr(args.episode, 80)} in {args.episodes_file or 'that split'}")
+        where = (f"episode file {short_repr(str(args.episodes_file), 200)}" if args.episodes_file
+                 else f"split {short_repr(split, 40)}")
+        raise CliError(f"no episode {short_repr(args.episode, 80)} in {where}")
     episode = matches[0]
     if args.episodes_file:
         check_episode_homes([episode], args.episodes_file)

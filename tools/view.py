@@ -57,6 +57,8 @@ def instructions(path: Path, viewer: str | None) -> str:
 def run(args: argparse.Namespace) -> int:
     from tools.cli import CliError
 
+    if not args.file.strip():            # Path("") is "." (the current folder): say what is wrong instead
+        raise CliError("recording path must not be empty")
     path = Path(args.file)
     if path.is_dir():
         raise CliError(f"recording {str(path)!r} is a folder, not a .rrd file")
