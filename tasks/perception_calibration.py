@@ -98,6 +98,8 @@ def calibrate(settings: CalibrationSettings = CalibrationSettings(),
     available = scene_count(settings.split)
     if settings.scenes > available:      # else fewer scenes would be viewed than the result records
         raise ValueError(f"scenes={settings.scenes}: split {settings.split!r} has {available} distinct scenes")
+    if settings.views < settings.scenes:     # likewise: a scene with no share of the views
+        raise ValueError(f"views={settings.views} < scenes={settings.scenes}: some scenes would get no view")
     episodes = load_split(settings.split)
     chosen, seen = [], set()
     for i in rng.permutation(len(episodes)):

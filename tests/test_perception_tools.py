@@ -79,6 +79,27 @@ def test_calibrate_perception_refuses_more_scenes_than_the_split_has(tmp_path, c
     assert capsys.readouterr().err.strip() == "error: --scenes 21 is more than the 20 distinct scenes of split 'smoke'"
 
 
+def test_calibrate_perception_with_fewer_views_than_scenes_records_the_scenes_it_viewed(tmp_path, capsys,
+                                                                                          monkeypatch):
+    """``--views 5`` with the default 8 scenes once gave three scenes no view and recorded 8."""
+    import tasks.perception_calibration as pc
+
+    monkeypatch.setattr(pc, "SimEpisode", None)
+    with pytest.raises(ValueError, match="views=5 < scenes=8"):
+        pc.calibrate(pc.CalibrationSettings(split="smoke", views=5, group=1, scenes=8))
+    seen = []
+
+    def fake_calibrate(settings, config, progress=None):
+        seen.append(settings)
+        raise KeyboardInterrupt       # stop here: only the settings handed over are checked
+
+    monkeypatch.setattr(pc, "calibrate", fake_calibrate)
+    assert main(["calibrate-perception", "--split", "smoke", "--views", "5", "--group", "1",
+                 "--out", str(tmp_path / "out")]) == 130
+    assert seen[0].scenes == 5 and seen[0].views == 5
+    assert "on 5 views of 5 smoke scenes (fewer views than --scenes 8)" in capsys.readouterr().out
+
+
 def test_bench_perception_quick_reports_median_and_p90():
     from tools.bench_perception import run
 

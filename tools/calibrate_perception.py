@@ -245,9 +245,14 @@ def run(args: argparse.Namespace) -> int:
     for name in ("calibration.json", "calibration.png"):
         check_output_file(out / name, "--out")
     out.mkdir(parents=True, exist_ok=True)
-    settings = CalibrationSettings(split=args.split, views=args.views, group=args.group, scenes=args.scenes,
+    # the views are shared out over the scenes: with fewer views than scenes only that many scenes
+    # are viewed, and the first line and calibration.json say so (never a scene recorded but unseen)
+    scenes = min(args.scenes, args.views)
+    settings = CalibrationSettings(split=args.split, views=args.views, group=args.group, scenes=scenes,
                                    seed=args.seed, min_pixels=args.min_pixels)
-    print(f"calibrating the simulated detector on {args.views} views of {args.scenes} {args.split} scenes ...", flush=True)
+    fewer = f" (fewer views than --scenes {args.scenes})" if scenes < args.scenes else ""
+    print(f"calibrating the simulated detector on {args.views} views of {scenes} {args.split} scenes{fewer} ...",
+          flush=True)
     result = calibrate(settings, config, progress=lambda line: print(line, flush=True))
     print()
     print(tables(result))
