@@ -33,6 +33,7 @@ N ?= 200
 # The paper's "1 pick" and "5 picks" rows besides the unlimited one (tools report --pick-limits).
 PICK_LIMITS ?= 1,5
 compare: setup
+	$(PY) -m tools.compare_check "$(COMPARE)" "$(PICK_LIMITS)"
 	for a in $(COMPARE); do \
 	  $(PY) -m tools trials --config configs/val_$$a.yaml --episodes $(N) --workers 2 --out runs/val/$$a --progress lines || exit 1; \
 	done

@@ -151,7 +151,8 @@ def move_aside(out: Path, stamp: str | None = None) -> Path:
 
 def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | None" = None,
                        dry_run: bool = False, episode_ids: Iterable[str] | None = None,
-                       episode_source: str = "the run's episodes") -> dict[str, dict]:
+                       episode_source: str = "the run's episodes",
+                       episode_tasks: dict[str, str] | None = None) -> dict[str, dict]:
     """Create or reopen a run folder; returns the episodes already finished (by id).
 
     Reopening checks that the configuration is the one that made the results (results of
@@ -160,7 +161,9 @@ def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | No
     The one allowed difference is a larger ``episodes``: episodes are a prefix of the split and
     each one's seed depends only on (seed, episode id), so a 100-episode run extended to 200 gives
     exactly the numbers of a fresh 200-episode run; config.yaml then records the new count. A
-    folder that holds no results takes the new configuration.
+    smaller one is allowed only where every record is among the episodes it selects (given
+    ``episode_ids``): an extension stopped before it finished an episode beyond them. A folder
+    that holds no results takes the new configuration.
 
     Damaged lines of episodes.jsonl (a torn last line after a kill, or any line that is not a
     valid record) are moved to ``episodes.damaged.jsonl``, never deleted; their episodes run
@@ -169,6 +172,10 @@ def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | No
     :func:`scan_results`). All checks happen before anything is written. ``report`` (a BatchReport) receives the
     fingerprint new records get, the saved commit and notes on what was repaired. ``dry_run``: only
     the checks (a command line refuses a folder before it creates or locks anything).
+    ``episode_tasks`` (episode id -> task, of the episodes about to run): a finished record of one
+    of them with another task is refused, since the episodes changed under the same configuration
+    (an episode file edited or regenerated, or a relative ``--episodes-file`` that names another
+    file from another working directory; the fingerprint holds the file's name, not its contents).
     """
     out = Path(out)
     check_folder_layout(out)
@@ -180,6 +187,13 @@ def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | No
         raise RunFolderError(f"cannot create run folder {str(out)!r}: {exc.strerror or exc}") from None
     notes: list[str] = []
     scan = scan_results(out / "episodes.jsonl", episode_ids, episode_source)
+    for eid, record in scan.records.items() if episode_tasks else ():
+        task, now = record.get("task"), episode_tasks.get(eid)
+        if isinstance(task, str) and now is not None and task != now:
+            raise RunFolderError(f"run folder {str(out)!r}: episode {eid} was run as {shorten(repr(task), 90)}, but "
+                                 f"{episode_source} now give {shorten(repr(now), 90)}: the episodes changed since the run "
+                                 f"started (an edited or regenerated episode file, or a relative --episodes-file naming "
+                                 f"another file from here); use another --out, or the file the run was made with")
     fps = {r.get(FINGERPRINT_FIELD) for r in scan.records.values()}
     known = scan.fingerprints() - {None}      # a damaged record of another configuration: a mix, never repaired
     cfg_path = out / "config.yaml"
@@ -213,6 +227,14 @@ def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | No
             if is_extension(diff, saved_cfg, config):
                 new_config_text = dump_yaml(provenance()) + dump_yaml({**body, "episodes": config.episodes})
                 folder_fp = saved_fp
+            elif diff == ["episodes"] and episode_ids is not None and \
+                    set(scan.records) | {r["episode_id"] for r in scan.unused} <= set(episode_ids):
+                # fewer episodes, but every record is one of them: an extension cut short before it
+                # finished an episode beyond this count (config.yaml is written when a run starts)
+                new_config_text = dump_yaml(provenance()) + dump_yaml({**body, "episodes": config.episodes})
+                folder_fp = saved_fp
+                notes.append(f"config.yaml said {saved_cfg.episodes} episodes, but every finished one is among the "
+                             f"first {config.episodes} (an extension stopped early): it now says {config.episodes}")
             elif diff == ["episodes"]:
                 raise RunFolderError(f"run folder {str(out)!r} holds a run of {saved_cfg.episodes} episodes; "
                                      f"a run can be extended but not shortened (asked for {config.episodes}); "

@@ -223,7 +223,8 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
     with FolderLock(out):
         ids, source = run_episode_ids(config) or (None, "")
         done = prepare_run_folder(out, config, report, episode_ids=None if ids is None else
-                                  [*ids, *(e.episode_id for e in episodes)], episode_source=source)
+                                  [*ids, *(e.episode_id for e in episodes)], episode_source=source,
+                                  episode_tasks={e.episode_id: e.task for e in episodes})
         saved_commit = report.saved_commit
         commit = git_commit()
         if saved_commit and saved_commit != commit and done:

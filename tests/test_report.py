@@ -62,7 +62,9 @@ def test_report_on_two_runs_writes_the_table_pngs_and_html(tmp_path):
 
 
 def test_report_on_real_runs_from_the_cli(tmp_path, capsys):
-    """End to end on one real (short) oracle episode, twice under different names."""
+    """End to end on one real (short) oracle episode, in two folders under different names."""
+    import shutil
+
     from helios.schema import with_overrides
     from tasks.episodes import load_split
     from tasks.trials import run_batch
@@ -70,7 +72,8 @@ def test_report_on_real_runs_from_the_cli(tmp_path, capsys):
 
     run = tmp_path / "oracle"
     run_batch(with_overrides(TrialConfig(episodes=1), ["runner.max_sim_time=20"]), load_split("smoke")[:1], run)
-    assert main(["report", str(run), str(run), "--names", "a,b", "--out", str(tmp_path / "rep")]) == 0
+    shutil.copytree(run, tmp_path / "copy")             # one folder given twice is refused
+    assert main(["report", str(run), str(tmp_path / "copy"), "--names", "a,b", "--out", str(tmp_path / "rep")]) == 0
     out = capsys.readouterr().out
     assert "| a |" in out and "| b |" in out and f"report: {tmp_path / 'rep' / 'index.html'}" in out
     from helios.runtime import cpu_dispatch

@@ -125,6 +125,54 @@ def test_a_run_can_be_extended_to_more_episodes_but_not_shortened(tmp_path):
         prepare_run_folder(tmp_path, TrialConfig(agent="oracle", split="smoke", episodes=3, seed=1))
 
 
+def test_an_extension_stopped_before_its_first_new_episode_can_go_back_to_the_shorter_run(tmp_path):
+    """`--episodes 12` on a finished 4-episode run, Ctrl-C before a new episode finished, once left
+    config.yaml at 12 and refused the original `--episodes 4` command for good."""
+    from tasks.run_folder import read_run_config
+
+    episodes = load_split("smoke")[:3]
+    first = run_batch(TrialConfig(agent="oracle", split="smoke", episodes=1), episodes[:1], tmp_path)
+    prepare_run_folder(tmp_path, TrialConfig(agent="oracle", split="smoke", episodes=3))   # the stopped extension
+    assert read_run_config(tmp_path)[1].episodes == 3
+    ids = [e.episode_id for e in episodes]
+    done = prepare_run_folder(tmp_path, TrialConfig(agent="oracle", split="smoke", episodes=1), episode_ids=ids[:1])
+    assert read_run_config(tmp_path)[1].episodes == 1 and done == {ids[0]: first[0]}
+    again = run_batch(TrialConfig(agent="oracle", split="smoke", episodes=1), episodes[:1], tmp_path)
+    assert again == first                          # resumed, nothing re-run or lost
+    run_batch(TrialConfig(agent="oracle", split="smoke", episodes=2), episodes[:2], tmp_path)
+    with pytest.raises(RunFolderError, match="extended but not shortened"):   # a finished episode lies beyond 1
+        prepare_run_folder(tmp_path, TrialConfig(agent="oracle", split="smoke", episodes=1), episode_ids=ids[:1])
+
+
+def test_a_resume_refuses_episodes_that_changed_under_the_same_episode_file_name(tmp_path, monkeypatch):
+    """A relative --episodes-file run again from another directory (or a regenerated file) once
+    mixed two files' episodes in one folder under one fingerprint: the name is in the config, the
+    contents are not. The finished records' tasks are now checked against the episodes."""
+    smoke = load_split("smoke")
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "eps.jsonl").write_text(smoke[0].to_json() + "\n" + smoke[2].to_json() + "\n")
+    out = tmp_path / "run"
+    rc, _, err = run_cli(["trials", "--agent", "oracle", "--episodes-file", "eps.jsonl", "--episodes", "1",
+                          "--progress", "none", "--no-pictures", "--out", str(out), "runner.max_commands=3"])
+    assert rc == 0, err
+    other = json.loads(smoke[1].to_json())
+    other["episode_id"] = smoke[0].episode_id              # the same id, another task: another file
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    (tmp_path / "elsewhere" / "eps.jsonl").write_text(json.dumps(other) + "\n" + smoke[2].to_json() + "\n")
+    before = (out / "episodes.jsonl").read_bytes(), (out / "config.yaml").read_bytes()
+    rc, _, err = run_cli(["trials", "--agent", "oracle", "--episodes-file", "eps.jsonl", "--episodes", "2",
+                          "--progress", "none", "--no-pictures", "--out", str(out), "runner.max_commands=3"])
+    assert rc == 2 and err.count("\n") == 1, err
+    assert f"episode {smoke[0].episode_id} was run as {smoke[0].task!r}" in err and "the episodes changed" in err
+    assert ((out / "episodes.jsonl").read_bytes(), (out / "config.yaml").read_bytes()) == before
+    monkeypatch.chdir(tmp_path)                            # the file the run was made with: it extends
+    rc, _, err = run_cli(["trials", "--agent", "oracle", "--episodes-file", "eps.jsonl", "--episodes", "2",
+                          "--progress", "none", "--no-pictures", "--out", str(out), "runner.max_commands=3"])
+    assert rc == 0, err
+    assert [r for r in read_results(out / "episodes.jsonl")] == [smoke[0].episode_id, smoke[2].episode_id]
+
+
 @pytest.mark.slow
 def test_oracle_reaches_90_percent_on_the_smoke_split(tmp_path):
     records = run_batch(TrialConfig(agent="oracle", split="smoke", episodes=20), load_split("smoke"), tmp_path)

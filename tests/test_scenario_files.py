@@ -176,3 +176,22 @@ def test_demo_and_spot_resolve_their_backend_config_from_the_file(tmp_path, monk
     # a real-robot run needs a hostname: from the command line or from the file
     assert main(["spot", "--config", str(CONFIGS / "spot_fake.yaml"), "--task", "Move the mug from the stool "
                  "to the table", "--out", str(tmp_path)]) == 2
+
+
+def test_make_compare_checks_its_variables_before_the_first_run(tmp_path, capsys):
+    """COMPARE and PICK_LIMITS were first read by `tools report`, after every run had finished."""
+    from tools.cli import CliError
+    from tools.compare_check import check, main as check_main
+
+    text = (ROOT / "Makefile").read_text()
+    recipe = text[text.index("\ncompare: setup"):]
+    assert recipe.index("tools.compare_check") < recipe.index("tools trials"), "the check runs first"
+    assert check(" ".join(_compare_agents()), "1,5") == _compare_agents()     # the defaults pass
+    for compare, limits, message in [("", "1,5", "COMPARE is empty"), ("helios typo", "", "configs/val_typo.yaml"),
+                                     ("helios trusting helios", "", "names 'helios' twice"),
+                                     ("helios", "abc", "PICK_LIMITS: --pick-limits: 'abc' is not a whole number")]:
+        with pytest.raises(CliError, match=re.escape(message)):
+            check(compare, limits)
+    assert check_main(["helios typo", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: COMPARE names 'typo'") and "helios-gt" in err

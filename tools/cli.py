@@ -196,6 +196,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _refuse_repeated_flags(parser: argparse.ArgumentParser, argv: list[str]) -> None:
+    """A flag that takes one value, given twice, is a usage error: argparse keeps the last one
+    silently (``make run ARGS="--out X"`` once ran in X and reported the Makefile's folder)."""
+    single = {opt: action for action in parser._actions if type(action) is argparse._StoreAction
+              and action.nargs in (None, "?") for opt in action.option_strings}
+    seen: dict[argparse.Action, str] = {}
+    for i, token in enumerate(argv):
+        if token == "--":
+            break
+        flag = token.split("=", 1)[0] if token.startswith("--") else token
+        action = single.get(flag)
+        if action is None:
+            continue
+        given = token if "=" in token or i + 1 >= len(argv) else f"{token} {argv[i + 1]}"
+        if action in seen:
+            parser.error(f"{flag} is given twice ({seen[action]!r} and {given!r}); give it once")
+        seen[action] = given
+
+
 def _command_parser(parser: argparse.ArgumentParser, command: str) -> argparse.ArgumentParser:
     """The sub-parser of ``command``, so that its usage errors name it (``helios trials: ...``)."""
     for action in parser._actions:
@@ -209,6 +228,7 @@ def parse_arguments(parser: argparse.ArgumentParser, argv: list[str] | None) -> 
     (argparse gives a positional list only its first run: ``trials a=1 --out X b=2`` would refuse
     ``b=2``). Later runs are appended in command-line order, so a later override still wins."""
     args, extras = parser.parse_known_args(argv)
+    _refuse_repeated_flags(_command_parser(parser, args.command), sys.argv[1:] if argv is None else argv)
     if extras:
         overrides = getattr(args, "overrides", None)
         if args.command == "spot" or not isinstance(overrides, list) or \
