@@ -182,6 +182,32 @@ def test_many_sigkills_with_one_worker_give_the_same_file_line_by_line(tmp_path)
     assert _file_views(out) == _file_views(ref), log       # one worker: same lines in the same order
 
 
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGHUP"])
+def test_sigterm_and_sighup_stop_a_batch_like_ctrl_c_with_its_message(tmp_path, sig):
+    """They once killed the batch without a word (the records were safe); now they take Ctrl-C's
+    path: workers stopped, the message saying how to continue, exit 128 + the signal's number."""
+    out = tmp_path / "run"
+    proc = subprocess.Popen(_trials_cmd(out, 2), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            cwd=ROOT)
+    deadline = time.monotonic() + 120
+    children: set[int] = set()
+    while not read_results(out / "episodes.jsonl"):      # one episode finished: the workers are busy
+        assert time.monotonic() < deadline and proc.poll() is None, "the batch did not get going"
+        children.update(_children(proc.pid))
+        time.sleep(0.05)
+    children.update(_children(proc.pid))
+    proc.send_signal(getattr(signal, sig))
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + getattr(signal, sig), err[-2000:]
+    assert f"interrupted ({sig}); finished episodes are saved in" in err and "Traceback" not in err, err[-2000:]
+    assert _gone(children), f"worker processes outlived the stopped batch: {children}"
+    done = len(read_results(out / "episodes.jsonl"))
+    proc = subprocess.run(_trials_cmd(out, 2), capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    ids = [json.loads(line)["episode_id"] for line in (out / "episodes.jsonl").read_text().splitlines()]
+    assert sorted(ids) == [f"smoke-0000{i}" for i in range(N)] and done >= 1   # nothing lost, nothing twice
+
+
 def test_a_second_batch_on_the_same_folder_is_refused_while_the_first_runs(tmp_path):
     out = tmp_path / "busy"
     proc = subprocess.Popen(_trials_cmd(out, 1, 1), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)

@@ -24,6 +24,7 @@ number.
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from pathlib import Path
 
@@ -95,6 +96,10 @@ def resolve_config(args: argparse.Namespace):
     return config
 
 
+def _stop_as_interrupt(signum, frame):
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
 def _check_provenance(path: str, header: dict) -> None:
     """A run folder's config.yaml names the version and commit that made it: say when they differ."""
     from tasks.provenance import differs, git_commit, package_version
@@ -138,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
     from tasks.run_folder import check_folder_layout, move_aside, prepare_run_folder, read_results, stale_results
     from tasks.trial_config import check_devices, run_episode_ids
     from tasks.trial_summary import METRIC_NAMES, metrics_table_rows, summarize
+    from robots.spot.signals import handling_signals
     from tasks.trials import BatchReport, EpisodeSetupError, run_batch
     from tools.cli import CliError, check_output_dir
     from tools.progress import Progress, format_duration
@@ -185,10 +191,14 @@ def run(args: argparse.Namespace) -> int:
                         workers=args.workers, mode=args.progress)
     report = BatchReport([])
     try:
-        records = run_batch(config, episodes, out, on_episode=lambda r, d, t: progress.update(r),
-                            workers=args.workers, executor=args.executor, address=args.address,
-                            record=args.record, on_tick=progress.tick, report=report,
-                            pictures=not args.no_pictures, worker_episodes=args.worker_episodes)
+        # SIGTERM (kill, a scheduler, Docker) and SIGHUP (a closed terminal) stop the batch the way
+        # Ctrl-C does, with its message, instead of killing it silently (the records were safe
+        # either way); one the process was started with ignored (nohup) stays ignored
+        with handling_signals(("SIGTERM", "SIGHUP"), _stop_as_interrupt):
+            records = run_batch(config, episodes, out, on_episode=lambda r, d, t: progress.update(r),
+                                workers=args.workers, executor=args.executor, address=args.address,
+                                record=args.record, on_tick=progress.tick, report=report,
+                                pictures=not args.no_pictures, worker_episodes=args.worker_episodes)
     except EpisodeSetupError as exc:
         progress.close()
         print(f"error: {exc}" + ("" if os.environ.get("HELIOS_DEBUG") else " (HELIOS_DEBUG=1 shows the traceback)"),
@@ -196,11 +206,12 @@ def run(args: argparse.Namespace) -> int:
         if os.environ.get("HELIOS_DEBUG"):
             print(exc.trace, file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         progress.close()
-        print(f"interrupted; finished episodes are saved in {out}/episodes.jsonl: re-run the same command "
-              f"to continue", file=sys.stderr)
-        return 130
+        name = str(exc) if str(exc) in ("SIGTERM", "SIGHUP") else ""
+        print(f"interrupted{f' ({name})' if name else ''}; finished episodes are saved in {out}/episodes.jsonl: "
+              f"re-run the same command to continue", file=sys.stderr)
+        return 128 + getattr(signal, name) if name else 130
     progress.close()
     for note in report.notes:
         print(f"warning: {out}: {note}", file=sys.stderr)
