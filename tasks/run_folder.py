@@ -576,13 +576,35 @@ class FolderLock:
             self.fh.seek(0)
             owner = self.fh.read().strip() or "another process"
             self.fh.close()
-            raise RunFolderError(f"run folder {str(self.path.parent)!r} is in use by {owner}; "
-                                 f"wait for it to finish or use another --out") from None
+            raise self._in_use(owner) from None
         self.fh.seek(0)
         self.fh.truncate()
         self.fh.write(f"pid {os.getpid()} on {socket.gethostname()}")
         self.fh.flush()
         return self
+
+    def _in_use(self, owner: str) -> RunFolderError:
+        return RunFolderError(f"run folder {str(self.path.parent)!r} is in use by {owner}; "
+                              f"wait for it to finish or use another --out")
+
+    def check_free(self) -> None:
+        """RunFolderError when another process holds the lock now; takes nothing and writes nothing
+        (a command checks before it prints or starts anything; ``with FolderLock`` still decides)."""
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - Windows: no lock
+            return
+        if not self.path.is_file():
+            return
+        try:
+            with self.path.open("r") as fh:
+                try:
+                    fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except OSError:
+                    raise self._in_use(fh.read().strip() or "another process") from None
+                fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+        except OSError:
+            return                       # unreadable: `with FolderLock` reports it
 
     def __exit__(self, *exc):
         if self.fh is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -15,6 +16,7 @@ import numpy as np
 import psutil
 import pytest
 
+from cli_helpers import run_cli
 from helios.runtime import cpu_dispatch
 from helios.schema import with_overrides
 from tasks.episodes import load_split
@@ -220,6 +222,9 @@ def test_a_second_batch_on_the_same_folder_is_refused_while_the_first_runs(tmp_p
 
         with pytest.raises(RunFolderError, match=r"is in use by pid \d+"):
             run_batch(with_overrides(TrialConfig(episodes=1), SHORT), load_split("smoke")[:1], out)
+        rc, stdout, err = run_cli(_trials_cmd(out, 1, 1)[3:])    # the CLI: refused before it says anything
+        assert rc == 2 and stdout == "" and re.fullmatch(r"error: run folder .* is in use by pid \d+ .*\n", err), \
+            (stdout, err)
     finally:
         proc.kill()
         proc.wait(timeout=30)

@@ -140,7 +140,8 @@ def run(args: argparse.Namespace) -> int:
 
     from tasks.executors import check_address
     from tasks.registry import check_agent
-    from tasks.run_folder import check_folder_layout, move_aside, prepare_run_folder, read_results, stale_results
+    from tasks.run_folder import (FolderLock, check_folder_layout, move_aside, prepare_run_folder, read_results,
+                                  stale_results)
     from tasks.trial_config import check_devices, run_episode_ids
     from tasks.trial_summary import METRIC_NAMES, metrics_table_rows, summarize
     from robots.spot.signals import handling_signals
@@ -178,6 +179,7 @@ def run(args: argparse.Namespace) -> int:
     prepare_run_folder(out, config, dry_run=True, episode_ids=None if ids is None else
                        [*ids, *(e.episode_id for e in episodes)], episode_source=source,
                        episode_tasks={e.episode_id: e.task for e in episodes})
+    FolderLock(out).check_free()      # a folder another batch is running: say so before "resuming: ..."
     where = "" if args.executor == "local" else f" on Ray ({args.address})"
     print(f"[trials] {config.agent} on {len(episodes)} episode(s) "
           f"({config.episodes_file or 'split ' + config.split}), seed {config.seed}, "
