@@ -146,6 +146,7 @@ AGENT_SET_PREFIXES = ("agent_config.", "helios.", "perception.")
 def check_agent_sets(agent: str, sets: list[str]) -> tuple[str, ...]:
     """``--agent-set`` values, checked against the trial configuration's schema before any work."""
     from helios.schema import with_overrides
+    from tasks.registry import check_agent_settings
     from tasks.trial_config import TrialConfig
 
     for s in sets:
@@ -154,7 +155,8 @@ def check_agent_sets(agent: str, sets: list[str]) -> tuple[str, ...]:
             raise CliError(f"--agent-set {s!r}: give KEY=VALUE with a key under "
                            f"{', '.join(p.rstrip('.') for p in AGENT_SET_PREFIXES)} (e.g. "
                            f"helios.gaussians.view_evidence_max_width=80)")
-    with_overrides(TrialConfig(agent=agent), list(sets))        # unknown keys and bad values: ConfigError
+    config = with_overrides(TrialConfig(agent=agent), list(sets))    # unknown keys and bad values: ConfigError
+    check_agent_settings(config, [s.partition("=")[0] for s in sets])  # as `tools trials`: none the agent ignores
     return tuple(sets)
 
 
