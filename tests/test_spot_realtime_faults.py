@@ -177,6 +177,40 @@ def test_fault_mid_arm_move_estop_and_stall():
         _run_mid_motion(fault, "arm", seed=2)
 
 
+def test_an_error_of_ours_mid_walk_still_stops_the_robot(monkeypatch):
+    """Only HalErrors used to send the stop: a bug in the feedback loop (here a KeyError, as a robot
+    state missing a frame would raise) left the robot walking its trajectory until close()."""
+    from robots.spot.stall_watch import StallWatch
+
+    before = python_threads()
+    demo = start_fake(seed=0, time_scale=WALK_SCALE)
+    backend = connect(demo)
+    fake = demo.fake
+    real_add = StallWatch.add
+
+    def add(self, *args, **kwargs):
+        if self.__dict__.setdefault("_calls", 0) >= 1:
+            raise KeyError("frame 'body' missing from the robot state")
+        self._calls += 1
+        return real_add(self, *args, **kwargs)
+
+    monkeypatch.setattr(StallWatch, "add", add)
+    try:
+        start = _base(fake)
+        with pytest.raises(KeyError, match="frame 'body'"):
+            backend.navigate_to(SE2Pose(start.x, start.y - 4.0, 0.0))
+        at_error = _base(fake)
+        assert at_error.distance_to(start) < 3.5, "the walk was over before the error: nothing tested"
+        time.sleep(0.5)
+        assert _base(fake).distance_to(at_error) < TRAVEL_AFTER, "the robot walked on after the error"
+        assert not _active_commands(fake), "no stop was sent"
+    finally:
+        t0 = time.monotonic()
+        backend.close()
+        assert time.monotonic() - t0 < CLOSE_WITHIN
+    _check_after_close(fake, "bug", before)
+
+
 def _grasp_setup(demo, backend):
     mug = demo.facts["mug_position"]
     assert backend.navigate_to(SE2Pose(mug[0] - 0.95, mug[1], 0.0)).success

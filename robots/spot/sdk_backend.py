@@ -789,8 +789,10 @@ class SdkSpotBackend(SdkShutdown):
                                               f"{expected + cfg.command_margin:.1f} s (planned {expected:.1f} s); "
                                               f"it was told to stop")
                 time.sleep(cfg.feedback_period)
-        except HalError:
-            self._stop_quietly()                # whatever ended the wait: the robot must not go on moving
+        except BaseException:
+            # whatever ended the wait (a fault, an unanswered RPC, a bug of ours in this loop, e.g. a
+            # KeyError from a robot state missing a frame, or Ctrl-C): the robot must not go on moving
+            self._stop_quietly()
             raise
 
     def _ended(self, fb) -> bool:
@@ -1113,9 +1115,9 @@ class SdkSpotBackend(SdkShutdown):
                     raise CommandTimeoutError(f"the grasp did not finish within {cfg.grasp_timeout:.0f} s; "
                                               f"the robot was told to stop")
                 time.sleep(cfg.feedback_period)
-        except HalError:
-            self._stop_quietly()      # whatever ended it, a stop goes out first: a pick left running
-            raise                     # finishes on its own once the link recovers (QA 2026-12-04)
+        except BaseException:         # a HalError, a bug of ours in this loop, Ctrl-C: a stop goes out first,
+            self._stop_quietly()      # a pick left running finishes on its own once the link recovers
+            raise                     # (QA 2026-12-04)
         took = time.monotonic() - t0
         state_name = M.ManipulationFeedbackState.Name(fb.current_state)
         if fb.current_state != M.MANIP_STATE_GRASP_SUCCEEDED:
