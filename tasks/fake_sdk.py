@@ -66,7 +66,8 @@ def run_fake_sdk_episode(agent_name: str, episode: Episode, seed: int | None = N
     ``perception=(detector, scorer)``: real models instead of the simulated detector);
     ``wrap_agent(agent, ep)`` may wrap the agent (instrumentation, recording); ``fake_options`` go
     to ``FakeSpot`` (e.g. ``time_scale``). Always shuts the robot down, stops the fake and every
-    thread it started, also after an error or Ctrl-C.
+    thread it started, also after an error or Ctrl-C; where the shutdown could not stop the robot
+    (the lease was not ours), ``result.extra["close_problem"]`` says so.
     """
     from robots.spot.fake_spot.launch import stop_fake
     from robots.spot.sdk_backend import SdkBackendConfig, SdkSpotBackend, credentials_from_env
@@ -91,8 +92,10 @@ def run_fake_sdk_episode(agent_name: str, episode: Episode, seed: int | None = N
                                  start_time=time.time(), seed=seed)
             result.extra["collision_events"] = [asdict(e) for e in ep.backend.collision_events]
             result.extra["transport"] = "sdk-fake"
-            return result
         finally:
             backend.close()
+        if backend.close_problem:       # e.g. another client took the lease: the robot was not shut down
+            result.extra["close_problem"] = backend.close_problem
+        return result
     finally:
         stop_fake(ep, tmp)              # a further Ctrl-C/TERM/HUP is held until both are done

@@ -110,3 +110,18 @@ def wait_for_threads_to_end(before: set, timeout: float = 3.0) -> set:
             return set()
         time.sleep(0.02)
     return extra
+
+
+def take_lease_as_another_client(backend) -> None:
+    """What the tablet does: a second client takes the body lease from ours (with the credentials
+    in the environment where a command set them, as ``tools spot --fake`` does, else the tests')."""
+    import bosdyn.client
+    from bosdyn.client.lease import LeaseClient
+
+    sdk = bosdyn.client.create_standard_sdk("tablet-in-a-test", cert_resource_glob=backend.config.cert_path)
+    robot = sdk.create_robot("127.0.0.1")
+    robot.update_secure_channel_port(backend.config.port)
+    robot.authenticate(os.environ.get(USERNAME_ENV, TEST_USER), os.environ.get(PASSWORD_ENV, TEST_PASSWORD),
+                       timeout=3)
+    robot.ensure_client(LeaseClient.default_service_name).take(timeout=2)
+    sdk.clear_robots()

@@ -241,3 +241,42 @@ def test_robot_runs_refuse_missing_weights_and_answers_before_touching_the_robot
         assert code == 2 and "--perception sim needs the simulator" in err
     assert fake.rpc_log == [], fake.rpc_log                         # nothing reached the robot
     assert not any(tmp_path.glob("*/episodes.jsonl"))
+
+
+@pytest.fixture
+def recording_that_fails_to_close(monkeypatch):
+    """The recorder's last write fails as on a full disk (rerun: "File-writer thread shut down
+    prematurely"), after the real close (no file left open)."""
+    from tasks.recording import EpisodeRecorder
+
+    real_close = EpisodeRecorder.close
+
+    def close(self):
+        real_close(self)
+        raise RuntimeError("File-writer thread shut down prematurely")
+
+    monkeypatch.setattr(EpisodeRecorder, "close", close)
+
+
+@pytest.mark.parametrize("where", ["fake-episode", "robot"])
+def test_a_recording_that_fails_to_close_loses_the_recording_never_the_record(
+        where, recording_that_fails_to_close, tiny_models, episode, tmp_path, capsys, request):
+    """A full disk at the recording's last write once ended the run in a traceback after the robot
+    was shut down, with no record (and on a robot, before the operator was asked)."""
+    if where == "fake-episode":
+        code, out, err = _spot(["--fake", "--episode", EPISODE, "--agent", "oracle", "--max-time", "6",
+                                "--out", str(tmp_path), "--name", "run"], capsys)
+    else:
+        owl, clip = tiny_models
+        robot = request.getfixturevalue("episode_robot")
+        with credentials_env():
+            code, out, err = _spot(_robot_args(robot, "--agent", "helios", "--task", episode.task,
+                                               "--detector-weights", str(owl), "--scorer-weights", str(clip),
+                                               "--max-time", "4", "--on-goal", "no", "--at-rest", "yes",
+                                               "--extra-collisions", "0", "--out", str(tmp_path), "--name", "run"),
+                                   capsys)
+    assert code in (0, 1) and "Traceback" not in out + err, err[-3000:]
+    assert "may be incomplete (RuntimeError: File-writer thread shut down prematurely)" in out + err
+    (record,) = [json.loads(line) for line in (tmp_path / "run" / "episodes.jsonl").read_text().splitlines()]
+    assert "closing the recording: RuntimeError: File-writer thread shut down prematurely" in \
+        record["recording"]["errors"]

@@ -53,6 +53,7 @@ from spot_fake_fixtures import (  # noqa: E402
     python_threads,
     session_pki,
     start_fake,
+    take_lease_as_another_client,
     wait_for_threads_to_end,
 )
 
@@ -209,6 +210,41 @@ def test_an_error_of_ours_mid_walk_still_stops_the_robot(monkeypatch):
         backend.close()
         assert time.monotonic() - t0 < CLOSE_WITHIN
     _check_after_close(fake, "bug", before)
+
+
+def test_a_lease_taken_by_another_client_during_the_shutdown_is_said_not_hidden(monkeypatch):
+    """The tablet took the lease right after close()'s stow: the rest of the shutdown (sit, power
+    off, return the lease) could not be ours, it was logged as one warning and tools spot said
+    SUCCESS, exit 0, with the robot standing, motors on (audit 2026-12-05). Now the backend says
+    so in ``close_problem`` and keeps the lost lease as its fault."""
+    before = python_threads()
+    demo = start_fake(seed=0, time_scale=WALK_SCALE)
+    backend = connect(demo, stop_fake_on_close=False)
+    fake = demo.fake
+    try:
+        assert backend.move_arm_joints(model.ARM_READY).success      # the arm out: the shutdown stows it
+        real_stow = SdkSpotBackend.stow_arm
+
+        def stow_then_taken(self):
+            result = real_stow(self)
+            take_lease_as_another_client(self)
+            return result
+
+        monkeypatch.setattr(SdkSpotBackend, "stow_arm", stow_then_taken)
+        t0 = time.monotonic()
+        backend.close()
+        assert time.monotonic() - t0 < CLOSE_WITHIN
+        assert isinstance(backend.fault, LeaseLostError)
+        assert backend.close_problem.startswith("the robot was not shut down by us: the body lease was taken")
+        assert "possibly standing with motor power on" in backend.close_problem
+        assert fake.powered and fake.standing          # what the message says: left to the other client
+        assert not _client_lease(fake), "the lease is the other client's"
+        assert not fake._endpoints, "our e-stop endpoint is still registered"
+    finally:
+        backend.close()
+        demo.stop()
+    leaked = wait_for_threads_to_end(before)
+    assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
 
 
 def _grasp_setup(demo, backend):

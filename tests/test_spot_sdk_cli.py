@@ -20,7 +20,14 @@ pytest.importorskip("bosdyn.client")
 from robots.spot.fake_spot.certs import make_test_pki  # noqa: E402
 from robots.spot.fake_spot.server import FakeSpot  # noqa: E402
 from robots.spot.sdk_backend import PASSWORD_ENV, USERNAME_ENV  # noqa: E402
-from spot_fake_fixtures import TEST_PASSWORD, TEST_USER, connect, session_pki, start_fake  # noqa: E402
+from spot_fake_fixtures import (  # noqa: E402
+    TEST_PASSWORD,
+    TEST_USER,
+    connect,
+    session_pki,
+    start_fake,
+    take_lease_as_another_client,
+)
 from tools.cli import main  # noqa: E402
 
 pytestmark = pytest.mark.timeout(120)
@@ -222,3 +229,53 @@ def test_nothing_listening(capsys, monkeypatch, tmp_path):
     assert main(["spot", "127.0.0.1", "--port", str(port), "--cert", str(session_pki().ca_cert), "--task", TASK]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"error: cannot connect to 127.0.0.1:{port}") and "refused" in err, err
+
+
+def test_a_lease_taken_during_the_shutdown_fails_the_run_with_one_line(tmp_path, capsys, monkeypatch):
+    """The tablet takes the lease right after the task's last stow, before the shutdown's first
+    command: the robot is left standing under it. The run once printed SUCCESS and exited 0 (one
+    warning in session.log); now it ends with one error line saying so."""
+    from robots.spot.sdk_backend import SdkSpotBackend
+
+    real_stow = SdkSpotBackend.stow_arm
+    stows = []
+
+    def stow(self):
+        result = real_stow(self)
+        stows.append(1)
+        if len(stows) == 2:                       # the scripted demo's second and last stow
+            take_lease_as_another_client(self)
+        return result
+
+    monkeypatch.setattr(SdkSpotBackend, "stow_arm", stow)
+    rc = main(["spot", "--fake", "--task", TASK, "--out", str(tmp_path), "--name", "taken"])
+    out, err = capsys.readouterr()
+    assert rc == 1, (out[-2000:], err[-2000:])
+    assert err.strip().splitlines()[-1].startswith("error: the robot was not shut down by us: the body lease "
+                                                   "was taken by another client during the shutdown"), err
+    assert "Traceback" not in err
+    outcome = json.loads((tmp_path / "taken" / "outcome.json").read_text())
+    assert len(stows) == 2 and outcome["close_problem"] and outcome["success"]   # the task went well, not the shutdown
+
+
+def test_a_session_log_on_a_full_disk_is_one_warning_and_the_run_goes_on(capsys):
+    """Each line once printed logging's "--- Logging error ---" traceback (audit 2026-12-05)."""
+    import errno
+
+    from tools.spot import _RunLog
+
+    class FullDisk:
+        def write(self, *text):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        flush = write
+        close = write
+
+    handler = _RunLog()
+    handler._fh = FullDisk()
+    for i in range(3):
+        handler.handle(logging.LogRecord("helios.spot", logging.WARNING, __file__, 1, f"line {i}", None, None))
+    handler.close()
+    err = capsys.readouterr().err
+    assert err.splitlines() == ["[spot] warning: session.log cannot be written (No space left on device); the run "
+                                "goes on without it"], err

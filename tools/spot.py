@@ -133,6 +133,7 @@ class _RunLog(logging.Handler):
     def __init__(self):
         super().__init__(logging.INFO)
         self._fh = None
+        self._failed = False
         self._buffer: list[str] = []
         self.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
 
@@ -143,7 +144,7 @@ class _RunLog(logging.Handler):
         self._buffer = []
 
     def emit(self, record: logging.LogRecord) -> None:
-        if record.levelno < logging.WARNING and not record.name.startswith("helios"):
+        if self._failed or (record.levelno < logging.WARNING and not record.name.startswith("helios")):
             return
         try:
             line = self.format(record)
@@ -152,12 +153,19 @@ class _RunLog(logging.Handler):
             else:
                 self._fh.write(line + "\n")
                 self._fh.flush()
+        except OSError as exc:      # a full disk: one warning, then the run goes on without its log
+            self._failed = True     # (logging's handleError printed a traceback for every line)
+            print(f"[spot] warning: session.log cannot be written ({exc.strerror or exc}); the run goes on "
+                  f"without it", file=sys.stderr)
         except Exception:  # noqa: BLE001 - logging must not break the run
             self.handleError(record)
 
     def close(self) -> None:
         if self._fh is not None:
-            self._fh.close()
+            try:
+                self._fh.close()
+            except OSError:         # its last buffered write failed (a full disk): said in emit()
+                pass
         super().close()
 
 
@@ -410,21 +418,24 @@ def _run(args: argparse.Namespace) -> int:
         except KeyboardInterrupt:
             print("[spot] interrupted: stopping the robot", file=sys.stderr)
             raise
-        except HalError:
-            raise                     # robot faults and bad input: one line from the command line
+        except (HalError, OSError):
+            raise                     # robot faults, bad input, a run folder that cannot be written (a
+                                      # full disk): one line from the command line, never "the agent failed"
         except Exception as exc:      # noqa: BLE001 - a bug in the agent: the robot is shut down below
             _LOG.exception("the agent failed")        # the traceback goes to session.log only
             agent_error = f"{type(exc).__name__}: {exc}"
         finally:
             print("[spot] shutting down: stop, stow, sit, power off, return the lease")
             backend.close()
+        problem = backend.close_problem     # the shutdown could not stop the robot (the lease was not ours)
         if agent_error is not None:
             (run_dir / "outcome.json").write_text(json.dumps({"agent": args.agent, "task": args.task,
-                                                              "success": False, "agent_error": agent_error}, indent=2))
+                                                              "success": False, "agent_error": agent_error,
+                                                              "close_problem": problem}, indent=2))
             from tools.cli import one_line
 
-            print(f"error: the agent failed ({one_line(agent_error, 300)}); the robot was shut down; traceback "
-                  f"in {run_dir / 'session.log'}", file=sys.stderr)
+            print(f"error: the agent failed ({one_line(agent_error, 300)}); {problem or 'the robot was shut down'}; "
+                  f"traceback in {run_dir / 'session.log'}", file=sys.stderr)
             return 1
         if demo is not None:
             with demo.fake.sim_lock:
@@ -432,10 +443,13 @@ def _run(args: argparse.Namespace) -> int:
         result = {"agent": args.agent, "task": args.task, "hostname": config.hostname, "fake": bool(demo),
                   "success": bool(outcome.success and (physical is None or physical["success"])),
                   "agent_success": outcome.success, "fault": outcome.fault,
-                  "steps": [asdict(s) for s in outcome.steps], "physical": physical}
+                  "steps": [asdict(s) for s in outcome.steps], "physical": physical, "close_problem": problem}
         (run_dir / "outcome.json").write_text(json.dumps(result, indent=2))
         print()
         print(_format(result, run_dir))
+        if problem:
+            print(f"error: {problem}", file=sys.stderr)
+            return 1
         return 0 if result["success"] else 1
     finally:
         with _teardown_deferred(demo is not None):   # a further Ctrl-C/TERM/HUP is held, raised after
@@ -539,7 +553,9 @@ def _run_hardware(args, config, run_dir: Path, handler: "_RunLog", trial: _Trial
         def verdict():
             if trial.verdict is not None:
                 return trial.verdict
-            print("[spot] the robot is sitting, powered off. Operator, please check the scene:")
+            print(f"[spot] {backend.close_problem}. Operator, take over the robot, then check the scene:"
+                  if backend.close_problem else "[spot] the robot is sitting, powered off. Operator, please check "
+                                                "the scene:")
             return ask_operator(task.task)
 
         record = run_hardware_trial(backend, trial.config, task, trial.perception, run_dir, verdict=verdict,
@@ -554,6 +570,9 @@ def _run_hardware(args, config, run_dir: Path, handler: "_RunLog", trial: _Trial
         backend.close()
     print()
     print(_format_record(record, run_dir))
+    if backend.close_problem:
+        print(f"error: {backend.close_problem}", file=sys.stderr)
+        return 1
     return 0 if record["success"] else 1
 
 
@@ -673,8 +692,15 @@ def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str,
         _restore_env(saved)
         inst = holder.get("agent")
         if inst is not None and inst.recorder is not None:
-            inst.recorder.close()
-    print("[spot] shut down: stopped, stowed, sat, powered off, lease returned; fake Spot stopped")
+            try:
+                inst.recorder.close()
+            except Exception as exc:  # noqa: BLE001 - a full disk loses (part of) the recording, never the record
+                holder["recording_error"] = f"closing the recording: {type(exc).__name__}: {exc}"
+                print(f"[spot] warning: the recording {holder.get('path')} may be incomplete "
+                      f"({type(exc).__name__}: {exc})", file=sys.stderr)
+    problem = result.extra.get("close_problem")
+    if not problem:
+        print("[spot] shut down: stopped, stowed, sat, powered off, lease returned; fake Spot stopped")
     outcome = {"fake": True, **result.as_dict()}
     (run_dir / "outcome.json").write_text(json.dumps(outcome, indent=2, default=str))
     record = result.as_dict()
@@ -684,10 +710,14 @@ def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str,
     record["hardware"] = {"setting": "fake", "operator": None, "perception": args.perception,
                           "log_file": "session.log"}
     if "path" in holder:
-        record["recording"] = {"path": str(holder["path"]), "errors": list(holder["agent"].hook_errors)}
+        record["recording"] = {"path": str(holder["path"]), "errors": list(holder["agent"].hook_errors)
+                               + ([holder["recording_error"]] if "recording_error" in holder else [])}
     append_result(run_dir / "episodes.jsonl", record)
     print()
     print(_format_episode(result, run_dir))
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return 1
     return 0 if result.success else 1
 
 

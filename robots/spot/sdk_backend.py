@@ -250,6 +250,9 @@ class SdkSpotBackend(SdkShutdown):
         self.robot = None
         self.robot_id = None
         self._fault: RobotFault | None = None
+        self.close_problem: str | None = None
+        """Set by close() when it could not stop, sit and power off the robot because the body lease
+        was not ours (``robots.spot.sdk_shutdown``): one line for the operator, or None."""
         self._closed = False
         self._closing = False
         self._close_lock = threading.Lock()

@@ -123,9 +123,18 @@ class SdkShutdown:
             except (bd.exc.TimedOutError, bd.exc.RpcError, bd.power.CommandTimedOutError, _Unanswered) as exc:
                 _LOG.warning("the robot stopped answering during shutdown (%s); sending the remaining steps "
                              "without waiting", type(exc).__name__)
+            except (bd.exc.LeaseUseError, bd.lease.Error) as exc:
+                # another client (the tablet) took the lease while we shut down: nothing more of ours
+                # may move the robot; say so (the shutdown is not done), never log it and go on
+                self._fault = self._fault or LeaseLostError(f"the body lease was taken by another client "
+                                                            f"during the shutdown ({type(exc).__name__})")
             except Exception as exc:  # noqa: BLE001
                 _LOG.warning("shutdown step failed: %s: %s", type(exc).__name__, str(exc).split("\n")[0])
             lease = self._our_lease()
+        if lease is None and isinstance(self._fault, LeaseLostError):
+            self.close_problem = (f"the robot was not shut down by us: {self._fault}; it is left to the client "
+                                  f"holding the lease (the tablet?), possibly standing with motor power on")
+            _LOG.warning(self.close_problem)
         self._shutdown_in_flight(lease, max(t0 + cfg.close_budget, time.monotonic() + 0.5))
 
     def _shutdown_in_turn(self, lease) -> None:
