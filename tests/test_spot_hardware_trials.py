@@ -225,6 +225,7 @@ def test_robot_runs_refuse_missing_weights_and_answers_before_touching_the_robot
                                          str(tmp_path / "none"), "--on-goal", "yes", "--at-rest", "yes",
                                          "--out", str(tmp_path)), capsys)
         assert code == 2 and err.count("\n") == 1 and "does not exist" in err, err
+        assert "set --detector-weights (or detector_weights in the --models file)" in err, err   # its own flags
         code, _, err = _spot(_robot_args(episode_robot, "--agent", "helios", "--task", episode.task,
                                          "--on-goal", "yes", "--at-rest", "yes", "--out", str(tmp_path)), capsys)
         assert code == 2 and "weight folders" in err
