@@ -200,7 +200,7 @@ def test_the_fake_refuses_what_a_robot_refuses(demo):
 
 def test_fault_switchboard_names():
     assert set(FAULTS) == {"estop", "lease_revoked", "connection_drop", "command_timeout", "grasp_failure",
-                           "time_sync_loss", "slow", "power_off_stalls"}
+                           "time_sync_loss", "slow", "power_off_stalls", "power_loss"}
 
 
 def test_unknown_fault_is_a_clear_error(demo):

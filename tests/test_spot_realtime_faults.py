@@ -37,6 +37,7 @@ from robots.hal import (  # noqa: E402
     GraspResult,
     HalError,
     LeaseLostError,
+    PowerError,
     SE2Pose,
     TimeSyncLostError,
 )
@@ -69,6 +70,7 @@ ARM_SCALE = 1.0       # the arm in real time: a stow -> ready move takes ~2.5 s
 FAULTS = {
     "estop": ({}, EstopError),
     "lease_revoked": ({}, LeaseLostError),
+    "power_loss": ({}, PowerError),       # motors off without an e-stop (audit 2026-12-05: safe, untested)
     "connection_drop": ({}, ConnectionLostError),
     "command_timeout": ({}, CommandTimeoutError),
     "time_sync_loss": ({}, TimeSyncLostError),

@@ -17,6 +17,7 @@ from robots.hal import (  # noqa: E402
     ConnectionLostError,
     EstopError,
     LeaseLostError,
+    PowerError,
     Reason,
     SE2Pose,
     TimeSyncLostError,
@@ -33,6 +34,7 @@ CLOSE_WITHIN = 3.0     # s for close() after a fault (bounded by close_budget, n
 FAULTS = {
     "estop": ({}, EstopError, True),
     "lease_revoked": ({}, LeaseLostError, True),
+    "power_loss": ({}, PowerError, True),       # motors off without an e-stop
     "connection_drop": ({}, ConnectionLostError, True),
     "command_timeout": ({}, CommandTimeoutError, False),
     "time_sync_loss": ({}, TimeSyncLostError, True),
@@ -72,7 +74,7 @@ def test_fault_ends_in_a_typed_error_and_leaves_the_robot_safe(fault):
         with fake.sim_lock:
             assert fake.sim.spot.base_pose().distance_to(pose_before) < 0.06
         assert not _active(fake), _active(fake)
-        if fault == "estop":
+        if fault in ("estop", "power_loss"):
             assert not fake.powered
         if fault == "connection_drop":
             assert not fake.powered          # the robot's comms-loss behaviour
@@ -89,7 +91,7 @@ def test_fault_ends_in_a_typed_error_and_leaves_the_robot_safe(fault):
                 backend.move_arm_joints(model.ARM_STOW)
             with pytest.raises(expected):
                 backend.stow_arm()
-            if fault in ("estop", "lease_revoked"):
+            if fault in ("estop", "lease_revoked", "power_loss"):
                 backend.observe()            # sensing needs neither motor power nor the lease
             else:
                 with pytest.raises(expected):

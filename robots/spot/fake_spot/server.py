@@ -78,6 +78,8 @@ _LOG = logging.getLogger("helios.fake_spot")
 FAULTS: dict[str, str] = {
     "estop": "the (hardware) e-stop is pressed: motor power is cut, running commands end, new ones are refused",
     "lease_revoked": "another client takes the body lease: motion stops, commands with our lease are refused",
+    "power_loss": "motor power goes off without an e-stop (a battery or motor fault): running commands end and "
+                  "the robot drops to the ground; its state says motors off, the e-stop released",
     "connection_drop": "the robot drops off the network (the server stops); the robot's comms-loss "
                        "behaviour stops it and cuts power",
     "command_timeout": "commands are accepted but never finish (their feedback stays 'in progress'); a motion "
@@ -309,6 +311,8 @@ class FakeSpot:
             self.faults[fault] = dict(params)
             if fault == "estop":
                 self._cut_power("e-stop pressed")
+            elif fault == "power_loss":
+                self._cut_power("power fault")
             elif fault == "lease_revoked":
                 self._lease_seq += 1
                 self.lease_owner = "tablet (fault injection)"
