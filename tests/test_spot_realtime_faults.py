@@ -249,6 +249,37 @@ def test_a_lease_taken_by_another_client_during_the_shutdown_is_said_not_hidden(
     assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
 
 
+def test_e_stop_check_ins_that_stop_reaching_the_robot_stop_it_and_end_the_walk_in_an_estop_error():
+    """Our e-stop endpoint's check-ins fail while everything else works (a flaky link for one
+    service): the robot's own e-stop timeout cuts motor power, and the walk ends in EstopError
+    within ``estop_timeout`` of the first missed check-in (audit 2026-12-05: 1.44 s with 1.5 s;
+    safe, untested)."""
+    before = python_threads()
+    demo = start_fake(seed=0, time_scale=1.0)
+    backend = connect(demo, estop_timeout=1.5)
+    fake = demo.fake
+    try:
+        start = _base(fake)
+        timer = threading.Timer(0.3, fake.fail_calls, ("EstopCheckIn", 10_000))
+        t0 = time.monotonic()
+        timer.start()
+        with pytest.raises(EstopError):
+            backend.navigate_to(SE2Pose(start.x, start.y - 4.0, 0.0))   # ~5.5 s of walking in real time
+        latency = time.monotonic() - t0 - 0.3
+        timer.join()
+        MEASURED.append({"fault": "e-stop check-ins fail", "latency": latency})
+        assert latency < 1.5 + SURFACE_WITHIN, f"the walk ended {latency:.2f} s after the check-ins stopped"
+        at_error = _base(fake)
+        time.sleep(0.3)
+        assert _base(fake).distance_to(at_error) < TRAVEL_AFTER and not fake.powered
+    finally:
+        t1 = time.monotonic()
+        backend.close()
+        assert time.monotonic() - t1 < CLOSE_WITHIN
+    leaked = wait_for_threads_to_end(before)
+    assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
+
+
 def _grasp_setup(demo, backend):
     mug = demo.facts["mug_position"]
     assert backend.navigate_to(SE2Pose(mug[0] - 0.95, mug[1], 0.0)).success
@@ -572,6 +603,36 @@ def test_close_is_bounded_when_the_robot_freezes_or_dies(tmp_path, how):
         backend.close()
         took = time.monotonic() - t0
         MEASURED.append({"fault": how, "close": took})
+        assert took < CLOSE_WITHIN, f"close() with a {how} robot took {took:.2f} s"
+        leaked = wait_for_threads_to_end(before)
+        assert not leaked, sorted(t.name for t in leaked)
+    finally:
+        proc.kill()
+        proc.wait(10)
+
+
+@pytest.mark.parametrize("how", ["SIGSTOP", "SIGKILL"])
+def test_a_robot_that_freezes_or_dies_mid_walk_ends_the_walk_in_a_typed_error(tmp_path, how):
+    """The robot process frozen or killed while it walks (the test above stops it between
+    commands): the walk ends in a HAL error within ``rpc_timeout`` + a poll, never hangs, and
+    close() is bounded (audit 2026-12-05: safe, untested)."""
+    proc, info = _serve_fake_in_a_subprocess(tmp_path)
+    before = python_threads()
+    try:
+        with credentials_env():
+            backend = SdkSpotBackend(fast_config(info["port"], cert_path=info["ca"], rpc_timeout=1.5))
+        timer = threading.Timer(0.4, os.kill, (proc.pid, getattr(signal, how)))
+        t0 = time.monotonic()
+        timer.start()
+        with pytest.raises(HalError) as err:
+            backend.navigate_to(SE2Pose(0.0, -2.0, 0.0))     # about 3 s of walking in real time
+        latency = time.monotonic() - t0 - 0.4
+        timer.join()
+        MEASURED.append({"fault": f"{how} mid-walk", "latency": latency, "error": type(err.value).__name__})
+        assert latency < 1.5 + SURFACE_WITHIN, f"the walk ended {latency:.2f} s after the robot was {how}ed"
+        t1 = time.monotonic()
+        backend.close()
+        took = time.monotonic() - t1
         assert took < CLOSE_WITHIN, f"close() with a {how} robot took {took:.2f} s"
         leaked = wait_for_threads_to_end(before)
         assert not leaked, sorted(t.name for t in leaked)
