@@ -586,6 +586,17 @@ def _serve_fake_in_a_subprocess(tmp_path):
     return proc, json.loads(line)
 
 
+def _close_is_bounded(backend, before: set, how: str) -> float:
+    """close() within CLOSE_WITHIN and no thread of ours left; returns how long it took."""
+    t0 = time.monotonic()
+    backend.close()
+    took = time.monotonic() - t0
+    assert took < CLOSE_WITHIN, f"close() with a {how} robot took {took:.2f} s"
+    leaked = wait_for_threads_to_end(before)
+    assert not leaked, sorted(t.name for t in leaked)
+    return took
+
+
 @pytest.mark.parametrize("how", ["SIGSTOP", "SIGKILL"])
 def test_close_is_bounded_when_the_robot_freezes_or_dies(tmp_path, how):
     proc, info = _serve_fake_in_a_subprocess(tmp_path)
@@ -599,13 +610,7 @@ def test_close_is_bounded_when_the_robot_freezes_or_dies(tmp_path, how):
         time.sleep(0.3)
         with pytest.raises(HalError):
             backend.observe()                   # the robot is gone: a typed error, not a hang
-        t0 = time.monotonic()
-        backend.close()
-        took = time.monotonic() - t0
-        MEASURED.append({"fault": how, "close": took})
-        assert took < CLOSE_WITHIN, f"close() with a {how} robot took {took:.2f} s"
-        leaked = wait_for_threads_to_end(before)
-        assert not leaked, sorted(t.name for t in leaked)
+        MEASURED.append({"fault": how, "close": _close_is_bounded(backend, before, how)})
     finally:
         proc.kill()
         proc.wait(10)
@@ -630,12 +635,7 @@ def test_a_robot_that_freezes_or_dies_mid_walk_ends_the_walk_in_a_typed_error(tm
         timer.join()
         MEASURED.append({"fault": f"{how} mid-walk", "latency": latency, "error": type(err.value).__name__})
         assert latency < 1.5 + SURFACE_WITHIN, f"the walk ended {latency:.2f} s after the robot was {how}ed"
-        t1 = time.monotonic()
-        backend.close()
-        took = time.monotonic() - t1
-        assert took < CLOSE_WITHIN, f"close() with a {how} robot took {took:.2f} s"
-        leaked = wait_for_threads_to_end(before)
-        assert not leaked, sorted(t.name for t in leaked)
+        _close_is_bounded(backend, before, how)
     finally:
         proc.kill()
         proc.wait(10)
