@@ -52,8 +52,10 @@ test: setup
 test-all: setup
 	$(PY) -m pytest -q $(XDIST) $(ARGS)
 
+# Benchmarks: SUITES (default sim; e.g. SUITES="scenes agent"), then ARGS (e.g. ARGS=--quick).
+SUITES ?= sim
 bench: setup
-	$(PY) -m tools bench $(or $(ARGS),sim)
+	$(PY) -m tools bench $(SUITES) $(ARGS)
 
 clean:
 	rm -rf $(VENV) build *.egg-info runs/demo runs/smoke
