@@ -435,6 +435,24 @@ def test_failed_bring_up_leaves_no_estop_endpoint_registered():
     assert not leaked, sorted(t.name for t in leaked)
 
 
+def test_a_time_sync_service_that_fails_at_bring_up_is_named_and_leaves_nothing_behind():
+    """The message was "communication with the robot failed while connecting (RpcError)" (audit
+    2026-12-05: "the robot rejected a command while connecting: InternalServerError"): it now says
+    time sync; nothing of ours (lease, e-stop endpoint, thread) is left."""
+    before = python_threads()
+    demo = start_fake(seed=0)
+    fake = demo.fake
+    fake.fail_calls("TimeSyncUpdate", 1000, code=grpc.StatusCode.INTERNAL)
+    try:
+        with credentials_env(), pytest.raises(HalError, match="while establishing time sync"):
+            SdkSpotBackend(fast_config(demo.port))
+        assert fake.lease_owner is None and not fake._endpoints and not fake.powered
+    finally:
+        demo.stop()
+    leaked = wait_for_threads_to_end(before)
+    assert not leaked, sorted(t.name for t in leaked)
+
+
 # RPC -> its reply comes after rpc_timeout although the robot acted on it (a slow link at bring-up)
 LATE_AT_BRING_UP = {
     "SetEstopConfig": {},                   # our endpoint is in the robot's e-stop configuration

@@ -363,7 +363,12 @@ class SdkSpotBackend(SdkShutdown):
         try:
             self.robot_id = robot.ensure_client("robot-id").get_id(timeout=cfg.rpc_timeout)
             robot.time_sync.time_sync_interval_sec = cfg.time_sync_interval
-            robot.time_sync.wait_for_sync(timeout_sec=cfg.connect_timeout)
+            try:
+                robot.time_sync.wait_for_sync(timeout_sec=cfg.connect_timeout)
+            except (bd.ts.TimedOutError, bd.ts.InactiveThreadError):
+                raise                           # below: no time sync within connect_timeout
+            except bd.exc.Error as exc:         # the time-sync service failed: say it was time sync
+                raise self._translate(exc, "establishing time sync") from None
             self._state_client = robot.ensure_client(bd.RobotStateClient.default_service_name)
             self._cmd_client = robot.ensure_client(bd.rc.RobotCommandClient.default_service_name)
             self._image_client = robot.ensure_client(bd.ImageClient.default_service_name)
