@@ -280,6 +280,31 @@ def test_e_stop_check_ins_that_stop_reaching_the_robot_stop_it_and_end_the_walk_
     assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
 
 
+def test_an_e_stop_during_the_shutdowns_stow_is_logged_as_an_e_stop_not_as_silence(caplog):
+    """The shutdown log said "the robot stopped answering during shutdown (_Unanswered)" for an
+    e-stop or a lost lease during close()'s stow (audit 2026-12-05): the operator reading
+    session.log was told the wrong thing."""
+    import logging
+
+    before = python_threads()
+    demo = start_fake(seed=0, time_scale=ARM_SCALE)
+    backend = connect(demo)
+    fake = demo.fake
+    assert backend.move_arm_joints(model.ARM_READY).success           # the arm out: the shutdown stows it
+    timer = threading.Timer(0.5, fake.inject, ("estop",))
+    with caplog.at_level(logging.WARNING, logger="helios.spot"):
+        timer.start()
+        t0 = time.monotonic()
+        backend.close()
+        took = time.monotonic() - t0
+        timer.join()
+    text = caplog.text
+    assert "EstopError during shutdown" in text and "stopped answering" not in text, text
+    assert took < CLOSE_WITHIN and not fake.powered
+    leaked = wait_for_threads_to_end(before)
+    assert not leaked, sorted(t.name for t in leaked)
+
+
 def _grasp_setup(demo, backend):
     mug = demo.facts["mug_position"]
     assert backend.navigate_to(SE2Pose(mug[0] - 0.95, mug[1], 0.0)).success

@@ -121,8 +121,10 @@ class SdkShutdown:
                 self._shutdown_in_turn(lease)
                 return
             except (bd.exc.TimedOutError, bd.exc.RpcError, bd.power.CommandTimedOutError, _Unanswered) as exc:
-                _LOG.warning("the robot stopped answering during shutdown (%s); sending the remaining steps "
-                             "without waiting", type(exc).__name__)
+                # a fault during the shutdown (an e-stop, a lost lease) is named as such, not as silence
+                why = (f"{type(self._fault).__name__} during shutdown: {self._fault}" if self._fault is not None
+                       else f"the robot stopped answering during shutdown ({type(exc).__name__})")
+                _LOG.warning("%s; sending the remaining steps without waiting", why)
             except (bd.exc.LeaseUseError, bd.lease.Error) as exc:
                 # another client (the tablet) took the lease while we shut down: nothing more of ours
                 # may move the robot; say so (the shutdown is not done), never log it and go on
