@@ -172,6 +172,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("trials-out-file", ["trials", "--episodes", "1", "--out", "{ws}/afile"], "is an existing file"),
     ("trials-out-in-file", ["trials", "--episodes", "1", "--out", "{ws}/afile/run"], "which is a file"),
     ("trials-out-unwritable", ["trials", "--episodes", "1", "--out", UNWRITABLE], "cannot write"),
+    ("trials-out-in-proc", ["trials", "--episodes", "1", "--out", "/proc/helios-run"],
+     "cannot write in '/proc' (no file or folder can be made there)"),
     ("trials-out-empty", ["trials", "--episodes", "1", "--out", " "], "must not be empty"),
     ("report-out-file", [*REPORT, "--out", "{ws}/afile"], "is an existing file"),
     ("report-out-in-file", [*REPORT, "--out", "{ws}/afile/rep"], "which is a file"),

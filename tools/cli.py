@@ -8,6 +8,7 @@ the user's input are printed as one line (``error: ...``) with exit status 2, ne
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import os
 import sys
@@ -88,6 +89,8 @@ def _writable(directory: Path) -> str | None:
         os.rmdir(probe)
         return None
     except OSError as exc:
+        if exc.errno == errno.ENOENT:       # an existing folder that refuses new entries (/proc, /sys)
+            return "no file or folder can be made there"
         return exc.strerror or str(exc)
 
 
