@@ -358,14 +358,11 @@ def run_hardware_trial(backend, config: HardwareConfig, task: RobotTask, percept
             close_robot()
     recording = None
     if recorder is not None:
-        errors = list(wrapped.hook_errors)
-        try:
-            recorder.log_text(f"episode {task.episode_id}: {task.task}; agent {config.agent}")
-            recorder.close()
-        except Exception as exc:  # noqa: BLE001 - a full disk loses (part of) the recording, never the record
-            errors.append(f"closing the recording: {type(exc).__name__}: {exc}")
-            say(f"[spot] warning: the recording {rrd} may be incomplete ({type(exc).__name__}: {exc})")
-        recording = {"path": str(rrd), "errors": errors}
+        from tasks.recording import close_recording
+
+        failed = close_recording(recorder, rrd, say,
+                                 final_text=f"episode {task.episode_id}: {task.task}; agent {config.agent}")
+        recording = {"path": str(rrd), "errors": list(wrapped.hook_errors) + ([failed] if failed else [])}
     answer = verdict()
     metrics = apply_verdict(judge.metrics, answer, judge.released, result.limit_hit, result.error)
     record = hardware_record(result, metrics, fingerprint, setting=config.setting, judge=judge, verdict=answer,

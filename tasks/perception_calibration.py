@@ -63,9 +63,10 @@ class CalibrationSettings:
     sampling: ViewSampling = field(default_factory=ViewSampling)
 
 
-def scene_count(split: str) -> int:
-    """The distinct scenes (homes) of ``split``: the most ``CalibrationSettings.scenes`` can ask for."""
-    return len({ep.scene.seed for ep in load_split(split)})
+def scene_count(split: str, episodes: list | None = None) -> int:
+    """The distinct scenes (homes) of ``split`` (of its ``episodes`` when already loaded): the most
+    ``CalibrationSettings.scenes`` can ask for."""
+    return len({ep.scene.seed for ep in (load_split(split) if episodes is None else episodes)})
 
 
 def _match(ids: np.ndarray, mask: np.ndarray) -> int | None:
@@ -95,12 +96,12 @@ def calibrate(settings: CalibrationSettings = CalibrationSettings(),
               progress: Callable[[str], None] | None = print) -> dict:
     """Run the measurement (``settings.views`` rendered views in all) and return the numbers."""
     rng = np.random.default_rng(settings.seed)
-    available = scene_count(settings.split)
+    episodes = load_split(settings.split)
+    available = scene_count(settings.split, episodes)
     if settings.scenes > available:      # else fewer scenes would be viewed than the result records
         raise ValueError(f"scenes={settings.scenes}: split {settings.split!r} has {available} distinct scenes")
     if settings.views < settings.scenes:     # likewise: a scene with no share of the views
         raise ValueError(f"views={settings.views} < scenes={settings.scenes}: some scenes would get no view")
-    episodes = load_split(settings.split)
     chosen, seen = [], set()
     for i in rng.permutation(len(episodes)):
         ep = episodes[int(i)]

@@ -294,6 +294,20 @@ class EpisodeRecorder:
         self.close()
 
 
+def close_recording(recorder: "EpisodeRecorder", path, say=print, final_text: str | None = None) -> str | None:
+    """Log ``final_text`` (if any) and close ``recorder``; where that fails (a full disk: rerun's
+    "File-writer thread shut down prematurely") say so in one warning line and return the error
+    for the record's ``recording.errors``: (part of) the recording is lost, never the trial's record."""
+    try:
+        if final_text is not None:
+            recorder.log_text(final_text)
+        recorder.close()
+    except Exception as exc:  # noqa: BLE001 - whatever the writer raises, the record is written
+        say(f"[spot] warning: the recording {path} may be incomplete ({type(exc).__name__}: {exc})")
+        return f"closing the recording: {type(exc).__name__}: {exc}"
+    return None
+
+
 def colormap(values: np.ndarray) -> np.ndarray:
     """(H, W) values in [0, 1] to (H, W, 3) uint8 RGB on a viridis-like ramp."""
     v = np.clip(np.nan_to_num(np.asarray(values, dtype=np.float64)), 0.0, 1.0) * (len(_RAMP) - 1)

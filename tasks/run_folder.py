@@ -224,17 +224,18 @@ def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | No
                 notes.append("config.yaml of a run without results was replaced by this configuration")
         elif saved_cfg != config:
             diff = config_difference(saved_cfg, config)
-            if is_extension(diff, saved_cfg, config):
+            # fewer episodes, but every record is one of them: an extension cut short before it
+            # finished an episode beyond this count (config.yaml is written when a run starts)
+            held = set(scan.records) | {r["episode_id"] for r in scan.unused}
+            back_from_extension = diff == ["episodes"] and not is_extension(diff, saved_cfg, config) and \
+                episode_ids is not None and held <= set(episode_ids)
+            if is_extension(diff, saved_cfg, config) or back_from_extension:
                 new_config_text = dump_yaml(provenance()) + dump_yaml({**body, "episodes": config.episodes})
                 folder_fp = saved_fp
-            elif diff == ["episodes"] and episode_ids is not None and \
-                    set(scan.records) | {r["episode_id"] for r in scan.unused} <= set(episode_ids):
-                # fewer episodes, but every record is one of them: an extension cut short before it
-                # finished an episode beyond this count (config.yaml is written when a run starts)
-                new_config_text = dump_yaml(provenance()) + dump_yaml({**body, "episodes": config.episodes})
-                folder_fp = saved_fp
-                notes.append(f"config.yaml said {saved_cfg.episodes} episodes, but every finished one is among the "
-                             f"first {config.episodes} (an extension stopped early): it now says {config.episodes}")
+                if back_from_extension:
+                    notes.append(f"config.yaml said {saved_cfg.episodes} episodes, but every finished one is among "
+                                 f"the first {config.episodes} (an extension stopped early): it now says "
+                                 f"{config.episodes}")
             elif diff == ["episodes"]:
                 raise RunFolderError(f"run folder {str(out)!r} holds a run of {saved_cfg.episodes} episodes; "
                                      f"a run can be extended but not shortened (asked for {config.episodes}); "

@@ -192,6 +192,16 @@ class BatchReport:
     notes: list[str] = field(default_factory=list)   # what opening the folder repaired
 
 
+def run_folder_episodes(config: TrialConfig, episodes: list[Episode]) -> dict:
+    """What :func:`tasks.run_folder.prepare_run_folder` checks a folder's records against, for
+    ``config`` about to run ``episodes``: the episodes the configuration selects (records of others
+    are set aside), where they come from (for messages), and each one's task (a record of another
+    task means the episode file changed). ``tools trials`` passes the same to its dry run."""
+    ids, source = run_episode_ids(config) or (None, "")
+    return {"episode_ids": None if ids is None else [*ids, *(e.episode_id for e in episodes)],
+            "episode_source": source, "episode_tasks": {e.episode_id: e.task for e in episodes}}
+
+
 def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
               on_episode: Callable[[dict, int, int], None] | None = None, *, workers: int = 1,
               executor: str = "local", address: str = "local", record: int = 0,
@@ -221,10 +231,7 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
     t0 = time.perf_counter()
     report = report if report is not None else BatchReport([])
     with FolderLock(out):
-        ids, source = run_episode_ids(config) or (None, "")
-        done = prepare_run_folder(out, config, report, episode_ids=None if ids is None else
-                                  [*ids, *(e.episode_id for e in episodes)], episode_source=source,
-                                  episode_tasks={e.episode_id: e.task for e in episodes})
+        done = prepare_run_folder(out, config, report, **run_folder_episodes(config, episodes))
         saved_commit = report.saved_commit
         commit = git_commit()
         if saved_commit and saved_commit != commit and done:

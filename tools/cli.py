@@ -102,6 +102,19 @@ def _nearest_existing(path: Path) -> tuple[Path, Path | None]:
     return Path("."), None
 
 
+def same_folder_twice(paths) -> tuple[str, str] | None:
+    """The first of ``paths`` that names an existing folder named before (``./run`` and ``run/``
+    alike), with that earlier name; None if none does. A run compared with itself is identical by
+    construction (``diff``, ``report``)."""
+    seen: dict[Path, str] = {}
+    for given in map(str, paths):
+        where = Path(given).resolve()
+        if where in seen and Path(given).exists():
+            return given, seen[where]
+        seen.setdefault(where, given)
+    return None
+
+
 def shown_path(path) -> str:
     """A path as text that can always be printed: bytes that are not UTF-8 as ``\\xNN``."""
     return os.fsencode(str(path)).decode("utf-8", "backslashreplace")
@@ -231,12 +244,13 @@ def parse_arguments(parser: argparse.ArgumentParser, argv: list[str] | None) -> 
     (argparse gives a positional list only its first run: ``trials a=1 --out X b=2`` would refuse
     ``b=2``). Later runs are appended in command-line order, so a later override still wins."""
     args, extras = parser.parse_known_args(argv)
-    _refuse_repeated_flags(_command_parser(parser, args.command), sys.argv[1:] if argv is None else argv)
+    command = _command_parser(parser, args.command)      # usage errors name it: "helios trials: ..."
+    _refuse_repeated_flags(command, sys.argv[1:] if argv is None else argv)
     if extras:
         overrides = getattr(args, "overrides", None)
         if args.command == "spot" or not isinstance(overrides, list) or \
                 not all("=" in e and not e.startswith("-") for e in extras):
-            _command_parser(parser, args.command).error(f"unrecognized arguments: {' '.join(extras)}")
+            command.error(f"unrecognized arguments: {' '.join(extras)}")
         args.overrides = [*overrides, *extras]
     return args
 

@@ -296,7 +296,7 @@ def _top(path: str) -> str:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from tools.cli import CliError
+    from tools.cli import CliError, same_folder_twice
     from tools.report_runs import load_run
 
     if args.episodes is not None and args.episodes <= 0:
@@ -306,8 +306,7 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.tolerance) and 0.0 <= args.tolerance < 1.0):
         raise CliError(f"--tolerance must be a relative tolerance in [0, 1), got {args.tolerance}")
     ignore = parse_ignore(args.ignore)
-    # a folder against itself is identical by construction: a pasted-twice path would pass the check
-    if Path(args.run_a).exists() and Path(args.run_a).resolve() == Path(args.run_b).resolve():
+    if same_folder_twice([args.run_a, args.run_b]):     # a pasted-twice path would pass the check
         raise CliError(f"RUN_A and RUN_B are the same folder ({str(Path(args.run_a).resolve())!r}); "
                        f"compare two different runs")
     warnings: list[str] = []

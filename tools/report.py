@@ -534,15 +534,11 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from tools.cli import CliError
+    from tools.cli import CliError, same_folder_twice
 
-    # one folder given twice would be paired with itself ("R (2)"): identical by construction
-    seen: dict[Path, str] = {}
-    for given in args.runs:
-        where = Path(given).resolve()
-        if where in seen and Path(given).exists():
-            raise CliError(f"run folder {given!r} is given twice (also as {seen[where]!r}); each run once")
-        seen[where] = given
+    twice = same_folder_twice(args.runs)      # it would be paired with itself ("R (2)")
+    if twice:
+        raise CliError(f"run folder {twice[0]!r} is given twice (also as {twice[1]!r}); each run once")
     names = [n.strip() for n in args.names.split(",")] if args.names else None
     limits = parse_pick_limits(args.pick_limits)
     budgets = parse_budgets(args.budgets)

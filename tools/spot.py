@@ -447,10 +447,7 @@ def _run(args: argparse.Namespace) -> int:
         (run_dir / "outcome.json").write_text(json.dumps(result, indent=2))
         print()
         print(_format(result, run_dir))
-        if problem:
-            print(f"error: {problem}", file=sys.stderr)
-            return 1
-        return 0 if result["success"] else 1
+        return _exit_status(result["success"], problem)
     finally:
         with _teardown_deferred(demo is not None):   # a further Ctrl-C/TERM/HUP is held, raised after
             try:
@@ -578,10 +575,16 @@ def _run_hardware(args, config, run_dir: Path, handler: "_RunLog", trial: _Trial
         backend.close()
     print()
     print(_format_record(record, run_dir))
-    if backend.close_problem:
-        print(f"error: {backend.close_problem}", file=sys.stderr)
+    return _exit_status(record["success"], backend.close_problem)
+
+
+def _exit_status(success: bool, close_problem: str | None) -> int:
+    """0 for a successful run, 1 otherwise; a shutdown that could not stop the robot (the backend's
+    ``close_problem``: the lease was not ours) fails the run whatever the task did, with one line."""
+    if close_problem:
+        print(f"error: {close_problem}", file=sys.stderr)
         return 1
-    return 0 if record["success"] else 1
+    return 0 if success else 1
 
 
 def _format_record(record: dict, run_dir: Path) -> str:
@@ -700,12 +703,12 @@ def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str,
         _restore_env(saved)
         inst = holder.get("agent")
         if inst is not None and inst.recorder is not None:
-            try:
-                inst.recorder.close()
-            except Exception as exc:  # noqa: BLE001 - a full disk loses (part of) the recording, never the record
-                holder["recording_error"] = f"closing the recording: {type(exc).__name__}: {exc}"
-                print(f"[spot] warning: the recording {holder.get('path')} may be incomplete "
-                      f"({type(exc).__name__}: {exc})", file=sys.stderr)
+            from tasks.recording import close_recording
+
+            failed = close_recording(inst.recorder, holder.get("path"),
+                                     say=lambda line: print(line, file=sys.stderr))
+            if failed:
+                holder["recording_error"] = failed
     problem = result.extra.get("close_problem")
     if not problem:
         print("[spot] shut down: stopped, stowed, sat, powered off, lease returned; fake Spot stopped")
@@ -723,10 +726,7 @@ def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str,
     append_result(run_dir / "episodes.jsonl", record)
     print()
     print(_format_episode(result, run_dir))
-    if problem:
-        print(f"error: {problem}", file=sys.stderr)
-        return 1
-    return 0 if result.success else 1
+    return _exit_status(result.success, problem)
 
 
 def _format_episode(result, run_dir: Path) -> str:

@@ -138,14 +138,14 @@ def default_out(config) -> Path:
 def run(args: argparse.Namespace) -> int:
     import os
 
+    from robots.spot.signals import handling_signals
     from tasks.executors import check_address
     from tasks.registry import check_agent
     from tasks.run_folder import (FolderLock, check_folder_layout, move_aside, prepare_run_folder, read_results,
                                   stale_results)
-    from tasks.trial_config import check_devices, run_episode_ids
+    from tasks.trial_config import check_devices
     from tasks.trial_summary import METRIC_NAMES, metrics_table_rows, summarize
-    from robots.spot.signals import handling_signals
-    from tasks.trials import BatchReport, EpisodeSetupError, run_batch
+    from tasks.trials import BatchReport, EpisodeSetupError, run_batch, run_folder_episodes
     from tools.cli import CliError, check_output_dir
     from tools.progress import Progress, format_duration
     from tools.tables import format_markdown, format_table
@@ -174,11 +174,8 @@ def run(args: argparse.Namespace) -> int:
             moved = move_aside(out)
             print(f"[trials] {out} held {why}; moved it to {moved} and starting a new run", flush=True)
     check_folder_layout(out, args.record, not args.no_pictures)
-    # refuse a folder before creating or locking anything (with the episodes run_batch will name)
-    ids, source = run_episode_ids(config) or (None, "")
-    prepare_run_folder(out, config, dry_run=True, episode_ids=None if ids is None else
-                       [*ids, *(e.episode_id for e in episodes)], episode_source=source,
-                       episode_tasks={e.episode_id: e.task for e in episodes})
+    # refuse a folder before creating or locking anything (checked as run_batch will check it)
+    prepare_run_folder(out, config, dry_run=True, **run_folder_episodes(config, episodes))
     FolderLock(out).check_free()      # a folder another batch is running: say so before "resuming: ..."
     where = "" if args.executor == "local" else f" on Ray ({args.address})"
     print(f"[trials] {config.agent} on {len(episodes)} episode(s) "
