@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 ARGS   ?=
 
-.PHONY: setup run demo compare test test-all bench lint clean
+.PHONY: setup run demo compare test test-all test-workers bench lint clean
 
 setup: $(STAMP)
 
@@ -45,11 +45,15 @@ compare: setup
 # one process); TEST_WORKERS=0 runs them in this process (a debugger, `-s`).
 TEST_WORKERS ?= auto
 XDIST = -n $(TEST_WORKERS) --maxprocesses 4 --dist load
-test: setup
+test: test-workers setup
 	$(PY) -m pytest -m "not slow" -q $(XDIST) $(ARGS)
 
+# TEST_WORKERS checked before set-up (xdist's own parser takes -1 and runs in one process unannounced).
+test-workers:
+	@case "$(TEST_WORKERS)" in auto|logical) ;; ""|*[!0-9]*) echo "error: TEST_WORKERS must be auto, logical or a number of test processes (0: in this process), got '$(TEST_WORKERS)'" >&2; exit 2;; esac
+
 # Everything, including slow multi-episode tests.
-test-all: setup
+test-all: test-workers setup
 	$(PY) -m pytest -q $(XDIST) $(ARGS)
 
 # Benchmarks: SUITES (default sim; e.g. SUITES="scenes agent"), then ARGS (e.g. ARGS=--quick).

@@ -3,6 +3,7 @@
 
 import cProfile
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -252,12 +253,28 @@ def test_the_report_names_the_workload_and_flags_a_baseline_with_other_seeds():
     assert "OTHER WORKLOADS" not in text and "are other episodes" not in text
 
 
+def _root_commit() -> str:
+    """This checkout's first commit (it has no tasks/runner.py); skips where git is not usable."""
+    import subprocess
+
+    try:
+        done = subprocess.run(["git", "rev-list", "--max-parents=0", "HEAD"], capture_output=True, text=True,
+                              timeout=30, cwd=Path(bench_agent.__file__).parents[1])
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        pytest.skip(f"git is not usable here ({exc})")
+    if done.returncode != 0 or not done.stdout.strip():
+        pytest.skip("this checkout has no git history")
+    return done.stdout.split()[-1]
+
+
 @pytest.mark.parametrize("option, fragment", [
     (["--agent-repeats", "0"], "--agent-repeats must be within 1..20, got 0"),
     (["--agent-seed", "banana"], "--agent-seed must be a master seed"),
     (["--agent-set", "foo=1"], "--agent-set 'foo=1': give KEY=VALUE"),
     (["--agent-save", "/nonexistent-helios-dir/x.json"], "does not exist"),
     (["--agent-baseline", "{empty}"], "not a readable JSON file"),
+    # a commit from before tasks/runner.py was found only after `git archive`, inside the agent suite
+    (["--agent-baseline", "{root}"], "has no tasks/runner.py: too old to bench"),
 ])
 def test_agent_options_are_checked_before_the_first_suite_runs(option, fragment, tmp_path, monkeypatch, capsys):
     """``bench scenes agent --agent-repeats 0`` once ran the whole scenes suite before refusing."""
@@ -267,6 +284,8 @@ def test_agent_options_are_checked_before_the_first_suite_runs(option, fragment,
     (tmp_path / "empty.json").write_text("")
     ran = []
     monkeypatch.setattr(bench_scenes, "run", lambda args: ran.append("scenes") or "")
+    if "{root}" in option:
+        option = [o.replace("{root}", _root_commit()) for o in option]
     option = [o.replace("{empty}", str(tmp_path / "empty.json")) for o in option]
     assert main(["bench", "scenes", "agent", "--quick", *option]) == 2
     err = capsys.readouterr().err

@@ -195,3 +195,22 @@ def test_make_compare_checks_its_variables_before_the_first_run(tmp_path, capsys
     assert check_main(["helios typo", "1"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: COMPARE names 'typo'") and "helios-gt" in err
+
+
+@pytest.mark.parametrize("workers, ok", [("auto", True), ("logical", True), ("0", True), ("2", True),
+                                         ("-1", False), ("two", False), ("", False), ("1.5", False)])
+def test_make_test_checks_test_workers_before_set_up(workers, ok):
+    """`make test TEST_WORKERS=-1` ran the suite in one process unannounced (xdist's parser takes -1)."""
+    import shutil
+    import subprocess
+
+    if shutil.which("make") is None:
+        pytest.skip("no make here")
+    text = (ROOT / "Makefile").read_text()
+    assert "\ntest: test-workers setup" in text and "\ntest-all: test-workers setup" in text
+    done = subprocess.run(["make", "-s", "-C", str(ROOT), "test-workers", f"TEST_WORKERS={workers}"],
+                          capture_output=True, text=True, timeout=60)
+    assert (done.returncode == 0) == ok, done.stderr
+    if not ok:
+        assert done.stderr.splitlines()[0] == ("error: TEST_WORKERS must be auto, logical or a number of test "
+                                                f"processes (0: in this process), got '{workers}'")

@@ -100,3 +100,30 @@ def test_a_relative_out_is_made_absolute_before_the_sides_run_in_their_own_trees
     args = argparse.Namespace(base="HEAD", runs="helios", out="runs/unchanged", ignore="", episodes=3, workers=1)
     _, runs, out, _ = check_arguments(args)
     assert runs == ["helios"] and out.is_absolute() and out == tmp_path / "runs" / "unchanged"
+
+
+def test_a_commit_too_old_or_without_a_runs_scenario_is_refused_before_anything_is_extracted(tmp_path):
+    """Both were found only after `git archive` had written the commit's tree under --out."""
+    import argparse
+    import subprocess
+
+    from tools.cli import CliError
+    from tools.commit_tree import ROOT
+    from tools.unchanged import check_arguments
+
+    _head()
+    log = subprocess.run(["git", "-C", str(ROOT), "log", "--reverse", "--format=%H", "--", "configs/val_helios-earlier.yaml"],
+                         capture_output=True, text=True, timeout=30).stdout.split()
+    roots = subprocess.run(["git", "-C", str(ROOT), "rev-list", "--max-parents=0", "HEAD"],
+                           capture_output=True, text=True, timeout=30).stdout.split()
+    if not log or not roots:
+        pytest.skip("this checkout's history is too short (a shallow clone)")
+
+    def args(base, runs):
+        return argparse.Namespace(base=base, runs=runs, out=str(tmp_path / "unch"), ignore="", episodes=3, workers=1)
+
+    with pytest.raises(CliError, match=r"has no tasks/trials.py: too old to run trials"):
+        check_arguments(args(roots[-1], "helios"))
+    with pytest.raises(CliError, match=r"has no configs/val_helios-earlier.yaml$"):
+        check_arguments(args(log[0] + "^", "helios,helios-earlier"))
+    assert not (tmp_path / "unch").exists()

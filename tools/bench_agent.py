@@ -175,11 +175,13 @@ def _check_baseline(ref: str | None) -> tuple[str, str | None, dict | None]:
             raise CliError(f"--agent-baseline {ref!r}: not a file written by `bench agent --agent-save` "
                            f"(format {SAVE_FORMAT!r})")
         return saved.get("label", path.name), None, saved
-    from tools.commit_tree import resolve_commit
+    from tools.commit_tree import commit_has_file, resolve_commit
 
     commit = resolve_commit(ref, "--agent-baseline")
     if not commit:
         raise CliError(f"--agent-baseline {ref!r} is neither a file nor a commit of {ROOT}")
+    if not commit_has_file(commit, "tasks/runner.py", f"--agent-baseline {ref!r}"):
+        raise CliError(f"--agent-baseline {ref!r} ({commit[:12]}) has no tasks/runner.py: too old to bench")
     return f"{ref} ({commit[:10]})", commit, None
 
 
@@ -187,10 +189,7 @@ def _baseline_tree(ref: str, commit: str, tmp: Path) -> Path:
     """The files of the ``--agent-baseline`` commit (checked by :func:`_check_baseline`) under ``tmp``."""
     from tools.commit_tree import extract_commit
 
-    tree = extract_commit(commit, tmp / commit[:12], f"--agent-baseline {ref!r}")
-    if not (tree / "tasks" / "runner.py").is_file():
-        raise CliError(f"--agent-baseline {ref!r} ({commit[:12]}) has no tasks/runner.py: too old to bench")
-    return tree
+    return extract_commit(commit, tmp / commit[:12], f"--agent-baseline {ref!r}")
 
 
 MAX_REPEATS = 20

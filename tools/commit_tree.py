@@ -31,6 +31,17 @@ def resolve_commit(ref: str, what: str) -> str | None:
     return commit or None
 
 
+def commit_has_file(commit: str, path: str, what: str) -> bool:
+    """Whether ``commit`` holds the file ``path`` (relative to the repository root), asked of git
+    without extracting anything, so a commit too old for a command is refused before any work."""
+    try:
+        done = subprocess.run(["git", "-C", str(ROOT), "cat-file", "-e", f"{commit}:{path}"],
+                              capture_output=True, text=True, timeout=GIT_TIMEOUT_S)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise CliError(f"{what} ({commit[:12]}): git is not usable here ({exc})") from None
+    return done.returncode == 0
+
+
 def extract_commit(commit: str, tree: Path, what: str) -> Path:
     """Write the files of ``commit`` into the (new or empty) folder ``tree``; CliError naming
     ``what`` when git or tar fails or does not finish within its timeout."""

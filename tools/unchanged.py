@@ -32,7 +32,7 @@ import time
 from pathlib import Path
 
 from tools.cli import CliError, check_output_dir
-from tools.commit_tree import ROOT, extract_commit, resolve_commit
+from tools.commit_tree import ROOT, commit_has_file, extract_commit, resolve_commit
 
 DEFAULT_RUNS = "helios,helios-no-global,trusting"
 DEFAULT_EPISODES = 30
@@ -93,6 +93,11 @@ def check_arguments(args: argparse.Namespace) -> tuple[str, list[str], Path, fro
     commit = resolve_commit(args.base, "COMMIT")
     if commit is None:
         raise CliError(f"COMMIT {args.base!r} is not a commit of {ROOT} (try HEAD, a hash or a branch)")
+    if not commit_has_file(commit, "tasks/trials.py", "COMMIT"):
+        raise CliError(f"COMMIT {commit[:12]} has no tasks/trials.py: too old to run trials")
+    missing = [r for r in runs if not commit_has_file(commit, f"configs/val_{r}.yaml", "COMMIT")]
+    if missing:
+        raise CliError(f"COMMIT {commit[:12]} has no {', '.join(f'configs/val_{r}.yaml' for r in missing)}")
     return commit, runs, out, ignore
 
 
@@ -116,9 +121,6 @@ def prepare(out: Path, commit: str, runs: list[str], fresh: bool) -> Path:
         if not (tree / "tasks" / "trials.py").is_file():
             raise CliError(f"COMMIT {commit[:12]} has no tasks/trials.py: too old to run trials")
         last.write_text(commit + "\n")
-    missing = [r for r in runs if not (tree / "configs" / f"val_{r}.yaml").is_file()]
-    if missing:
-        raise CliError(f"COMMIT {commit[:12]} has no {', '.join(f'configs/val_{r}.yaml' for r in missing)}")
     return tree
 
 
