@@ -72,6 +72,11 @@ class PowerError(RobotFault):
     """Motor power could not be switched on (or was cut)."""
 
 
+class BehaviorFaultError(RobotFault):
+    """The robot's own controller faulted (it fell, a hardware fault): it stopped, and it refuses
+    motion until the fault is cleared (the tablet; an unclearable one needs a power cycle)."""
+
+
 # --------------------------------------------------------------------------------------------
 # Value types
 # --------------------------------------------------------------------------------------------

@@ -200,7 +200,49 @@ def test_the_fake_refuses_what_a_robot_refuses(demo):
 
 def test_fault_switchboard_names():
     assert set(FAULTS) == {"estop", "lease_revoked", "connection_drop", "command_timeout", "grasp_failure",
-                           "time_sync_loss", "slow", "power_off_stalls", "power_loss"}
+                           "time_sync_loss", "slow", "power_off_stalls", "power_loss", "behavior_fault"}
+
+
+def test_a_behavior_fault_is_in_the_robot_state_refuses_motion_and_clears_only_when_clearable(demo):
+    """What the SDK backend reads, through the unmodified SDK: the fault in the robot state with its
+    cause and status, BehaviorFaultError for motion (stop and safe power off still go through), and
+    ClearBehaviorFault clears a clearable fault only."""
+    from bosdyn.api import robot_state_pb2
+    from bosdyn.client.robot_command import BehaviorFaultError, NotClearedError
+
+    BF = robot_state_pb2.BehaviorFault
+    fake = demo.fake
+    with pytest.raises(ValueError, match="cause must be one of fall, hardware"):
+        fake.inject("behavior_fault", cause="meteor")
+    sdk, robot = _robot(demo)
+    robot.authenticate(TEST_USER, TEST_PASSWORD, timeout=3)
+    robot.time_sync.wait_for_sync(timeout_sec=3)
+    lease_keepalive = LeaseKeepAlive(robot.ensure_client(LeaseClient.default_service_name), must_acquire=True,
+                                     return_at_exit=True)
+    try:
+        robot.power_on(timeout_sec=3, update_frequency=50)
+        command = robot.ensure_client(RobotCommandClient.default_service_name)
+        states = robot.ensure_client(RobotStateClient.default_service_name)
+        fake.inject("behavior_fault", cause="hardware", clearable=False)
+        (fault,) = states.get_robot_state().behavior_fault_state.faults
+        assert (fault.cause, fault.status) == (BF.CAUSE_HARDWARE, BF.STATUS_UNCLEARABLE)
+        assert fake.powered                                  # a fault is not a power cut
+        with pytest.raises(BehaviorFaultError):
+            command.robot_command(RobotCommandBuilder.arm_stow_command())
+        command.robot_command(RobotCommandBuilder.stop_command())      # still accepted
+        with pytest.raises(NotClearedError):
+            command.clear_behavior_fault(fault.behavior_fault_id)
+        fake.clear("behavior_fault")                         # the operator, on the tablet
+        fake.inject("behavior_fault")                        # a fall, clearable
+        (fault,) = states.get_robot_state().behavior_fault_state.faults
+        assert (fault.cause, fault.status) == (BF.CAUSE_FALL, BF.STATUS_CLEARABLE)
+        with pytest.raises(NotClearedError):
+            command.clear_behavior_fault(fault.behavior_fault_id + 1)    # not this fault's id
+        assert command.clear_behavior_fault(fault.behavior_fault_id)
+        assert not states.get_robot_state().behavior_fault_state.faults
+        command.robot_command(RobotCommandBuilder.arm_stow_command())   # accepted again
+    finally:
+        _teardown(sdk, robot, lease_keepalive)
 
 
 def test_unknown_fault_is_a_clear_error(demo):

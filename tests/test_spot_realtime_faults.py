@@ -31,6 +31,7 @@ pytest.importorskip("bosdyn.client")
 from bosdyn.api import estop_pb2  # noqa: E402
 
 from robots.hal import (  # noqa: E402
+    BehaviorFaultError,
     CommandTimeoutError,
     ConnectionLostError,
     EstopError,
@@ -71,6 +72,7 @@ FAULTS = {
     "estop": ({}, EstopError),
     "lease_revoked": ({}, LeaseLostError),
     "power_loss": ({}, PowerError),       # motors off without an e-stop (audit 2026-12-05: safe, untested)
+    "behavior_fault": ({}, BehaviorFaultError),   # the robot falls mid-motion (the fake could not model it)
     "connection_drop": ({}, ConnectionLostError),
     "command_timeout": ({}, CommandTimeoutError),
     "time_sync_loss": ({}, TimeSyncLostError),

@@ -13,6 +13,7 @@ import pytest
 pytest.importorskip("bosdyn.client")
 
 from robots.hal import (  # noqa: E402
+    BehaviorFaultError,
     CommandTimeoutError,
     ConnectionLostError,
     EstopError,
@@ -35,6 +36,7 @@ FAULTS = {
     "estop": ({}, EstopError, True),
     "lease_revoked": ({}, LeaseLostError, True),
     "power_loss": ({}, PowerError, True),       # motors off without an e-stop
+    "behavior_fault": ({}, BehaviorFaultError, True),   # the robot fell: motion refused, motors on
     "connection_drop": ({}, ConnectionLostError, True),
     "command_timeout": ({}, CommandTimeoutError, False),
     "time_sync_loss": ({}, TimeSyncLostError, True),
@@ -80,8 +82,10 @@ def test_fault_ends_in_a_typed_error_and_leaves_the_robot_safe(fault):
             assert not fake.powered          # the robot's comms-loss behaviour
         if fault == "command_timeout":
             assert [c.state for c in fake.commands.values() if c.kind == "se2"] == ["overridden"]
-        if fault in ("estop", "lease_revoked", "time_sync_loss", "slow"):
+        if fault in ("estop", "lease_revoked", "time_sync_loss", "slow", "behavior_fault"):
             assert not any(c.kind == "se2" for c in fake.commands.values())   # refused or dropped
+        if fault == "behavior_fault":
+            assert fake.powered and "fall (clearable)" in message    # named; the robot faulted, not powered off
 
         if sticky:
             # Later commands fail with the same error without reaching the robot.
@@ -91,7 +95,7 @@ def test_fault_ends_in_a_typed_error_and_leaves_the_robot_safe(fault):
                 backend.move_arm_joints(model.ARM_STOW)
             with pytest.raises(expected):
                 backend.stow_arm()
-            if fault in ("estop", "lease_revoked", "power_loss"):
+            if fault in ("estop", "lease_revoked", "power_loss", "behavior_fault"):
                 backend.observe()            # sensing needs neither motor power nor the lease
             else:
                 with pytest.raises(expected):

@@ -60,6 +60,7 @@ from robots.hal import (
     as_point,
     as_se2,
     BackendClosedError,
+    BehaviorFaultError,
     CommandResult,
     CommandTimeoutError,
     ConnectionLostError,
@@ -539,7 +540,7 @@ class SdkSpotBackend(SdkShutdown):
         needs neither motor power nor the lease, so it goes on after an e-stop or a lost lease."""
         self._check_open()
         if self._fault is not None and not (sensing and isinstance(self._fault, (EstopError, PowerError,
-                                                                                  LeaseLostError))):
+                                                                                  LeaseLostError, BehaviorFaultError))):
             raise type(self._fault)(str(self._fault))
 
     def _closing_elsewhere(self) -> bool:
@@ -559,7 +560,7 @@ class SdkSpotBackend(SdkShutdown):
                                      "commands")
 
     def _set_fault(self, fault: RobotFault) -> RobotFault:
-        if isinstance(fault, (*_FATAL, EstopError, PowerError)) and self._fault is None:
+        if isinstance(fault, (*_FATAL, EstopError, PowerError, BehaviorFaultError)) and self._fault is None:
             self._fault = fault
             _LOG.warning("robot fault: %s: %s", type(fault).__name__, fault)
         return fault
@@ -575,6 +576,8 @@ class SdkSpotBackend(SdkShutdown):
                                                   f"(revoked or taken by another client)"))
         if isinstance(exc, (bd.rc.NotPoweredOnError, bd.power.EstoppedError, bd.power.KeepaliveMotorsOffError)):
             return self._power_fault(what)
+        if isinstance(exc, bd.rc.BehaviorFaultError):
+            return self._behavior_fault(what)
         if isinstance(exc, (bd.rc.NoTimeSyncError, bd.ts.TimeSyncError, bd.exc.TimeSyncRequired)):
             return self._set_fault(TimeSyncLostError(f"time sync with the robot was lost {what}; timed commands "
                                                      f"cannot be sent safely"))
@@ -610,6 +613,25 @@ class SdkSpotBackend(SdkShutdown):
             pass
         return self._set_fault(PowerError(f"motor power is off {what}"))
 
+    def _behavior_fault(self, what: str, state=None) -> RobotFault:
+        """The robot refuses motion because of a behavior fault (it fell, a hardware fault): the
+        fault named from its state (asked for when ``state`` is None) and kept, so the session ends
+        and close() powers the robot off; clearing it is the operator's (the tablet)."""
+        faults = []
+        try:
+            if state is None:
+                state = self._state_client.get_robot_state(timeout=self.config.rpc_timeout)
+            for f in state.behavior_fault_state.faults:
+                cause = type(f).Cause.Name(f.cause).removeprefix("CAUSE_").lower().replace("_", " ")
+                how = {f.STATUS_CLEARABLE: "clearable", f.STATUS_UNCLEARABLE: "not clearable: power cycle"}.get(
+                    f.status, "status unknown")
+                faults.append(f"{cause} ({how})")
+        except self._bd.exc.Error:
+            pass
+        named = ", ".join(faults) or "cause not reported"
+        return self._set_fault(BehaviorFaultError(f"the robot has a behavior fault {what}: {named}; it stopped and "
+                                                  f"refuses motion until the fault is cleared (the tablet)"))
+
     def _diagnose(self, what: str) -> RobotFault | None:
         """After a command ended abnormally: the fault that explains it, if there is one. Ended by
         close() from another thread: BackendClosedError, without asking the robot anything."""
@@ -638,6 +660,8 @@ class SdkSpotBackend(SdkShutdown):
         on = state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_ON
         if not on and self._power_wanted:
             return self._power_fault(what)
+        if state.behavior_fault_state.faults:
+            return self._behavior_fault(what, state)
         return None
 
     def _stop_quietly(self, wait: float = 0.3) -> None:

@@ -83,11 +83,15 @@ def robot_state(fake: FakeSpot) -> robot_state_pb2.RobotState:
 
 
 def fill_status(fake: FakeSpot, state: robot_state_pb2.RobotState) -> None:
-    """Power and e-stop states (bookkeeping, never stale)."""
+    """Power, behavior fault and e-stop states (bookkeeping, never stale)."""
     with fake._lock:
         powered = fake.powered
         endpoints = list(fake._endpoints.values())
         hw = "estop" in fake.faults
+        fault = fake.behavior_fault
+    del state.behavior_fault_state.faults[:]
+    if fault is not None:
+        state.behavior_fault_state.faults.add().CopyFrom(fault)
     del state.estop_states[:]
     state.power_state.motor_power_state = (robot_state_pb2.PowerState.MOTOR_POWER_STATE_ON if powered
                                            else robot_state_pb2.PowerState.MOTOR_POWER_STATE_OFF)

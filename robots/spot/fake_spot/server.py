@@ -90,6 +90,10 @@ FAULTS: dict[str, str] = {
                       "progress goes on to its end time",
     "slow": "every reply is delayed by `delay` seconds (default 3): the robot acts on each request when it "
             "arrives, the caller hears back late (or gives up)",
+    "behavior_fault": "the robot falls (a behavior fault; `cause` 'fall' (default) or 'hardware', `clearable` "
+                      "True by default): running commands end, it stops where it is with motor power on, its "
+                      "state lists the fault and motion commands are refused with STATUS_BEHAVIOR_FAULT until "
+                      "ClearBehaviorFault clears it (stop and safe power off are still accepted)",
     "power_off_stalls": "a safe power off is accepted and never carried out (the robot cannot sit: it goes on "
                         "standing with motor power on, the command's feedback stays 'in progress')",
 }
@@ -142,6 +146,7 @@ class FakeSpot:
         # power, e-stop, lease
         self.powered = False
         self.standing = False
+        self.behavior_fault: robot_state_pb2.BehaviorFault | None = None   # inject("behavior_fault")
         self._estop_config_id = "estop-config-1"
         self._endpoints: dict[str, Endpoint] = {}
         self._lease_epoch = "epoch-" + secrets.token_hex(4)
@@ -313,6 +318,8 @@ class FakeSpot:
                 self._cut_power("e-stop pressed")
             elif fault == "power_loss":
                 self._cut_power("power fault")
+            elif fault == "behavior_fault":
+                self._behavior_fault(params.get("cause", "fall"), bool(params.get("clearable", True)))
             elif fault == "lease_revoked":
                 self._lease_seq += 1
                 self.lease_owner = "tablet (fault injection)"
@@ -337,6 +344,8 @@ class FakeSpot:
                 self.faults.clear()
             else:
                 self.faults.pop(fault, None)
+            if fault in (None, "behavior_fault"):
+                self.behavior_fault = None          # the operator cleared it (the tablet)
             self._fault_event.set()
             self._fault_event = threading.Event()
 
@@ -482,6 +491,20 @@ class FakeSpot:
         self.powered = False
         self.standing = False
         self._end_commands("frozen", why)
+        self._jobs.put(self._sim_stop)
+
+    def _behavior_fault(self, cause: str, clearable: bool) -> None:
+        """The robot faults (locked by caller): it stops where it is, motor power stays on, and the
+        fault stays in its state until ClearBehaviorFault clears it (a clearable one)."""
+        BF = robot_state_pb2.BehaviorFault
+        causes = {"fall": BF.CAUSE_FALL, "hardware": BF.CAUSE_HARDWARE}
+        if cause not in causes:
+            raise ValueError(f"behavior_fault: cause must be one of {', '.join(causes)}, got {cause!r}")
+        self.behavior_fault = BF(behavior_fault_id=self._next_id, cause=causes[cause],
+                                 status=BF.STATUS_CLEARABLE if clearable else BF.STATUS_UNCLEARABLE)
+        self._next_id += 1
+        self.behavior_fault.onset_timestamp.CopyFrom(cv.seconds_to_timestamp(self.robot_now()))
+        self._end_commands("frozen", f"behavior fault ({cause})")
         self._jobs.put(self._sim_stop)
 
     def _end_commands(self, state: str, why: str) -> None:

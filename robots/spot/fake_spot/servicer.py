@@ -413,6 +413,10 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
                 raise Reject(R.STATUS_NOT_POWERED_ON, "motor power is off" +
                               (f" (e-stop {STOP_LEVEL_NAMES.get(level)} from {who})"
                                if level != estop_pb2.ESTOP_LEVEL_NONE else ""))
+            with f._lock:
+                faulted = f.behavior_fault is not None
+            if kind not in ("stop", "safe_power_off") and faulted:
+                raise Reject(R.STATUS_BEHAVIOR_FAULT, "the robot has a behavior fault; clear it first")
         except Reject as rej:
             resp.status, resp.message = rej.status, str(rej)
             return f.header(resp, request)
@@ -433,8 +437,21 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         return f.header(resp, request)
 
     def ClearBehaviorFault(self, request, context):
-        resp = robot_command_pb2.ClearBehaviorFaultResponse(status=robot_command_pb2.ClearBehaviorFaultResponse.STATUS_CLEARED)
-        return self.f.header(resp, request)
+        f = self.f
+        C = robot_command_pb2.ClearBehaviorFaultResponse
+        resp = C()
+        resp.lease_use_result.CopyFrom(f.check_lease(request.lease))
+        if resp.lease_use_result.status != lease_pb2.LeaseUseResult.STATUS_OK:
+            return f.header(resp, request)
+        with f._lock:
+            fault = f.behavior_fault
+            if fault is None or fault.behavior_fault_id != request.behavior_fault_id:
+                resp.status = C.STATUS_NOT_CLEARED           # no such fault (the real robot says so too)
+            elif fault.status != fault.STATUS_CLEARABLE:
+                resp.status = C.STATUS_NOT_CLEARED
+            else:
+                f.behavior_fault, resp.status = None, C.STATUS_CLEARED
+        return f.header(resp, request)
 
     # ---------------------------------------------------------------- images
     def ListImageSources(self, request, context):
@@ -486,7 +503,7 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
             return f.header(resp, request, header_pb2.CommonError.CODE_INVALID_REQUEST,
                             f"bad camera snapshot: {exc}")
         pixel = (int(round(pick.pixel_xy.x)), int(round(pick.pixel_xy.y)))
-        if not f.powered:
+        if not f.powered or f.behavior_fault is not None:
             cmd = f.add_command("pick", request, T_world_cam=T_world_cam, pixel=pixel)
             with f._lock:
                 cmd.state, cmd.success = "frozen", False
