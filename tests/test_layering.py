@@ -24,7 +24,8 @@ VOCABULARY = {"robots", "robots.hal", "robots.transforms", "robots.spot", "robot
 CONFIG_MACHINERY = "helios.schema"
 """The config machinery (dataclasses as the schema, YAML, overrides, ``require``) serves the config
 trees of every floor and imports nothing of ours, so it stands on the bottom floor (checked below)."""
-ADAPTERS = ("robots.spot.sim_backend", "robots.spot.sdk_backend", "robots.spot.sdk_config",
+ADAPTERS = ("robots.spot.sim_backend", "robots.spot.sdk_backend", "robots.spot.sdk_bringup",
+            "robots.spot.sdk_commands", "robots.spot.sdk_config",
             "robots.spot.sdk_conversions", "robots.spot.sdk_futures", "robots.spot.sdk_shutdown",
             "robots.spot.stall_watch", "robots.spot.signals", "robots.spot.fake_spot")
 UPWARD_BY_DESIGN = (("sim", "helios.perception"),)          # (importing floor, imported module or package)

@@ -32,21 +32,18 @@ e-stop is released). TLS verification is never disabled: the backend only ever u
 secure channels, checked against BD's root CA or ``cert_path``.
 
 ``bosdyn`` is imported lazily (the ``[spot]`` extra); importing this module needs only numpy.
-The shutdown (``close()``) is :mod:`robots.spot.sdk_shutdown`, the configuration, credentials and
-their errors :mod:`robots.spot.sdk_config`, the stall test :mod:`robots.spot.stall_watch`.
+The bring-up (``connect()``) is :mod:`robots.spot.sdk_bringup`, fault handling and the command
+loop :mod:`robots.spot.sdk_commands`, the shutdown (``close()``) :mod:`robots.spot.sdk_shutdown`,
+the configuration, credentials and their errors :mod:`robots.spot.sdk_config`, the stall test
+:mod:`robots.spot.stall_watch`.
 """
 
 from __future__ import annotations
 
-import contextlib
 import functools
-import glob
 import logging
 import math
-import os
 import secrets
-import socket
-import ssl
 import threading
 import time
 from collections import OrderedDict
@@ -60,15 +57,11 @@ from robots.hal import (
     as_point,
     as_se2,
     BackendClosedError,
-    BehaviorFaultError,
     CommandResult,
     CommandTimeoutError,
-    ConnectionLostError,
     EstopError,
     GraspResult,
-    HalError,
     InvalidCommandError,
-    LeaseLostError,
     NavigateResult,
     Observation,
     PlaceResult,
@@ -78,7 +71,7 @@ from robots.hal import (
     SE2Pose,
     TimeSyncLostError,
 )
-from robots.spot import kinematics, model
+from robots.spot import kinematics
 from robots.spot.motion import check_arm_target, plan_arm, plan_base
 from robots.spot.sdk_config import (
     PASSWORD_ENV,
@@ -90,14 +83,18 @@ from robots.spot.sdk_config import (
     SpotConnectError,
     SpotSdkMissingError,
     credentials_from_env,
-    grpc_tracing_hazard,
 )
-from robots.spot.sdk_futures import future_result
+from robots.spot.sdk_bringup import SdkBringUp
+from robots.spot.sdk_commands import SdkCommands
 from robots.spot.sdk_shutdown import SdkShutdown
-from robots.spot.stall_watch import StallWatch
 from robots.transforms import invert_transform, is_valid_transform, rot_z
 
 _LOG = logging.getLogger("helios.spot")
+
+# What callers import from here: the backend and its vocabulary (configuration, credentials, errors).
+__all__ = ["PASSWORD_ENV", "USERNAME_ENV", "CommandRejectedError", "CredentialsError", "GrpcTracingError",
+           "SdkBackendConfig", "SdkSpotBackend", "SpotConnectError", "SpotSdkMissingError", "credentials_from_env",
+           "estimate_object_base"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -156,22 +153,6 @@ def _bosdyn() -> _Bosdyn:
     return _BD
 
 
-def _lease_keep_alive_class(bd: _Bosdyn):
-    """LeaseKeepAlive whose check-ins use a bounded RPC timeout (the SDK's default is 30 s, which
-    would stall shutdown on a dead link)."""
-
-    class BoundedLeaseKeepAlive(bd.lease.LeaseKeepAlive):
-        rpc_timeout = 1.5
-
-        def _check_in(self):
-            lease = self._lease_wallet.get_lease(self._resource)
-            if not lease:
-                return None
-            return self._lease_client.retain_lease(lease, timeout=self.rpc_timeout)
-
-    return BoundedLeaseKeepAlive
-
-
 # --------------------------------------------------------------------------------------------
 # Helpers
 # --------------------------------------------------------------------------------------------
@@ -200,16 +181,13 @@ class _Shot:
     pinhole: object           # image_pb2.ImageSource.PinholeModel
 
 
-_FATAL = (LeaseLostError, ConnectionLostError, TimeSyncLostError)   # no command can reach the robot
 
 
-_TIME_SYNC_PROBE = 0.25     # s between our own time-sync updates while a command runs
 
 
 # --------------------------------------------------------------------------------------------
 # The backend
 # --------------------------------------------------------------------------------------------
-_BRING_UP_CUT_SHORT = "the bring-up was cut short: close() was called from another thread"
 
 
 def _closing_aware(method):
@@ -232,7 +210,7 @@ def _closing_aware(method):
     return wrapper
 
 
-class SdkSpotBackend(SdkShutdown):
+class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
     """A real (or fake) Spot behind the :class:`robots.hal.RobotBackend` contract.
 
     Threads: one thread drives the robot; ``stop()`` and ``close()`` may come from any other (a
@@ -291,583 +269,6 @@ class SdkSpotBackend(SdkShutdown):
             except BaseException:
                 self.close()
                 raise
-
-    # ================================================================== bring-up
-    def connect(self) -> None:
-        """Authenticate, time sync, e-stop, lease, and (``stand_on_connect``) power on and stand.
-
-        close() from another thread meanwhile: the bring-up stops at its next step (each is
-        bounded by its RPC timeout; a power-on by ``power_on_timeout``) with BackendClosedError,
-        and close() then shuts down what it had brought up (lease, e-stop endpoint, power)."""
-        with self._close_lock:
-            if self._closed or self._closing:
-                raise BackendClosedError("this backend has been closed")
-            self._connecting = threading.current_thread()
-            self._connect_done.clear()
-        try:
-            self._bring_up()
-        except Exception:
-            if self._closing_elsewhere():
-                raise BackendClosedError(_BRING_UP_CUT_SHORT) from None
-            raise
-        finally:
-            self._connecting = None
-            self._connect_done.set()
-
-    def _bring_up_step(self) -> None:
-        """Between bring-up steps: stop here when close() runs in another thread."""
-        if self._closing_elsewhere():
-            raise BackendClosedError(_BRING_UP_CUT_SHORT)
-
-    def _bring_up(self) -> None:
-        cfg, bd = self.config, self._bd
-        hazard = grpc_tracing_hazard()
-        if hazard is not None:
-            if not cfg.allow_grpc_tracing:
-                raise GrpcTracingError(f"refusing to connect: {hazard}, and gRPC's tracing prints request metadata "
-                                       f"including the robot session token; unset GRPC_TRACE (or set "
-                                       f"allow_grpc_tracing=true to accept that)")
-            _LOG.warning("%s: gRPC tracing may print the session token to the terminal", hazard)
-        if os.environ.get("GRPC_VERBOSITY", "").strip().lower() in ("debug", "info"):
-            _LOG.warning("GRPC_VERBOSITY=%s: gRPC logs verbosely; with any GRPC_TRACE it would print credentials",
-                         os.environ["GRPC_VERBOSITY"])
-        user, password = credentials_from_env()
-        self._resolve(cfg.hostname, cfg.port)
-        cert_glob = None
-        if cfg.cert_path is not None:
-            if not os.path.isfile(cfg.cert_path):
-                raise SpotConnectError(f"certificate file {cfg.cert_path!r} does not exist")
-            cert_glob = glob.escape(os.path.abspath(cfg.cert_path))
-        try:
-            self._sdk = bd.client.create_standard_sdk(f"{cfg.client_name}-{self._session}-",
-                                                      cert_resource_glob=cert_glob)
-        except OSError as exc:
-            raise SpotConnectError(f"cannot load the CA certificate: {exc}") from None
-        robot = self._sdk.create_robot(cfg.hostname)
-        robot.update_secure_channel_port(int(cfg.port))
-        self.robot = robot
-        self._quiet_auth_logging()
-        _LOG.info("connecting to %s:%d (%s)", cfg.hostname, cfg.port,
-                  "CA " + cfg.cert_path if cfg.cert_path else "Boston Dynamics root CA")
-        try:
-            robot.authenticate(user, password, timeout=cfg.connect_timeout)
-        except bd.auth.InvalidLoginError:
-            raise CredentialsError(f"the robot at {cfg.hostname} rejected the credentials in "
-                                   f"{USERNAME_ENV}/{PASSWORD_ENV}") from None
-        except bd.exc.Error as exc:
-            raise self._connect_error(exc) from None
-        finally:
-            del password
-        self._token_manager_thread = getattr(getattr(robot, "_token_manager", None), "th", None)
-        self._bound_time_sync_rpcs(robot)
-        self._bring_up_step()
-        try:
-            self.robot_id = robot.ensure_client("robot-id").get_id(timeout=cfg.rpc_timeout)
-            robot.time_sync.time_sync_interval_sec = cfg.time_sync_interval
-            try:
-                robot.time_sync.wait_for_sync(timeout_sec=cfg.connect_timeout)
-            except (bd.ts.TimedOutError, bd.ts.InactiveThreadError):
-                raise                           # below: no time sync within connect_timeout
-            except bd.exc.Error as exc:         # the time-sync service failed: say it was time sync
-                raise self._translate(exc, "establishing time sync") from None
-            self._state_client = robot.ensure_client(bd.RobotStateClient.default_service_name)
-            self._cmd_client = robot.ensure_client(bd.rc.RobotCommandClient.default_service_name)
-            self._image_client = robot.ensure_client(bd.ImageClient.default_service_name)
-            self._manip_client = robot.ensure_client(bd.ManipulationApiClient.default_service_name)
-            self._lease_client = robot.ensure_client(bd.lease.LeaseClient.default_service_name)
-            self._estop_client = robot.ensure_client(bd.estop.EstopClient.default_service_name)
-        except (bd.ts.TimedOutError, bd.ts.InactiveThreadError) as exc:
-            raise TimeSyncLostError(f"no time sync with the robot within {cfg.connect_timeout} s "
-                                    f"({type(exc).__name__})") from None
-        except bd.exc.Error as exc:
-            raise self._translate(exc, "connecting") from None
-        _LOG.info("connected to %s (serial %s), time sync established", self.robot_id.nickname or "robot",
-                  self.robot_id.serial_number)
-        self._bring_up_step()
-        self._setup_estop()
-        self._bring_up_step()
-        self._acquire_lease()
-        self._bring_up_step()
-        if cfg.stand_on_connect:
-            res = self.stand()
-            if not res:
-                raise PowerError(f"the robot did not stand up: {res.message}")
-
-    def _bound_time_sync_rpcs(self, robot) -> None:
-        """The SDK's time-sync thread calls the robot without an RPC timeout (30 s by default): on a
-        silent robot it would hang there, and ``close()`` would wait for it. Bound its calls."""
-        client = robot.ensure_client("time-sync")
-        update = client.get_time_sync_update
-        timeout = self.config.rpc_timeout
-
-        def bounded(*args, **kwargs):
-            kwargs.setdefault("timeout", timeout)
-            return update(*args, **kwargs)
-
-        client.get_time_sync_update = bounded
-
-    def _resolve(self, host: str, port: int) -> None:
-        try:
-            socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
-        except (socket.gaierror, UnicodeError) as exc:
-            raise SpotConnectError(f"cannot resolve robot hostname {host!r}: {getattr(exc, 'strerror', None) or exc}") from None
-
-    def _quiet_auth_logging(self) -> None:
-        """The SDK logs every request and response at DEBUG; for the auth service those carry the
-        password and the token. Keep that logger (and its per-method children) at INFO."""
-        auth = self.robot.ensure_client("auth")
-        for lg in (auth.logger, auth.logger.getChild("GetAuthToken")):
-            lg.setLevel(logging.INFO)
-
-    def _connect_error(self, exc) -> SpotConnectError:
-        """A clear message for why authentication could not reach the robot."""
-        cfg, bd = self.config, self._bd
-        where = f"{cfg.hostname}:{cfg.port}"
-        if isinstance(exc, (bd.exc.UnknownDnsNameError,)):
-            return SpotConnectError(f"cannot resolve robot hostname {cfg.hostname!r}")
-        if isinstance(exc, bd.exc.TimedOutError):
-            return SpotConnectError(f"no answer from {where} within {cfg.connect_timeout} s")
-        if isinstance(exc, bd.exc.RpcError):
-            return SpotConnectError(self._diagnose_link(where))
-        return SpotConnectError(f"cannot connect to {where}: {type(exc).__name__}")
-
-    def _diagnose_link(self, where: str) -> str:
-        """Tell 'nothing listening' from 'certificate not trusted / wrong name' (verification on)."""
-        cfg = self.config
-        ca = "CA " + cfg.cert_path if cfg.cert_path else "the Boston Dynamics root CA"
-        try:
-            sock = socket.create_connection((cfg.hostname, int(cfg.port)), timeout=min(cfg.connect_timeout, 2.0))
-        except OSError as exc:
-            return f"cannot connect to {where}: {exc.strerror or exc}"
-        try:
-            ctx = ssl.create_default_context(cadata=self._sdk.cert.decode("ascii", "ignore"))
-            ctx.set_alpn_protocols(["h2"])
-            with ctx.wrap_socket(sock, server_hostname="auth.spot.robot"):
-                pass   # the handshake (chain and name verified) is all we need
-        except ssl.SSLCertVerificationError as exc:
-            return (f"TLS verification of the robot at {where} failed against {ca}: {exc.verify_message}; "
-                    f"give the CA that signed the robot's certificate (cert_path / --cert); verification is "
-                    f"never disabled")
-        except (ssl.SSLError, OSError) as exc:
-            return f"TLS handshake with {where} failed: {exc}"
-        finally:
-            sock.close()
-        return f"the robot at {where} accepted TLS but its API did not answer (is it a Spot?)"
-
-    def _setup_estop(self) -> None:
-        """External e-stop: check it is released. Endpoint mode: the SDK's ``force_simple_setup()``
-        with bounded RPCs (our endpoint replaces the robot's e-stop configuration), a first check-in
-        and a keep-alive.
-
-        A SetEstopConfig or RegisterEstopEndpoint whose reply comes after ``rpc_timeout`` may have
-        put our endpoint on the robot (it acted on the request) under a unique id we never heard:
-        before those calls go out the endpoint's name and the endpoints already there are
-        remembered (``_estop_unconfirmed``), and ``close()`` asks the robot for its configuration
-        and deregisters what they left (:meth:`_clean_up_unanswered_bring_up`). Once registration
-        is answered the endpoint itself is remembered and deregistered by its unique id."""
-        cfg, bd = self.config, self._bd
-        try:
-            if cfg.estop_mode == "endpoint":
-                client, t = self._estop_client, cfg.rpc_timeout
-                name = f"{cfg.client_name}-estop-{self._session}"
-                ep = bd.estop.EstopEndpoint(client, name, cfg.estop_timeout)
-                config = bd.estop_pb2.EstopConfig()
-                config.endpoints.add().CopyFrom(ep.to_proto())
-                active = client.get_config(timeout=t)
-                self._estop_unconfirmed = (name, frozenset(e.unique_id for e in active.endpoints))
-                active = client.set_config(config, active.unique_id, timeout=t)
-                ep._unique_id = active.endpoints[0].unique_id
-                ep._config_id = active.unique_id
-                ep.from_proto(client.register(active.unique_id, ep, timeout=t))
-                self._estop_endpoint, self._estop_unconfirmed = ep, None
-                ep.stop(timeout=t)              # the first check-in seeds the challenge (as register() does)
-                self._estop_keepalive = bd.estop.EstopKeepAlive(ep, rpc_timeout_seconds=cfg.rpc_timeout,
-                                                               rpc_interval_seconds=min(cfg.estop_timeout / 3.0, 2.0))
-                _LOG.info("registered software e-stop endpoint %r (timeout %.1f s)", name, cfg.estop_timeout)
-            status = self._estop_client.get_status(timeout=cfg.rpc_timeout)
-        except bd.exc.Error as exc:
-            raise self._translate(exc, "setting up the e-stop") from None
-        if status.stop_level != bd.estop_pb2.ESTOP_LEVEL_NONE:
-            level = bd.estop_pb2.EstopStopLevel.Name(status.stop_level)
-            details = f" ({status.stop_level_details})" if status.stop_level_details else ""
-            raise EstopError(f"the robot is e-stopped: {level}{details}; release the e-stop before connecting")
-
-    def _acquire_lease(self) -> None:
-        """Acquire (``take_lease``: take) the body lease and keep it alive.
-
-        An AcquireLease or TakeLease whose reply comes after ``rpc_timeout`` may have given us the
-        lease on the robot with no keep-alive or wallet entry here: from the request until the
-        keep-alive holds the lease, ``_lease_unconfirmed`` says so, and ``close()`` asks the robot
-        who holds the lease and returns it if the holder is this client
-        (:meth:`_clean_up_unanswered_bring_up`). A refusal (another client holds it) is an answer:
-        nothing to return."""
-        cfg, bd = self.config, self._bd
-        self._lease_unconfirmed = True
-        try:
-            if cfg.take_lease:
-                self._lease_client.take(timeout=cfg.rpc_timeout)
-            else:
-                self._lease_client.acquire(timeout=cfg.rpc_timeout)
-        except bd.lease.ResourceAlreadyClaimedError:
-            self._lease_unconfirmed = False
-            raise LeaseLostError("another client holds the body lease (the tablet?); release it, or take it with "
-                                 "take_lease=true") from None
-        except bd.exc.Error as exc:
-            raise self._translate(exc, "acquiring the lease") from None
-        cls = _lease_keep_alive_class(bd)
-        cls.rpc_timeout = cfg.rpc_timeout
-        self._lease_keepalive = cls(self._lease_client, must_acquire=True, return_at_exit=False,
-                                    rpc_interval_seconds=cfg.lease_retain_period,
-                                    on_failure_callback=self._on_lease_keepalive_error, warnings=False)
-        self._lease_unconfirmed = False
-        _LOG.info("body lease acquired")
-
-    def _on_lease_keepalive_error(self, exc) -> None:
-        bd = self._bd
-        if isinstance(exc, (bd.exc.LeaseUseError, bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease)) \
-                and self._fault is None and not self._closing:
-            self._fault = LeaseLostError(f"the body lease was revoked or taken by another client ({type(exc).__name__})")
-            _LOG.warning("lease keep-alive: %s", self._fault)
-
-    # ================================================================== fault handling
-    @property
-    def fault(self) -> RobotFault | None:
-        """The sticky fault that ended this session, if any."""
-        return self._fault
-
-    def _guard(self, sensing: bool = False) -> None:
-        """Refuse to work on a closed backend or after a sticky fault. Sensing (images, state)
-        needs neither motor power nor the lease, so it goes on after an e-stop or a lost lease."""
-        self._check_open()
-        if self._fault is not None and not (sensing and isinstance(self._fault, (EstopError, PowerError,
-                                                                                  LeaseLostError, BehaviorFaultError))):
-            raise type(self._fault)(str(self._fault))
-
-    def _closing_elsewhere(self) -> bool:
-        """close() runs (or ran), in another thread than this one."""
-        return self._closing and self._close_thread is not threading.current_thread()
-
-    def _closed_to_this_thread(self) -> bool:
-        """Nothing more may be sent from this thread: closed, or close() runs in another one."""
-        return self._closed or self._closing_elsewhere()
-
-    def _check_open(self) -> None:
-        """BackendClosedError when :meth:`_closed_to_this_thread`."""
-        if self._closed:
-            raise BackendClosedError("this backend has been closed")
-        if self._closing_elsewhere():
-            raise BackendClosedError("this backend is shutting the robot down (close() was called); no more "
-                                     "commands")
-
-    def _set_fault(self, fault: RobotFault) -> RobotFault:
-        if isinstance(fault, (*_FATAL, EstopError, PowerError, BehaviorFaultError)) and self._fault is None:
-            self._fault = fault
-            _LOG.warning("robot fault: %s: %s", type(fault).__name__, fault)
-        return fault
-
-    def _translate(self, exc: BaseException, during: str, timeout: float | None = None) -> HalError:
-        """A bosdyn exception to the HAL's typed error (recording sticky faults). ``timeout``: the
-        RPC's own deadline when it was not ``rpc_timeout`` (an image request's), for the message."""
-        bd = self._bd
-        what = f"while {during}"
-        if isinstance(exc, (bd.exc.LeaseUseError, bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease,
-                            bd.lease.LeaseResponseError)):
-            return self._set_fault(LeaseLostError(f"the body lease is no longer ours {what} "
-                                                  f"(revoked or taken by another client)"))
-        if isinstance(exc, (bd.rc.NotPoweredOnError, bd.power.EstoppedError, bd.power.KeepaliveMotorsOffError)):
-            return self._power_fault(what)
-        if isinstance(exc, bd.rc.BehaviorFaultError):
-            return self._behavior_fault(what)
-        if isinstance(exc, (bd.rc.NoTimeSyncError, bd.ts.TimeSyncError, bd.exc.TimeSyncRequired)):
-            return self._set_fault(TimeSyncLostError(f"time sync with the robot was lost {what}; timed commands "
-                                                     f"cannot be sent safely"))
-        if isinstance(exc, bd.exc.TimedOutError):
-            waited = self.config.rpc_timeout if timeout is None else timeout
-            return CommandTimeoutError(f"the robot did not answer within {waited:g} s {what}")
-        if isinstance(exc, (bd.power.CommandTimedOutError, bd.rc.CommandTimedOutError)):
-            return CommandTimeoutError(f"the robot did not finish {during} in time")
-        if isinstance(exc, (bd.exc.UnableToConnectToRobotError, bd.exc.ProxyConnectionError,
-                            bd.exc.TransientFailureError, bd.exc.ServiceUnavailableError,
-                            bd.exc.UnknownDnsNameError, bd.exc.ClientCancelledOperationError,
-                            bd.exc.NonexistentAuthorityError, bd.exc.InvalidClientCertificateError,
-                            bd.exc.UnauthenticatedError, bd.exc.PermissionDeniedError)):
-            return self._set_fault(ConnectionLostError(f"lost the connection to the robot {what} "
-                                                       f"({type(exc).__name__})"))
-        if isinstance(exc, bd.exc.RpcError):
-            return self._set_fault(ConnectionLostError(f"communication with the robot failed {what} "
-                                                       f"({type(exc).__name__})"))
-        msg = getattr(exc, "error_message", None) or str(exc).split("\n")[0]
-        return CommandRejectedError(f"the robot rejected a command {what}: {type(exc).__name__}: {msg}")
-
-    def _power_fault(self, what: str) -> RobotFault:
-        """Motors are off: because of an e-stop (EstopError) or otherwise (PowerError)."""
-        bd = self._bd
-        try:
-            status = self._estop_client.get_status(timeout=self.config.rpc_timeout)
-            if status.stop_level != bd.estop_pb2.ESTOP_LEVEL_NONE:
-                level = bd.estop_pb2.EstopStopLevel.Name(status.stop_level)
-                details = f" ({status.stop_level_details})" if status.stop_level_details else ""
-                return self._set_fault(EstopError(f"the robot is e-stopped {what}: {level}{details}; motion is cut "
-                                                  f"and commands are refused"))
-        except bd.exc.Error:
-            pass
-        return self._set_fault(PowerError(f"motor power is off {what}"))
-
-    def _behavior_fault(self, what: str, state=None) -> RobotFault:
-        """The robot refuses motion because of a behavior fault (it fell, a hardware fault): the
-        fault named from its state (asked for when ``state`` is None) and kept, so the session ends
-        and close() powers the robot off; clearing it is the operator's (the tablet)."""
-        faults = []
-        try:
-            if state is None:
-                state = self._state_client.get_robot_state(timeout=self.config.rpc_timeout)
-            for f in state.behavior_fault_state.faults:
-                cause = type(f).Cause.Name(f.cause).removeprefix("CAUSE_").lower().replace("_", " ")
-                how = {f.STATUS_CLEARABLE: "clearable", f.STATUS_UNCLEARABLE: "not clearable: power cycle"}.get(
-                    f.status, "status unknown")
-                faults.append(f"{cause} ({how})")
-        except self._bd.exc.Error:
-            pass
-        named = ", ".join(faults) or "cause not reported"
-        return self._set_fault(BehaviorFaultError(f"the robot has a behavior fault {what}: {named}; it stopped and "
-                                                  f"refuses motion until the fault is cleared (the tablet)"))
-
-    def _diagnose(self, what: str) -> RobotFault | None:
-        """After a command ended abnormally: the fault that explains it, if there is one. Ended by
-        close() from another thread: BackendClosedError, without asking the robot anything."""
-        if self._closed_to_this_thread():
-            raise BackendClosedError(f"the backend was closed (close() from another thread; {what})")
-        if self._fault is not None:
-            return self._fault
-        bd = self._bd
-        try:
-            lease = self._lease_client.lease_wallet.get_lease()
-        except (bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease):
-            return self._set_fault(LeaseLostError(f"the body lease was taken by another client {what}"))
-        try:   # the robot's word on our lease (the keep-alive may not have checked in since it was taken)
-            self._lease_client.retain_lease(lease, timeout=self.config.rpc_timeout)
-        except (bd.exc.LeaseUseError, bd.lease.Error) as exc:
-            return self._set_fault(LeaseLostError(f"the body lease was revoked or taken by another client {what} "
-                                                  f"({type(exc).__name__})"))
-        except bd.exc.Error as exc:
-            fault = self._translate(exc, what)
-            return fault if isinstance(fault, RobotFault) else None
-        try:
-            state = self._state_client.get_robot_state(timeout=self.config.rpc_timeout)
-        except bd.exc.Error as exc:
-            fault = self._translate(exc, what)
-            return fault if isinstance(fault, RobotFault) else None
-        on = state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_ON
-        if not on and self._power_wanted:
-            return self._power_fault(what)
-        if state.behavior_fault_state.faults:
-            return self._behavior_fault(what, state)
-        return None
-
-    def _stop_quietly(self, wait: float = 0.3) -> None:
-        """Best-effort full-body stop after a failure: sent at once (a robot on a slow link acts on
-        it when it arrives), its reply awaited at most ``wait`` s; errors are ignored. Not while
-        close() runs in another thread: it stops the robot itself, and a stop from here would cut
-        its stow or sit short."""
-        if not hasattr(self, "_cmd_client") or self._closed_to_this_thread():
-            return
-        try:
-            with self._sending_to_robot("stopping"):
-                fut = self._cmd_client.robot_command_async(self._bd.Builder.stop_command(),
-                                                           timeout=self.config.rpc_timeout)
-            future_result(fut, wait)
-        except Exception as exc:  # noqa: BLE001 - best effort on an already failing link
-            _LOG.debug("stop after a failure not confirmed: %s", type(exc).__name__)
-
-    def _probe_time_sync(self, during: str) -> None:
-        """One time-sync update of our own (a motion must not wait for the SDK thread's next one):
-        TimeSyncLostError when the service fails, CommandTimeoutError when it does not answer."""
-        ts = getattr(self.robot, "_time_sync_thread", None)
-        if ts is None:
-            return
-        bd = self._bd
-        try:
-            ok = ts.endpoint.get_new_estimate()   # bounded by rpc_timeout (_bound_time_sync_rpcs)
-        except bd.exc.TimedOutError:
-            raise CommandTimeoutError(f"the robot did not answer within {self.config.rpc_timeout} s while "
-                                      f"{during}") from None
-        except bd.exc.Error as exc:
-            raise self._set_fault(TimeSyncLostError(f"time sync with the robot was lost while {during} "
-                                                    f"({type(exc).__name__}); timed commands cannot be sent "
-                                                    f"safely")) from None
-        if not ok:
-            raise self._set_fault(TimeSyncLostError(f"time sync with the robot was lost while {during}; timed "
-                                                    f"commands cannot be sent safely"))
-
-    def _check_time_sync(self) -> None:
-        """Raise TimeSyncLostError (sticky) once time sync is lost. The SDK's time-sync thread ends
-        on its first failed update; one more update of our own decides: the robot answers (the
-        thread is restarted) or time sync is lost."""
-        robot = self.robot
-        ts = getattr(robot, "_time_sync_thread", None)
-        if ts is None:
-            robot.time_sync                     # starts it
-            return
-        if not ts.stopped:
-            return
-        bd = self._bd
-        try:
-            ok = ts.endpoint.get_new_estimate()   # bounded by rpc_timeout (_bound_time_sync_rpcs)
-        except bd.exc.Error as exc:
-            ok, why = False, type(exc).__name__
-        else:
-            why = "the robot reports time sync is not established"
-        if ok:
-            robot.time_sync                     # restarts the thread
-            return
-        raise self._set_fault(TimeSyncLostError(f"time sync with the robot was lost ({why}); timed commands "
-                                                f"cannot be sent safely"))
-
-    # ================================================================== command plumbing
-    @contextlib.contextmanager
-    def _sending_to_robot(self, during: str, moves: bool = True):
-        """Around sending a call to the robot: refused once close() has begun in another thread.
-        A motion command (``moves``) from a thread other than close()'s is counted while in
-        flight, so close() sends its own stop only after it (the check and the count are one step
-        under close()'s lock: no command slips in between)."""
-        with self._sends:
-            if self._closed_to_this_thread():
-                raise BackendClosedError(f"the backend was closed before {during}")
-            counted = moves and self._close_thread is not threading.current_thread()
-            self._sending += counted
-        try:
-            yield
-        finally:
-            if counted:
-                with self._sends:
-                    self._sending -= 1
-                    self._sends.notify_all()
-
-    def _call(self, fn, *args, during: str, moves: bool = False, **kwargs):
-        """An SDK call with HAL error translation. Nothing is sent from another thread once close()
-        has begun; ``moves``: a motion command (see :meth:`_sending_to_robot`)."""
-        try:
-            with self._sending_to_robot(during, moves):
-                return fn(*args, **kwargs)
-        except BackendClosedError:
-            raise
-        except Exception as exc:
-            if self._closed_to_this_thread():   # our own teardown, not the robot's fault
-                raise BackendClosedError(f"the backend was closed while {during}") from None
-            if not isinstance(exc, (self._bd.exc.Error, self._bd.lease.Error)):
-                raise
-            err = self._translate(exc, during, kwargs.get("timeout"))
-            self._unresponsive = isinstance(err, CommandTimeoutError)
-            raise err from None
-
-    def _run_command(self, command, *, during: str, expected: float, done: Callable, end_time_secs=None,
-                     track: "tuple | None" = None):
-        """Send a RobotCommand and poll its feedback until ``done(feedback) -> (finished, ok)``
-        reports it finished. Returns (ok, feedback response, seconds); ok is None when the command
-        was interrupted (overridden, e.g. by stop()). Abnormal endings are diagnosed first (the
-        typed fault is raised when there is one); a command that overruns its planned duration +
-        margin, or (``track``: (actual(state) -> vector, planned(t) -> vector), or (actual, None,
-        arrived(state) -> bool) for a move the robot plans itself) makes no progress for
-        ``stall_time`` while it is not there yet, raises CommandTimeoutError. Whatever error ends the
-        wait (a fault, a lost time sync, an unanswered RPC), a stop is sent first."""
-        self._guard()
-        cfg = self.config
-        try:
-            self._check_time_sync()
-        except TimeSyncLostError:
-            self._stop_quietly()
-            raise
-        t0 = time.monotonic()
-        try:
-            cmd_id = self._call(self._cmd_client.robot_command, command, end_time_secs=end_time_secs, moves=True,
-                                timeout=cfg.rpc_timeout, during=during)
-        except CommandTimeoutError:
-            self._stop_quietly()                # the robot may have accepted it and be moving
-            raise
-        deadline = t0 + expected + cfg.command_margin
-        stall = StallWatch(track, cfg.stall_time, expected) if track is not None else None
-        next_sync = t0 + _TIME_SYNC_PROBE
-        try:
-            while True:
-                fb = self._call(self._cmd_client.robot_command_feedback, cmd_id, timeout=cfg.rpc_timeout,
-                                during=during)
-                ended = self._ended(fb)
-                if ended:
-                    fault = self._diagnose(during)
-                    if fault is not None:
-                        raise type(fault)(str(fault))
-                    return None, fb, time.monotonic() - t0
-                finished, ok = done(fb)
-                if finished:
-                    self._unresponsive = False
-                    return ok, fb, time.monotonic() - t0
-                self._guard()                   # e.g. the lease keep-alive found the lease gone
-                self._check_time_sync()
-                now = time.monotonic()
-                if now >= next_sync:            # while the robot moves, ask about time sync ourselves
-                    self._probe_time_sync(during)
-                    next_sync = time.monotonic() + _TIME_SYNC_PROBE
-                if stall is not None and stall.due(now):
-                    stall.add(now - t0, self._state(during))
-                    if stall.stalled():
-                        self._unresponsive = True
-                        raise CommandTimeoutError(f"the robot stopped making progress {during} "
-                                                  f"({stall.window:.1f} s without motion while "
-                                                  f"{'not there yet' if stall.planned is None else 'its plan moves'}); "
-                                                  f"it was told to stop")
-                if now > deadline:
-                    self._unresponsive = True
-                    raise CommandTimeoutError(f"the robot did not finish {during} within "
-                                              f"{expected + cfg.command_margin:.1f} s (planned {expected:.1f} s); "
-                                              f"it was told to stop")
-                time.sleep(cfg.feedback_period)
-        except BaseException:
-            # whatever ended the wait (a fault, an unanswered RPC, a bug of ours in this loop, e.g. a
-            # KeyError from a robot state missing a frame, or Ctrl-C): the robot must not go on moving
-            self._stop_quietly()
-            raise
-
-    def _ended(self, fb) -> bool:
-        """True when the command is no longer being processed (overridden, timed out, frozen)."""
-        P = self._bd.basic.RobotCommandFeedbackStatus.STATUS_PROCESSING
-        f = fb.feedback
-        if f.HasField("full_body_feedback"):
-            return f.full_body_feedback.status != P
-        s = f.synchronized_feedback
-        for part in ("mobility_command_feedback", "arm_command_feedback", "gripper_command_feedback"):
-            if s.HasField(part) and getattr(s, part).status != P:
-                return True
-        return False
-
-    def _state(self, during: str):
-        return self._call(self._state_client.get_robot_state, timeout=self.config.rpc_timeout, during=during)
-
-    def _tree(self, state):
-        return state.kinematic_state.transforms_snapshot
-
-    def _T(self, state, a: str, b: str) -> np.ndarray:
-        return self._bd.cv.tform(self._tree(state), a, b)
-
-    @staticmethod
-    def _arm_stowed(state) -> bool:
-        ms = state.manipulator_state
-        return ms.stow_state == ms.STOWSTATE_STOWED
-
-    def _arm_and_gripper_q(self, state) -> np.ndarray:
-        """Arm joints and the gripper's: a stow that begins by closing the claw is making progress."""
-        gripper = [j.position.value for j in state.kinematic_state.joint_states if j.name == model.GRIPPER_JOINT]
-        return np.concatenate([self._arm_q(state), gripper])
-
-    def _arm_q(self, state) -> np.ndarray:
-        joints = {j.name: j.position.value for j in state.kinematic_state.joint_states}
-        try:
-            return np.array([joints[n] for n in model.ARM_JOINTS])
-        except KeyError as exc:
-            raise CommandRejectedError(f"the robot reports no arm joint {exc}; is the arm attached?") from None
-
-    @staticmethod
-    def _local_now_ts(cv):
-        return cv.seconds_to_timestamp(time.time())
 
     # ================================================================== observation
     @_closing_aware

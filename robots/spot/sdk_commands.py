@@ -1,0 +1,387 @@
+"""How the Spot SDK backend sends a command and turns what goes wrong into the HAL's errors.
+
+A mixin of :class:`robots.spot.sdk_backend.SdkSpotBackend` (the state it reads is set up by that
+class's ``__init__``): the sticky fault and the guard every command passes; the translation of
+bosdyn exceptions into typed HAL errors (:meth:`SdkCommands._translate`) and, after a command
+ended abnormally, the robot asked why (:meth:`SdkCommands._diagnose`: lease, power, e-stop,
+behavior fault); time sync checked and probed while a command runs; and the send-then-poll loop
+every motion goes through (:meth:`SdkCommands._run_command`), which sends a stop first whatever
+error ends it. Kept apart from the commands themselves so the safety plumbing reads in one place.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+from typing import Callable
+
+import numpy as np
+
+from robots.hal import (
+    BackendClosedError,
+    BehaviorFaultError,
+    CommandTimeoutError,
+    ConnectionLostError,
+    EstopError,
+    HalError,
+    LeaseLostError,
+    PowerError,
+    RobotFault,
+    TimeSyncLostError,
+)
+from robots.spot import model
+from robots.spot.sdk_config import CommandRejectedError
+from robots.spot.sdk_futures import future_result
+from robots.spot.stall_watch import StallWatch
+
+_LOG = logging.getLogger("helios.spot")
+
+_FATAL = (LeaseLostError, ConnectionLostError, TimeSyncLostError)   # no command can reach the robot
+
+_TIME_SYNC_PROBE = 0.25     # s between our own time-sync updates while a command runs
+
+
+class SdkCommands:
+    """Fault handling and command plumbing of :class:`robots.spot.sdk_backend.SdkSpotBackend`."""
+
+    # ================================================================== fault handling
+    @property
+    def fault(self) -> RobotFault | None:
+        """The sticky fault that ended this session, if any."""
+        return self._fault
+
+    def _guard(self, sensing: bool = False) -> None:
+        """Refuse to work on a closed backend or after a sticky fault. Sensing (images, state)
+        needs neither motor power nor the lease, so it goes on after an e-stop or a lost lease."""
+        self._check_open()
+        if self._fault is not None and not (sensing and isinstance(self._fault, (EstopError, PowerError,
+                                                                                  LeaseLostError, BehaviorFaultError))):
+            raise type(self._fault)(str(self._fault))
+
+    def _closing_elsewhere(self) -> bool:
+        """close() runs (or ran), in another thread than this one."""
+        return self._closing and self._close_thread is not threading.current_thread()
+
+    def _closed_to_this_thread(self) -> bool:
+        """Nothing more may be sent from this thread: closed, or close() runs in another one."""
+        return self._closed or self._closing_elsewhere()
+
+    def _check_open(self) -> None:
+        """BackendClosedError when :meth:`_closed_to_this_thread`."""
+        if self._closed:
+            raise BackendClosedError("this backend has been closed")
+        if self._closing_elsewhere():
+            raise BackendClosedError("this backend is shutting the robot down (close() was called); no more "
+                                     "commands")
+
+    def _set_fault(self, fault: RobotFault) -> RobotFault:
+        if isinstance(fault, (*_FATAL, EstopError, PowerError, BehaviorFaultError)) and self._fault is None:
+            self._fault = fault
+            _LOG.warning("robot fault: %s: %s", type(fault).__name__, fault)
+        return fault
+
+    def _translate(self, exc: BaseException, during: str, timeout: float | None = None) -> HalError:
+        """A bosdyn exception to the HAL's typed error (recording sticky faults). ``timeout``: the
+        RPC's own deadline when it was not ``rpc_timeout`` (an image request's), for the message."""
+        bd = self._bd
+        what = f"while {during}"
+        if isinstance(exc, (bd.exc.LeaseUseError, bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease,
+                            bd.lease.LeaseResponseError)):
+            return self._set_fault(LeaseLostError(f"the body lease is no longer ours {what} "
+                                                  f"(revoked or taken by another client)"))
+        if isinstance(exc, (bd.rc.NotPoweredOnError, bd.power.EstoppedError, bd.power.KeepaliveMotorsOffError)):
+            return self._power_fault(what)
+        if isinstance(exc, bd.rc.BehaviorFaultError):
+            return self._behavior_fault(what)
+        if isinstance(exc, (bd.rc.NoTimeSyncError, bd.ts.TimeSyncError, bd.exc.TimeSyncRequired)):
+            return self._set_fault(TimeSyncLostError(f"time sync with the robot was lost {what}; timed commands "
+                                                     f"cannot be sent safely"))
+        if isinstance(exc, bd.exc.TimedOutError):
+            waited = self.config.rpc_timeout if timeout is None else timeout
+            return CommandTimeoutError(f"the robot did not answer within {waited:g} s {what}")
+        if isinstance(exc, (bd.power.CommandTimedOutError, bd.rc.CommandTimedOutError)):
+            return CommandTimeoutError(f"the robot did not finish {during} in time")
+        if isinstance(exc, (bd.exc.UnableToConnectToRobotError, bd.exc.ProxyConnectionError,
+                            bd.exc.TransientFailureError, bd.exc.ServiceUnavailableError,
+                            bd.exc.UnknownDnsNameError, bd.exc.ClientCancelledOperationError,
+                            bd.exc.NonexistentAuthorityError, bd.exc.InvalidClientCertificateError,
+                            bd.exc.UnauthenticatedError, bd.exc.PermissionDeniedError)):
+            return self._set_fault(ConnectionLostError(f"lost the connection to the robot {what} "
+                                                       f"({type(exc).__name__})"))
+        if isinstance(exc, bd.exc.RpcError):
+            return self._set_fault(ConnectionLostError(f"communication with the robot failed {what} "
+                                                       f"({type(exc).__name__})"))
+        msg = getattr(exc, "error_message", None) or str(exc).split("\n")[0]
+        return CommandRejectedError(f"the robot rejected a command {what}: {type(exc).__name__}: {msg}")
+
+    def _power_fault(self, what: str) -> RobotFault:
+        """Motors are off: because of an e-stop (EstopError) or otherwise (PowerError)."""
+        bd = self._bd
+        try:
+            status = self._estop_client.get_status(timeout=self.config.rpc_timeout)
+            if status.stop_level != bd.estop_pb2.ESTOP_LEVEL_NONE:
+                level = bd.estop_pb2.EstopStopLevel.Name(status.stop_level)
+                details = f" ({status.stop_level_details})" if status.stop_level_details else ""
+                return self._set_fault(EstopError(f"the robot is e-stopped {what}: {level}{details}; motion is cut "
+                                                  f"and commands are refused"))
+        except bd.exc.Error:
+            pass
+        return self._set_fault(PowerError(f"motor power is off {what}"))
+
+    def _behavior_fault(self, what: str, state=None) -> RobotFault:
+        """The robot refuses motion because of a behavior fault (it fell, a hardware fault): the
+        fault named from its state (asked for when ``state`` is None) and kept, so the session ends
+        and close() powers the robot off; clearing it is the operator's (the tablet)."""
+        faults = []
+        try:
+            if state is None:
+                state = self._state_client.get_robot_state(timeout=self.config.rpc_timeout)
+            for f in state.behavior_fault_state.faults:
+                cause = type(f).Cause.Name(f.cause).removeprefix("CAUSE_").lower().replace("_", " ")
+                how = {f.STATUS_CLEARABLE: "clearable", f.STATUS_UNCLEARABLE: "not clearable: power cycle"}.get(
+                    f.status, "status unknown")
+                faults.append(f"{cause} ({how})")
+        except self._bd.exc.Error:
+            pass
+        named = ", ".join(faults) or "cause not reported"
+        return self._set_fault(BehaviorFaultError(f"the robot has a behavior fault {what}: {named}; it stopped and "
+                                                  f"refuses motion until the fault is cleared (the tablet)"))
+
+    def _diagnose(self, what: str) -> RobotFault | None:
+        """After a command ended abnormally: the fault that explains it, if there is one. Ended by
+        close() from another thread: BackendClosedError, without asking the robot anything."""
+        if self._closed_to_this_thread():
+            raise BackendClosedError(f"the backend was closed (close() from another thread; {what})")
+        if self._fault is not None:
+            return self._fault
+        bd = self._bd
+        try:
+            lease = self._lease_client.lease_wallet.get_lease()
+        except (bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease):
+            return self._set_fault(LeaseLostError(f"the body lease was taken by another client {what}"))
+        try:   # the robot's word on our lease (the keep-alive may not have checked in since it was taken)
+            self._lease_client.retain_lease(lease, timeout=self.config.rpc_timeout)
+        except (bd.exc.LeaseUseError, bd.lease.Error) as exc:
+            return self._set_fault(LeaseLostError(f"the body lease was revoked or taken by another client {what} "
+                                                  f"({type(exc).__name__})"))
+        except bd.exc.Error as exc:
+            fault = self._translate(exc, what)
+            return fault if isinstance(fault, RobotFault) else None
+        try:
+            state = self._state_client.get_robot_state(timeout=self.config.rpc_timeout)
+        except bd.exc.Error as exc:
+            fault = self._translate(exc, what)
+            return fault if isinstance(fault, RobotFault) else None
+        on = state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_ON
+        if not on and self._power_wanted:
+            return self._power_fault(what)
+        if state.behavior_fault_state.faults:
+            return self._behavior_fault(what, state)
+        return None
+
+    def _stop_quietly(self, wait: float = 0.3) -> None:
+        """Best-effort full-body stop after a failure: sent at once (a robot on a slow link acts on
+        it when it arrives), its reply awaited at most ``wait`` s; errors are ignored. Not while
+        close() runs in another thread: it stops the robot itself, and a stop from here would cut
+        its stow or sit short."""
+        if not hasattr(self, "_cmd_client") or self._closed_to_this_thread():
+            return
+        try:
+            with self._sending_to_robot("stopping"):
+                fut = self._cmd_client.robot_command_async(self._bd.Builder.stop_command(),
+                                                           timeout=self.config.rpc_timeout)
+            future_result(fut, wait)
+        except Exception as exc:  # noqa: BLE001 - best effort on an already failing link
+            _LOG.debug("stop after a failure not confirmed: %s", type(exc).__name__)
+
+    def _probe_time_sync(self, during: str) -> None:
+        """One time-sync update of our own (a motion must not wait for the SDK thread's next one):
+        TimeSyncLostError when the service fails, CommandTimeoutError when it does not answer."""
+        ts = getattr(self.robot, "_time_sync_thread", None)
+        if ts is None:
+            return
+        bd = self._bd
+        try:
+            ok = ts.endpoint.get_new_estimate()   # bounded by rpc_timeout (_bound_time_sync_rpcs)
+        except bd.exc.TimedOutError:
+            raise CommandTimeoutError(f"the robot did not answer within {self.config.rpc_timeout} s while "
+                                      f"{during}") from None
+        except bd.exc.Error as exc:
+            raise self._set_fault(TimeSyncLostError(f"time sync with the robot was lost while {during} "
+                                                    f"({type(exc).__name__}); timed commands cannot be sent "
+                                                    f"safely")) from None
+        if not ok:
+            raise self._set_fault(TimeSyncLostError(f"time sync with the robot was lost while {during}; timed "
+                                                    f"commands cannot be sent safely"))
+
+    def _check_time_sync(self) -> None:
+        """Raise TimeSyncLostError (sticky) once time sync is lost. The SDK's time-sync thread ends
+        on its first failed update; one more update of our own decides: the robot answers (the
+        thread is restarted) or time sync is lost."""
+        robot = self.robot
+        ts = getattr(robot, "_time_sync_thread", None)
+        if ts is None:
+            robot.time_sync                     # starts it
+            return
+        if not ts.stopped:
+            return
+        bd = self._bd
+        try:
+            ok = ts.endpoint.get_new_estimate()   # bounded by rpc_timeout (_bound_time_sync_rpcs)
+        except bd.exc.Error as exc:
+            ok, why = False, type(exc).__name__
+        else:
+            why = "the robot reports time sync is not established"
+        if ok:
+            robot.time_sync                     # restarts the thread
+            return
+        raise self._set_fault(TimeSyncLostError(f"time sync with the robot was lost ({why}); timed commands "
+                                                f"cannot be sent safely"))
+
+    # ================================================================== command plumbing
+    @contextlib.contextmanager
+    def _sending_to_robot(self, during: str, moves: bool = True):
+        """Around sending a call to the robot: refused once close() has begun in another thread.
+        A motion command (``moves``) from a thread other than close()'s is counted while in
+        flight, so close() sends its own stop only after it (the check and the count are one step
+        under close()'s lock: no command slips in between)."""
+        with self._sends:
+            if self._closed_to_this_thread():
+                raise BackendClosedError(f"the backend was closed before {during}")
+            counted = moves and self._close_thread is not threading.current_thread()
+            self._sending += counted
+        try:
+            yield
+        finally:
+            if counted:
+                with self._sends:
+                    self._sending -= 1
+                    self._sends.notify_all()
+
+    def _call(self, fn, *args, during: str, moves: bool = False, **kwargs):
+        """An SDK call with HAL error translation. Nothing is sent from another thread once close()
+        has begun; ``moves``: a motion command (see :meth:`_sending_to_robot`)."""
+        try:
+            with self._sending_to_robot(during, moves):
+                return fn(*args, **kwargs)
+        except BackendClosedError:
+            raise
+        except Exception as exc:
+            if self._closed_to_this_thread():   # our own teardown, not the robot's fault
+                raise BackendClosedError(f"the backend was closed while {during}") from None
+            if not isinstance(exc, (self._bd.exc.Error, self._bd.lease.Error)):
+                raise
+            err = self._translate(exc, during, kwargs.get("timeout"))
+            self._unresponsive = isinstance(err, CommandTimeoutError)
+            raise err from None
+
+    def _run_command(self, command, *, during: str, expected: float, done: Callable, end_time_secs=None,
+                     track: "tuple | None" = None):
+        """Send a RobotCommand and poll its feedback until ``done(feedback) -> (finished, ok)``
+        reports it finished. Returns (ok, feedback response, seconds); ok is None when the command
+        was interrupted (overridden, e.g. by stop()). Abnormal endings are diagnosed first (the
+        typed fault is raised when there is one); a command that overruns its planned duration +
+        margin, or (``track``: (actual(state) -> vector, planned(t) -> vector), or (actual, None,
+        arrived(state) -> bool) for a move the robot plans itself) makes no progress for
+        ``stall_time`` while it is not there yet, raises CommandTimeoutError. Whatever error ends the
+        wait (a fault, a lost time sync, an unanswered RPC), a stop is sent first."""
+        self._guard()
+        cfg = self.config
+        try:
+            self._check_time_sync()
+        except TimeSyncLostError:
+            self._stop_quietly()
+            raise
+        t0 = time.monotonic()
+        try:
+            cmd_id = self._call(self._cmd_client.robot_command, command, end_time_secs=end_time_secs, moves=True,
+                                timeout=cfg.rpc_timeout, during=during)
+        except CommandTimeoutError:
+            self._stop_quietly()                # the robot may have accepted it and be moving
+            raise
+        deadline = t0 + expected + cfg.command_margin
+        stall = StallWatch(track, cfg.stall_time, expected) if track is not None else None
+        next_sync = t0 + _TIME_SYNC_PROBE
+        try:
+            while True:
+                fb = self._call(self._cmd_client.robot_command_feedback, cmd_id, timeout=cfg.rpc_timeout,
+                                during=during)
+                ended = self._ended(fb)
+                if ended:
+                    fault = self._diagnose(during)
+                    if fault is not None:
+                        raise type(fault)(str(fault))
+                    return None, fb, time.monotonic() - t0
+                finished, ok = done(fb)
+                if finished:
+                    self._unresponsive = False
+                    return ok, fb, time.monotonic() - t0
+                self._guard()                   # e.g. the lease keep-alive found the lease gone
+                self._check_time_sync()
+                now = time.monotonic()
+                if now >= next_sync:            # while the robot moves, ask about time sync ourselves
+                    self._probe_time_sync(during)
+                    next_sync = time.monotonic() + _TIME_SYNC_PROBE
+                if stall is not None and stall.due(now):
+                    stall.add(now - t0, self._state(during))
+                    if stall.stalled():
+                        self._unresponsive = True
+                        raise CommandTimeoutError(f"the robot stopped making progress {during} "
+                                                  f"({stall.window:.1f} s without motion while "
+                                                  f"{'not there yet' if stall.planned is None else 'its plan moves'}); "
+                                                  f"it was told to stop")
+                if now > deadline:
+                    self._unresponsive = True
+                    raise CommandTimeoutError(f"the robot did not finish {during} within "
+                                              f"{expected + cfg.command_margin:.1f} s (planned {expected:.1f} s); "
+                                              f"it was told to stop")
+                time.sleep(cfg.feedback_period)
+        except BaseException:
+            # whatever ended the wait (a fault, an unanswered RPC, a bug of ours in this loop, e.g. a
+            # KeyError from a robot state missing a frame, or Ctrl-C): the robot must not go on moving
+            self._stop_quietly()
+            raise
+
+    def _ended(self, fb) -> bool:
+        """True when the command is no longer being processed (overridden, timed out, frozen)."""
+        P = self._bd.basic.RobotCommandFeedbackStatus.STATUS_PROCESSING
+        f = fb.feedback
+        if f.HasField("full_body_feedback"):
+            return f.full_body_feedback.status != P
+        s = f.synchronized_feedback
+        for part in ("mobility_command_feedback", "arm_command_feedback", "gripper_command_feedback"):
+            if s.HasField(part) and getattr(s, part).status != P:
+                return True
+        return False
+
+    def _state(self, during: str):
+        return self._call(self._state_client.get_robot_state, timeout=self.config.rpc_timeout, during=during)
+
+    def _tree(self, state):
+        return state.kinematic_state.transforms_snapshot
+
+    def _T(self, state, a: str, b: str) -> np.ndarray:
+        return self._bd.cv.tform(self._tree(state), a, b)
+
+    @staticmethod
+    def _arm_stowed(state) -> bool:
+        ms = state.manipulator_state
+        return ms.stow_state == ms.STOWSTATE_STOWED
+
+    def _arm_and_gripper_q(self, state) -> np.ndarray:
+        """Arm joints and the gripper's: a stow that begins by closing the claw is making progress."""
+        gripper = [j.position.value for j in state.kinematic_state.joint_states if j.name == model.GRIPPER_JOINT]
+        return np.concatenate([self._arm_q(state), gripper])
+
+    def _arm_q(self, state) -> np.ndarray:
+        joints = {j.name: j.position.value for j in state.kinematic_state.joint_states}
+        try:
+            return np.array([joints[n] for n in model.ARM_JOINTS])
+        except KeyError as exc:
+            raise CommandRejectedError(f"the robot reports no arm joint {exc}; is the arm attached?") from None
+
+    @staticmethod
+    def _local_now_ts(cv):
+        return cv.seconds_to_timestamp(time.time())
