@@ -721,6 +721,9 @@ def test_the_corpus_is_big_and_covers_every_command():
     from tools.cli import COMMANDS
 
     assert {argv[0] for _, argv, _ in CASES if argv} >= set(COMMANDS)
+    # the README's counts are this corpus's (they were 5 cases behind: audit 2026-12-05)
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    assert f"{len(CASES)} bad inputs over all commands, {len(DAMAGES)} run-folder damages" in readme
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])

@@ -92,6 +92,8 @@ def test_report_common_compares_runs_on_the_episodes_they_share(tmp_path):
     assert "| long | 40.0 ± 15.5 |" in plain["markdown"]
     shared = make_report([a, b], tmp_path / "shared", common=True)
     assert any("the 4 episode(s) all runs finished" in w for w in shared["warnings"])
+    # both runs finished: trimmed to the shared 4, the 10-episode run is not "4 of its 10 finished" (audit)
+    assert not any("episodes finished (a run in progress" in w for w in shared["warnings"]), shared["warnings"]
     assert "| long | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 |" in shared["markdown"]
     assert "| short | 0.0 ± 0.0 |" in shared["markdown"]
 

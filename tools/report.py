@@ -440,6 +440,7 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
             f"{r.name}: {r.cpu[0]}" for r in runs if len(r.cpu) == 1) + "): paired differences include the "
             "bit-level differences those paths make (README, \"One CPU code path\")")
     counts = sorted({len(r.records) for r in runs})
+    finished = {id(r): len(r.records) for r in runs}      # before --common trims them to the shared episodes
     note = []
     if common:
         n = restrict_to_common(runs)
@@ -452,8 +453,8 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
                     f"--common compares them on the episodes they share")
     for r in runs:          # a run still going (or stopped): its rates are of the episodes done so far
         planned = (r.config or {}).get("episodes")
-        if isinstance(planned, int) and len(r.records) < planned:
-            note.append(f"{r.name}: {len(r.records)} of its {planned} episodes finished (a run in progress, "
+        if isinstance(planned, int) and finished[id(r)] < planned:
+            note.append(f"{r.name}: {finished[id(r)]} of its {planned} episodes finished (a run in progress, "
                         f"or stopped; the same command resumes it)")
     seen: dict[str, int] = {}
     for r in runs:                                   # two folders with the same name: keep rows apart
