@@ -144,6 +144,26 @@ def check_address(address: str, timeout: float | None = None) -> None:
     if status == "error":
         why = getattr(value, "strerror", None) or str(value) or type(value).__name__
         raise ExecutorError(f"cannot reach the Ray cluster at {host}:{port}: {why}")
+    if os.environ.get("RAY_USE_TLS", "0").strip().lower() in ("", "0", "false"):
+        _check_grpc_handshake(host, port, timeout)
+
+
+def _check_grpc_handshake(host: str, port: int, timeout: float) -> None:
+    """Ray's head (GCS, or the Ray client server of ``ray://``) speaks gRPC: a port that accepts TCP
+    but completes no gRPC handshake within ``timeout`` is something else (a web server, another
+    service), where ``ray.init`` would retry for minutes and print Ray's own warnings. Skipped
+    with ``RAY_USE_TLS`` (the head then wants TLS, which this insecure probe cannot speak)."""
+    import grpc
+
+    channel = grpc.insecure_channel(f"{host}:{port}")
+    try:
+        grpc.channel_ready_future(channel).result(timeout=timeout)
+    except grpc.FutureTimeoutError:
+        raise ExecutorError(f"{host}:{port} accepts connections but does not answer as a Ray head (no gRPC "
+                            f"handshake within {timeout:g} s); check the port (the head's GCS port, 6379 by "
+                            f"default, or the ray:// client port, 10001)") from None
+    finally:
+        channel.close()
 
 
 @dataclass(frozen=True)

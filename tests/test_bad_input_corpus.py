@@ -1238,6 +1238,51 @@ def test_a_ray_head_that_does_not_answer_is_one_error_within_the_timeout(monkeyp
     assert time.perf_counter() - t0 < 2
 
 
+def test_a_port_that_answers_but_is_no_ray_head_is_one_error_before_any_run_folder(tmp_path, monkeypatch):
+    """(audit 2026-12-05) A web server at --address: ray.init retried for minutes (killed at 164 s)
+    after the run folder was made; the gRPC handshake Ray's head would complete refuses it first."""
+    import socket
+    import threading
+
+    pytest.importorskip("ray")
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    port = server.getsockname()[1]
+
+    def answer_http() -> None:            # accepts, answers like an HTTP/1.1 server, hangs up
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            with conn:
+                conn.settimeout(1.0)
+                try:
+                    conn.recv(1024)
+                    conn.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n")
+                except OSError:
+                    pass
+
+    threading.Thread(target=answer_http, daemon=True).start()
+    try:
+        import tasks.executors
+        from tasks.executors import ExecutorError, check_address
+
+        monkeypatch.setattr(tasks.executors, "RAY_CONNECT_TIMEOUT_S", 1.0)     # the CLI's wait, shortened
+        t0 = time.perf_counter()
+        with pytest.raises(ExecutorError, match=rf"127\.0\.0\.1:{port} accepts connections but does not answer as "
+                                                r"a Ray head \(no gRPC handshake within 1 s\)"):
+            check_address(f"127.0.0.1:{port}", timeout=1.0)
+        assert time.perf_counter() - t0 < 5
+        rc, out, err = run_cli(["trials", "--agent", "oracle", "--episodes", "1", "--executor", "ray",
+                                "--address", f"127.0.0.1:{port}", "--out", str(tmp_path / "run")])
+        assert rc == 2 and err.count("\n") == 1 and "no gRPC handshake within 1 s" in err, err
+        assert not (tmp_path / "run").exists()
+    finally:
+        server.close()
+
+
 def test_a_worker_process_that_does_not_start_is_one_error(monkeypatch):
     import tasks.executors as ex
 
