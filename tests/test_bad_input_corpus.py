@@ -194,6 +194,11 @@ CASES: list[tuple[str, list[str], str]] = [
     ("spot-out-in-file", [*SPOT, "--out", "{ws}/afile/spot"], "which is a file"),
     ("spot-out-unwritable", [*SPOT, "--out", UNWRITABLE], "cannot write"),
     ("spot-name-is-file", [*SPOT, "--out", "{ws}", "--name", "afile"], "is an existing file"),
+    # the scripted demo carries the layout's mug to its place table: another task was run as the demo, SUCCESS
+    ("spot-demo-other-object", ["spot", "--fake", "--task", "Move the apple from the bed to the sofa", "--out",
+                                "{ws}/new_spot"], "the task asks for the apple to the sofa"),
+    ("spot-demo-other-goal-robot", ["spot", "127.0.0.1", "--task", "Move the mug from the stool to the shelf",
+                                    "--out", "{ws}/new_spot"], "scripted-demo carries the demo layout's mug"),
     ("demo-out-file", ["demo", "--out", "{ws}/afile"], "is an existing file"),
     ("demo-out-unwritable", ["demo", "--out", UNWRITABLE], "cannot write"),
     ("arm-envelope-out-file", ["arm-envelope", "--quick", "--out", "{ws}/afile"], "is an existing file"),

@@ -202,6 +202,22 @@ def _refuse_ignored(args: argparse.Namespace) -> None:
                                f"where the simulator judges the episode")
 
 
+DEMO_OBJECT, DEMO_GOAL = "mug", "table"     # the demo layout: a mug on its pick table, a place table
+
+
+def _check_demo_task(spec, agent: str) -> None:
+    """A demo-layout agent carries the layout's mug to its place table whatever the task says; a
+    task asking for another object or goal is refused, not run as the demo and reported SUCCESS
+    (audit 2026-12-05). The start receptacle is the layout's pick table under whatever name the
+    task gives it (the paper's hardware set-up calls it the stool)."""
+    from tools.cli import CliError
+
+    if (spec.object, spec.goal_receptacle) != (DEMO_OBJECT, DEMO_GOAL):
+        raise CliError(f"{agent} carries the demo layout's {DEMO_OBJECT} to its place {DEMO_GOAL}; the task asks for "
+                       f"the {spec.object} to the {spec.goal_receptacle} (a task agent takes any task: --fake --episode "
+                       f"ID, or --agent helios on a robot)")
+
+
 def _validate(args: argparse.Namespace):
     from tools.cli import CliError, check_seed
 
@@ -228,10 +244,12 @@ def _validate(args: argparse.Namespace):
             raise CliError("--task must not be empty (e.g. --task \"Move the mug from the stool to the table\")")
         from tasks.spec import parse_task
 
-        parse_task(args.task)                      # a task the agents can read, else one TaskSpecError line
+        spec = parse_task(args.task)               # a task the agents can read, else one TaskSpecError line
         if args.agent is None:
             args.agent = "scripted-demo"
         entry = check_agent(args.agent, DEMO) if args.fake else check_robot_agent(args.agent)
+        if entry.runs_on == DEMO:
+            _check_demo_task(spec, args.agent)
         if entry.runs_on == EPISODE:             # HELIOS & co. on a real robot: real perception only
             if args.perception == "sim":
                 raise CliError("--perception sim needs the simulator's ground truth: on a robot HELIOS runs with "
