@@ -12,7 +12,7 @@ import pytest
 from tasks.episode_trace import load_trace, trace_path
 from tasks.trial_config import deterministic_view
 from tasks.trials import run_batch
-from tools.episode_pages import FAILED_TEXT, FOOTER, HEADER, MAP_PX, PATH, TARGET, map_picture
+from tools.episode_pages import EVENT, FAILED_TEXT, FOOTER, HEADER, MAP_PX, PATH, TARGET, map_picture
 
 
 def _image(path: Path) -> np.ndarray:
@@ -87,6 +87,22 @@ def test_the_target_marker_sits_at_the_true_target_location(picture_runs):
         red = np.argwhere((img[:-FOOTER] == TARGET).all(axis=-1))                # (the legend has one too)
         # the marker is small and centred there: every TARGET pixel of the map within 10 px of the true spot
         assert len(red) and np.abs(red - (row, col)).max() <= 10, run
+
+
+def test_the_grasp_mark_rings_the_target_above_it_and_the_legend_names_the_events(picture_runs):
+    """(audit 2026-12-05) The grasp ring was drawn under the target's diamond, a sliver left (about
+    50 of its pixels within 14 px of the target; 110 now), and the legend had no event entries."""
+    ep = picture_runs["episode"]
+    rec = picture_runs["records"]["oracle"]
+    assert rec["metrics"]["pick"], "the oracle grasps the target in this episode"
+    trace = load_trace(trace_path(picture_runs["root"] / "oracle", ep.episode_id))
+    img = _image(_page_file(picture_runs, "oracle", ".png"))
+    col, row = _pixel(trace, *_true_target_xy(ep))
+    ring = np.argwhere((img[:-FOOTER] == EVENT["grasp"]).all(axis=-1))
+    assert (np.abs(ring - (row, col)).max(axis=1) <= 14).sum() >= 80
+    legend = img[-FOOTER:]
+    for kind in ("grasp", "release", "collision"):
+        assert (legend == EVENT[kind]).all(axis=-1).sum() >= 10, kind
 
 
 def test_a_failed_episodes_page_names_its_failure_reason(picture_runs):

@@ -40,7 +40,7 @@ EVENT = {"grasp": (227, 119, 194), "release": (23, 190, 207), "collision": (255,
 FAILED_TEXT = (178, 24, 43)      # the title of a failed episode (TARGET is kept for the target alone)
 MAP_PX = 640            # the map's longer side in pixels (the scale is clamped to 1..12 px per cell)
 HEADER = 44
-FOOTER = 46
+FOOTER = 64            # the legend: up to three rows
 THUMB_WIDTH = 240
 STRIP_WIDTH = 240
 
@@ -105,23 +105,26 @@ def map_picture(trace: dict, max_px: int = MAP_PX):
     P = frame.to_pixel
     truth = meta.get("truth") or {}
 
+    taken: list[tuple[float, float, float, float]] = []        # label boxes drawn so far: none overlaps another
+
     def box(b, color, width):
         (x0, y0), (x1, y1) = P(b["lo"][0], b["hi"][1]), P(b["hi"][0], b["lo"][1])
         d.rectangle([x0, y0, x1, y1], outline=color, width=width)
-        d.text((x0 + 2, y1 + 1), b["name"], fill=color, font=small)
+        _label(d, x0 + 2, y1 + 1, b["name"], small, color, taken)
 
     for b in truth.get("goals", []):
         box(b, GOAL, 3)
     if truth.get("start_receptacle"):
         box(truth["start_receptacle"], START_RECEPTACLE, 2)
     roles = {meta.get("goal_class"): "goal", meta.get("start_class"): "start", meta.get("object_class"): "object"}
+    labels = []
     for c in meta.get("candidates", []):
         x, y = P(*c["xy"])
         psi = c["psi"].get(c["class_name"])
         color = CANDIDATE.get(roles.get(c["class_name"], "start"), CANDIDATE["start"])
         d.ellipse([x - 4, y - 4, x + 4, y + 4], fill=color, outline=(0, 0, 0))
         if psi is not None:
-            d.text((x + 6, y - 7), f"{psi:.2f}", fill=(0, 0, 0), font=small)
+            labels.append((x, y, f"{psi:.2f}"))
     for key, color in (("pick", PICK_FRONTIER), ("place", PLACE_FRONTIER)):
         seen: list[tuple[float, float]] = []
         for fx, fy, _value in meta.get("frontiers", {}).get(key, []):
@@ -142,24 +145,28 @@ def map_picture(trace: dict, max_px: int = MAP_PX):
         d.line(pts, fill=PATH, width=3, joint="curve")
     for x, y in pts[:1] + pts[-1:]:
         d.ellipse([x - 2, y - 2, x + 2, y + 2], fill=PATH)
-    for ev in meta.get("events", []):
+    for o in sorted(truth.get("targets", []), key=lambda o: o["named"]):
+        x, y = P(o["xyz"][0], o["xyz"][1])
+        r = 7 if o["named"] else 5
+        d.polygon([(x, y - r), (x + r, y), (x, y + r), (x - r, y)], fill=TARGET if o["named"] else OTHER_TARGET,
+                  outline=(255, 255, 255))
+    if len(path):
+        x, y = P(float(path[-1, 1]), float(path[-1, 2]))
+        d.rectangle([x - 7, y - 7, x + 7, y + 7], outline=(0, 0, 0), width=2)
+    for ev in meta.get("events", []):       # over the targets: a grasp is at its target (it was hidden under it)
         x, y = P(*ev["xy"])
         color = EVENT.get(ev["kind"], (0, 0, 0))
         if ev["kind"] == "collision":
             d.line([x - 5, y - 5, x + 5, y + 5], fill=color, width=2)
             d.line([x - 5, y + 5, x + 5, y - 5], fill=color, width=2)
         else:
-            d.ellipse([x - 7, y - 7, x + 7, y + 7], outline=color, width=2)
-            d.text((x - 3, y - 7), ev["kind"][0].upper(), fill=color, font=small)
+            d.ellipse([x - 10, y - 10, x + 10, y + 10], outline=color, width=2)
+            _label(d, x + 8, y - 20, ev["kind"][0].upper(), small, color, taken)
     if len(path):
         x, y = P(float(path[-1, 1]), float(path[-1, 2]))
-        d.rectangle([x - 7, y - 7, x + 7, y + 7], outline=(0, 0, 0), width=2)
-        d.text((x + 10, y - 8), f"end: {outcome_text(meta)}", fill=(0, 0, 0), font=label)
-    for o in sorted(truth.get("targets", []), key=lambda o: o["named"]):
-        x, y = P(o["xyz"][0], o["xyz"][1])
-        r = 7 if o["named"] else 5
-        d.polygon([(x, y - r), (x + r, y), (x, y + r), (x - r, y)], fill=TARGET if o["named"] else OTHER_TARGET,
-                  outline=(255, 255, 255))
+        _label(d, x + 10, y - 8, f"end: {outcome_text(meta)}", label, (0, 0, 0), taken)
+    for x, y, text in labels:
+        _label(d, x + 6, y - 7, text, small, (0, 0, 0), taken)
     head = f"{meta.get('episode_id')}  ·  {meta.get('agent')}  ·  {outcome_text(meta)}"
     d.text((6, 4), head, fill=(0, 0, 0) if meta["outcome"].get("success") else FAILED_TEXT, font=title)
     d.text((6, 24), str(meta.get("task") or ""), fill=(60, 60, 60), font=label)
@@ -167,9 +174,25 @@ def map_picture(trace: dict, max_px: int = MAP_PX):
     return img, frame
 
 
+def _label(d, x: float, y: float, text: str, font, color, taken: list) -> None:
+    """``text`` at (x, y), or the first of a few nearby places (below, above, left of the point)
+    where it overlaps no label drawn before (``taken``, which it joins); else at (x, y) anyway."""
+    w, h = d.textlength(text, font=font), getattr(font, "size", 11) + 2
+    for dx, dy in ((0, 0), (0, h), (0, -h), (0, 2 * h), (0, -2 * h), (-w - 14, 0)):
+        box = (x + dx, y + dy, x + dx + w, y + dy + h)
+        if not any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in taken):
+            break
+    else:
+        box = (x, y, x + w, y + h)
+    taken.append(box)
+    d.text(box[:2], text, fill=color, font=font)
+
+
 def _legend(d, x: int, y: int, font, has_map: bool) -> None:
     items = [("path", "line", PATH), ("target (truth)", "diamond", TARGET), ("goal receptacles", "box", GOAL),
-             ("start receptacle", "box", START_RECEPTACLE), ("end", "square", (0, 0, 0))]
+             ("start receptacle", "box", START_RECEPTACLE), ("end", "square", (0, 0, 0)),
+             ("grasp", "ring G", EVENT["grasp"]), ("release", "ring R", EVENT["release"]),
+             ("collision", "cross", EVENT["collision"])]
     if has_map:
         items += [("frontiers: object", "fill", PICK_FRONTIER), ("goal", "fill", PLACE_FRONTIER),
                   ("candidates (Psi): object", "dot", CANDIDATE["object"]), ("start", "dot", CANDIDATE["start"]),
@@ -186,6 +209,12 @@ def _legend(d, x: int, y: int, font, has_map: bool) -> None:
             d.ellipse([x + 3, y + 2, x + 11, y + 10], fill=color, outline=(0, 0, 0))
         elif kind == "fill":
             d.rectangle([x + 1, y + 1, x + 13, y + 11], fill=color, outline=(0, 0, 0))
+        elif kind.startswith("ring"):
+            d.ellipse([x + 1, y, x + 13, y + 12], outline=color, width=2)
+            d.text((x + 4, y - 1), kind[-1], fill=color, font=font)
+        elif kind == "cross":
+            d.line([x + 2, y + 1, x + 12, y + 11], fill=color, width=2)
+            d.line([x + 2, y + 11, x + 12, y + 1], fill=color, width=2)
         else:
             d.rectangle([x + 1, y + 1, x + 13, y + 11], outline=color, width=2)
         d.text((x + 18, y), text, fill=(0, 0, 0), font=font)
