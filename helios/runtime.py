@@ -185,7 +185,9 @@ def pin_cpu_dispatch() -> str:
 
 def cpu_dispatch() -> dict:
     """Which code paths this process runs (for run provenance): the pin's description, and where
-    loaded NumPy's highest active dispatch target, torch's capability and OpenCV's feature line."""
+    loaded NumPy's highest active dispatch target, torch's capability and OpenCV's feature line.
+    Torch is not imported for it (1-2 s): a process that has not loaded torch yet (``tools trials``
+    before its workers start) records no torch entry; the pin's ``ATEN_CPU_CAPABILITY`` holds."""
     settings, what = _settings_here()
     if any(os.environ.get(k) != v for k, v in settings.items()):
         what = "native (not pinned in this process)"
