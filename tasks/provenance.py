@@ -3,20 +3,31 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 from pathlib import Path
 
 PROVENANCE_KEYS = ("helios_version", "git_commit")
+ARCHIVED_COMMIT_FILE = ".helios-commit"
+"""Written at the root of a commit's files extracted with ``git archive`` (``tools.commit_tree``:
+``unchanged``, ``bench agent --agent-baseline``), which have no ``.git``: the commit they are."""
 
 
 def git_commit() -> str:
-    """The commit the code is checked out at, or ``unknown`` (no git, not a checkout)."""
+    """The commit the code is checked out at; for extracted files, the commit their
+    :data:`ARCHIVED_COMMIT_FILE` names; else ``unknown`` (no git, not a checkout)."""
     try:
         out = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5,
                              cwd=Path(__file__).resolve().parent)
-        return out.stdout.strip() or "unknown"
+        if out.stdout.strip():
+            return out.stdout.strip()
     except (OSError, subprocess.SubprocessError):
+        pass
+    try:
+        named = (Path(__file__).resolve().parents[1] / ARCHIVED_COMMIT_FILE).read_text(encoding="ascii").strip()
+    except (OSError, UnicodeDecodeError):
         return "unknown"
+    return named if re.fullmatch(r"[0-9a-f]{40}", named) else "unknown"
 
 
 def differs(made, now) -> bool:

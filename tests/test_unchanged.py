@@ -41,6 +41,8 @@ def test_the_same_code_gives_identical_records_and_a_changed_scenario_is_a_chang
     assert "trusting: 1 of 1 records identical" in text and "unchanged: every record is the same" in text
     assert "[unchanged] trusting (HEAD again): 1/1 val-00000" in text          # each side's progress
     assert (out / "trusting" / "base" / "episodes.jsonl").is_file()
+    # the extracted tree has no .git; its run still records the commit it is (it said "unknown": audit)
+    assert f"git_commit: {_head()}" in (out / "trusting" / "base" / "config.yaml").read_text()
 
     # The base side's scenario cut to 20 s: the same episode ends differently, and that is a change.
     changed = tmp_path / "changed"
@@ -66,6 +68,8 @@ def test_a_new_check_reruns_the_working_tree_side_and_keeps_the_commits(tmp_path
         (out / "trusting" / side / "episodes.jsonl").write_text("{}\n")
     prepare(out, commit, ["trusting"], fresh=False)
     assert (out / "trusting" / "base" / "episodes.jsonl").is_file()
+    # the extracted tree has no .git; its run still records the commit it is (it said "unknown": audit)
+    assert f"git_commit: {_head()}" in (out / "trusting" / "base" / "config.yaml").read_text()
     assert not (out / "trusting" / "now").exists()
     (out / "base-commit").write_text("0" * 40 + "\n")          # the last check was of another commit
     prepare(out, commit, ["trusting"], fresh=False)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
+from tasks.provenance import ARCHIVED_COMMIT_FILE
 from tools.cli import CliError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -53,6 +54,7 @@ def extract_commit(commit: str, tree: Path, what: str) -> Path:
             raise CliError(f"{what} ({commit[:12]}): git archive failed: "
                            f"{archive.stderr.decode(errors='replace')[:200]}")
         subprocess.run(["tar", "-x", "-C", str(tree)], input=archive.stdout, check=True, timeout=ARCHIVE_TIMEOUT_S)
+        (tree / ARCHIVED_COMMIT_FILE).write_text(commit + "\n", encoding="ascii")   # its runs record the commit
     except subprocess.TimeoutExpired as exc:
         raise CliError(f"{what} ({commit[:12]}): extracting the commit did not finish within "
                        f"{exc.timeout:g} s") from None
