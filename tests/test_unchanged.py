@@ -68,8 +68,6 @@ def test_a_new_check_reruns_the_working_tree_side_and_keeps_the_commits(tmp_path
         (out / "trusting" / side / "episodes.jsonl").write_text("{}\n")
     prepare(out, commit, ["trusting"], fresh=False)
     assert (out / "trusting" / "base" / "episodes.jsonl").is_file()
-    # the extracted tree has no .git; its run still records the commit it is (it said "unknown": audit)
-    assert f"git_commit: {_head()}" in (out / "trusting" / "base" / "config.yaml").read_text()
     assert not (out / "trusting" / "now").exists()
     (out / "base-commit").write_text("0" * 40 + "\n")          # the last check was of another commit
     prepare(out, commit, ["trusting"], fresh=False)
