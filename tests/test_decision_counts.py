@@ -4,11 +4,20 @@ aggregation (``tasks.decisions``) and the "Decisions" / "Simulated time per phas
 from __future__ import annotations
 
 import json
+from collections import Counter
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
+from helios.agents import helios_agent
+from helios.agents.config import AgentConfig
+from helios.agents.helios_agent import HeliosAgent, _LocalSearch
+from helios.config import HeliosConfig
+from helios.maps.instances import Instance
 from helios.schema import with_overrides
+from helios.search.decisions import Verdict
+from helios.search.objective import FrontierOption, GlobalObjective
 from tasks.decisions import (ACTIVITIES, DECISION_COUNTS, summarize_activity_time, summarize_decisions,
                              summarize_start_receptacle, summarize_timeouts)
 from tasks.episodes import load_split
@@ -158,6 +167,82 @@ def test_report_on_real_runs_shows_helios_numbers_and_oracle_na(real_runs, tmp_p
 
 
 # ------------------------------------------------------------------------------------------------
+# The agent's counters (no simulator: the agent is built bare and its map replaced)
+# ------------------------------------------------------------------------------------------------
+def _table(iid: int, class_name: str, score: float) -> Instance:
+    return Instance(id=iid, class_name=class_name, class_scores={"table": score, "other": 1 - score},
+                    uncertainties={}, psi={}, centre=np.array([1.0, 0.0, 0.5]), footprint_xy=np.zeros((1, 2)),
+                    max_height=0.7, n_gaussians=10, gaussian_indices=np.arange(10))
+
+
+def _bare_agent() -> HeliosAgent:
+    agent = HeliosAgent.__new__(HeliosAgent)
+    agent.config, agent.method, agent.stats = AgentConfig(), HeliosConfig(), Counter()
+    agent.visited, agent.log = set(), []
+    agent.start_class, agent.choices = "table", []
+    return agent
+
+
+def _choosing_agent(monkeypatch, instances: list[Instance]) -> HeliosAgent:
+    """An agent whose global choice weighs ``instances`` (each with one gaze point worth IG 100)
+    against one frontier 3 m away."""
+    agent = _bare_agent()
+    agent.body = SimpleNamespace(body_height=0.6, xy=lambda: np.zeros(2))
+    agent.observer = SimpleNamespace(last_obs=SimpleNamespace(intrinsics=None), map=SimpleNamespace(objects=None),
+                                     instances=lambda: instances)
+    agent.pick_objective = GlobalObjective(agent.method.search, 0.025, "objective")
+    monkeypatch.setattr(agent, "_gaze_points_of", lambda iid: ["g"], raising=False)
+    monkeypatch.setattr(agent, "_frontier_options", lambda layer: [FrontierOption(np.array([0.0, 3.0]), 0.5, 0)],
+                        raising=False)
+    monkeypatch.setattr(helios_agent, "gaze_cameras", lambda views, h, v: views)
+    monkeypatch.setattr(helios_agent, "views_information_gain", lambda *a, **k: 100.0)
+    return agent
+
+
+def test_global_decisions_are_counted_before_and_after_f0_and_only_with_candidates(monkeypatch):
+    """``global_with_candidates`` counts the global decisions with an open candidate, each also
+    counted once as ``chose_<kind>_before_f0`` or ``_after_f0`` (F0 calibrated by a chosen
+    frontier); a decision with no candidate counts nowhere and records no choice."""
+    agent = _choosing_agent(monkeypatch, [_table(1, "table", 0.8)])
+    first, _ = agent._global_choice()
+    assert agent.stats["global_with_candidates"] == 1 and agent.stats[f"chose_{first.kind}_before_f0"] == 1
+    agent.pick_objective.note_frontier_chosen(FrontierOption(np.array([0.0, 3.0]), 0.5, 0))
+    second, _ = agent._global_choice()
+    assert agent.stats["global_with_candidates"] == 2 and agent.stats[f"chose_{second.kind}_after_f0"] == 1
+    assert sum(agent.stats[f"chose_{k}_{w}_f0"] for k in ("candidate", "frontier") for w in ("before", "after")) == 2
+    other = _choosing_agent(monkeypatch, [_table(1, "other", 0.35)])          # not a table candidate (mode is other)
+    other._global_choice()
+    assert other.stats["global_with_candidates"] == 0 and other.choices == []
+
+
+def test_every_gaze_point_visit_counts_and_only_those_with_a_view_count_as_views():
+    """``gaze_point_visits`` counts every gaze point a local search went to, ``gaze_point_views``
+    (and the deciding choice's ``views``) only those where the view was taken."""
+    agent = _bare_agent()
+    answers = iter([False, True])                           # the first view fails, the second is taken
+    agent.body = SimpleNamespace(view_from=lambda robot, g: next(answers))
+    choice = {"views": 0}
+    agent.local = _LocalSearch(3, ["g1", "g2"], choice)
+    agent._continue_local_search(None)
+    agent._continue_local_search(None)
+    assert (agent.stats["gaze_point_visits"], agent.stats["gaze_point_views"], choice["views"]) == (2, 1, 1)
+    assert agent.local is None and 3 in agent.visited
+
+
+def test_extra_views_are_counted_for_the_phase_that_asked_for_them(monkeypatch):
+    """An extra view the Psi' rule asks for counts as ``extra_views_object`` while picking and as
+    ``extra_views_goal`` while placing."""
+    agent = _bare_agent()
+    agent.pick_attempts, agent.object_class, agent.goal_class, agent.local = 0, "mug", "bed", None
+    monkeypatch.setattr(agent, "_judge_targets", lambda cls: ("t", Verdict.LOOK, "v"), raising=False)
+    monkeypatch.setattr(agent, "_take_view", lambda robot, t, v: None, raising=False)
+    agent._pick_step(None)
+    assert (agent.stats["extra_views_object"], agent.stats["extra_views_goal"]) == (1, 0)
+    agent._place_step(None)
+    assert (agent.stats["extra_views_object"], agent.stats["extra_views_goal"]) == (1, 1)
+
+
+# ------------------------------------------------------------------------------------------------
 # Aggregation and the report on hand-written records
 # ------------------------------------------------------------------------------------------------
 def _record(i: int, extra: dict) -> dict:
@@ -226,6 +311,27 @@ def test_report_prints_the_sections_with_na_for_old_runs(tmp_path):
     assert "<h2>Decisions: totals" in page and "<h2>Simulated time per phase" in page
     # n/a: decisions 14 + phase times 7, and the search-speed table's 3 + 5 (these records keep no phase times)
     assert "<td>40.0 (40 s)</td>" in page and page.count("<td>n/a</td>") == 14 + 7 + 8 + 2 * 3 * 5   # + the budget table: no phase times
+
+
+def test_the_phase_share_is_weighted_by_time_not_averaged_over_episodes():
+    """``share_percent`` is each phase's share of the summed time: the 300 s episode weighs twice
+    the 100 s one (start scan 80 of 300 s, not the mean of 40 % and 20 %)."""
+    t = summarize_activity_time([_record(0, {"activity_time": {"start_scan": 40.0, "local_search": 60.0}}),
+                                 _record(1, {"activity_time": {"start_scan": 40.0, "exploration": 160.0}})])
+    assert t["share_percent"]["start_scan"] == pytest.approx(80 / 300 * 100)
+    assert t["share_percent"]["exploration"] == pytest.approx(160 / 300 * 100)
+
+
+def test_report_decisions_row_puts_each_count_in_its_own_column(tmp_path):
+    """Every decision count differs, so a column shown under another's header shows."""
+    run = tmp_path / "distinct"
+    prepare_run_folder(run, TrialConfig(agent="helios", split="val", episodes=1))
+    append_result(run / "episodes.jsonl", _record(0, {"decisions": _decisions(
+        global_with_candidates=28, chose_candidate_before_f0=1, chose_frontier_before_f0=2,
+        chose_candidate_after_f0=3, chose_frontier_after_f0=4, extra_views_object=5, extra_views_goal=6)}))
+    md = make_report([run], tmp_path / "rep", episode_pages=False)["markdown"].splitlines()
+    assert ("| distinct | 1/1 | 28 (28.0) | 1 (1.0) | 2 (2.0) | 3 (3.0) | 4 (4.0) | 5 (5.0) | 6 (6.0) | 0 (0.0) "
+            "| - | - | - | 0 (0.0) | 0 (0.0) | 0 (0.0) |") in md
 
 
 def test_gaze_point_views_unknown_when_a_record_predates_them(tmp_path):

@@ -10,6 +10,7 @@ from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from helios.agents import helios_agent
 from helios.agents.config import AgentConfig
@@ -97,3 +98,25 @@ def test_the_look_decision_can_weigh_one_view_from_every_gaze_point(monkeypatch)
             assert chosen is target and (view.pose.x, view.pose.y) == (0.9, 0.0)     # still the best single view
     assert seen_cams == [[(0.9, 0.0), (0.0, 0.9), (-0.9, 0.0)]]                      # asked once, with every view
     assert HeliosConfig().decision.view_prediction_poses == "best"
+
+
+@pytest.mark.parametrize("information_gain, view_prediction, expected", [
+    ("optimistic", "follow_information_gain", "optimistic"),
+    ("fifty_fifty", "follow_information_gain", "fifty_fifty"),
+    ("fifty_fifty", "optimistic", "optimistic"),
+])
+def test_the_predicted_psi_of_a_view_takes_its_assumption_from_view_prediction(information_gain, view_prediction,
+                                                                              expected, monkeypatch):
+    """``DecisionConfig.view_prediction``: Psi' is predicted under the IG's measurement assumption
+    (``follow_information_gain``, the default) or always optimistic; the 50-50 ablation must
+    reach the decision rule, not only the start-receptacle IG."""
+    agent = _agent(AgentConfig(), monkeypatch)
+    m = agent.method
+    agent.method = replace(m, search=replace(m.search, information_gain=information_gain),
+                           decision=replace(m.decision, view_prediction=view_prediction))
+    seen = []
+    monkeypatch.setattr(information, "predicted_object_score",
+                        lambda gmap, iid, cls, intr, T, assumption: seen.append(assumption)
+                        or SimpleNamespace(predicted_psi=PROMISED[T]))
+    agent._best_view(Target(("instance", 7), np.zeros(3), np.zeros((1, 2)), 0.5, 0.4, None, 7), "mug")
+    assert seen == [expected] * len(VIEWS)               # one prediction per gaze point, all alike

@@ -208,6 +208,14 @@ def test_an_open_inner_ring_yields_no_outer_points():
     np.testing.assert_allclose(got, inner, atol=1e-9)
 
 
+def test_the_agent_searches_with_outer_rings_only_as_a_fallback_by_default():
+    """The agent's own gaze settings (``AgentConfig.gaze``) keep the fallback default, not only a
+    bare ``GazeConfig``: outer rings only where the inner ring is blocked."""
+    from helios.agents.config import AgentConfig
+
+    assert AgentConfig().gaze.outer_rings == "fallback"
+
+
 def test_a_blocked_inner_point_is_replaced_by_outer_ones():
     """A box on the inner ring's +x point: that direction falls back to the outer ring's points
     nearest to it in angle, and no other outer point appears."""

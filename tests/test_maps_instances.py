@@ -6,7 +6,7 @@ import pytest
 from helios.config import HeliosConfig
 from helios.maps import ClassSet, GridGeometry
 from helios.maps.gaussians import GaussianMap
-from helios.maps.instances import assign_instances
+from helios.maps.instances import assign_instances, summarize_instances
 from helios.maps.labels import label_detections
 from helios.perception.detection import Detection
 from robots.transforms import look_at_camera as look_at
@@ -104,3 +104,16 @@ def test_two_detected_cups_two_metres_apart_are_two_instances():
     assert centres[0] == pytest.approx(-1.0, abs=0.1) and centres[1] == pytest.approx(1.0, abs=0.1)
     assert all(i.class_name == "cup" and i.psi["cup"] == pytest.approx(i.class_scores["cup"] - i.uncertainties["cup"])
                for i in instances)
+
+
+def test_an_instance_takes_the_mode_class_not_the_argmax_of_its_mean_scores():
+    """An instance's class is the most common of its Gaussians' most likely classes; its mean
+    scores S_c may favour another class (here one confident chair Gaussian outweighs two that
+    lean table)."""
+    classes = ClassSet.from_task(["table", "chair"])                                  # table, chair, other
+    exp = np.array([[0.40, 0.35, 0.25], [0.40, 0.35, 0.25], [0.0, 1.0, 0.0]])       # S = (0.267, 0.567, 0.167)
+    means = np.array([[0.0, 0.0, 0.7], [0.1, 0.0, 0.7], [0.2, 0.0, 0.7]])
+    inst, = summarize_instances(means, exp, np.full((3, 3), 0.1), exp.argmax(axis=1), np.zeros(3, dtype=int),
+                                classes, 1.0, GridGeometry(0.025, 100, -1, -1))
+    assert inst.class_scores["chair"] > inst.class_scores["table"]
+    assert inst.class_name == "table"                                                 # 2 of 3 Gaussians vote table

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from tools.cli import main
@@ -24,6 +26,9 @@ def test_calibrate_perception_writes_a_table_json_and_plot(tmp_path, capsys):
     assert result["config"]["bad_view_object"] == SimPerceptionConfig().bad_view_object   # the config is recorded
     from tools.calibrate_perception import load_baseline, receptacle_lines
 
+    assert sum(line.startswith("Receptacle targets (start receptacle, single view, od_a=0.35): precision ")
+               for line in text.splitlines()) == 1                  # the receptacle targets are printed
+    assert receptacle_lines(result) in text
     baseline = load_baseline(str(out / "calibration.json"))       # a run's own file is a valid --baseline
     assert "(before / after)" in receptacle_lines(result, baseline)
 
@@ -34,6 +39,61 @@ def test_calibrate_perception_bad_input_is_one_line(tmp_path, capsys):
     assert main(["calibrate-perception", "--views", "10", "--out", str(tmp_path), "bad_view_object=2"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: ") and "bad_view_object must be in [0, 1]" in err and len(err.splitlines()) == 1
+
+
+def _receptacle_row(precision: float, recall: float) -> dict:
+    return {"precision": precision, "recall": recall, "tp": 10, "fp": 5, "instances": 20}
+
+
+def test_receptacle_lines_judge_the_start_receptacle_against_65_and_60_percent_within_5():
+    """The first line judges the start receptacle's single-view precision and recall against
+    ``RECEPTACLE_TARGETS`` (65 % and 60 %, +- 5 points either way); the goal receptacle and the
+    pooled receptacles do not enter it."""
+    from tools.calibrate_perception import receptacle_lines
+
+    result = {"thresholds": {"od_start_receptacle": 0.35},
+              "task_query": {"start receptacle": _receptacle_row(0.63, 0.58),
+                             "goal receptacle": _receptacle_row(0.40, 0.90)},
+              "pooled": {"receptacles": _receptacle_row(0.5, 0.5)}}
+    assert receptacle_lines(result).splitlines()[0] == (
+        "Receptacle targets (start receptacle, single view, od_a=0.35): "
+        "precision 63.0 % (target 65 +- 5: met); recall 58.0 % (target 60 +- 5: met)")
+    result["task_query"]["start receptacle"] = _receptacle_row(0.50, 0.66)          # too low, too high
+    assert receptacle_lines(result).splitlines()[0] == (
+        "Receptacle targets (start receptacle, single view, od_a=0.35): "
+        "precision 50.0 % (target 65 +- 5: NOT met); recall 66.0 % (target 60 +- 5: NOT met)")
+
+
+def test_calibration_counts_a_look_alike_label_on_the_right_body_as_a_false_positive(monkeypatch):
+    """A detection counts as a hit only when its label is the body's category: in the task query
+    the goal receptacle's label on the table asked for as start receptacle is a false positive of
+    the goal receptacle, never a start-receptacle hit; in the full vocabulary a "desk" on it is a
+    desk false positive, not a table hit."""
+    import tasks.perception_calibration as pc
+    from helios.perception.config import DetectionThresholds
+    from helios.perception.detection import Detection
+
+    ids = np.full((10, 10), -1)
+    ids[:, :5] = 0                                                  # body 0, a table, fills the left half
+    world = SimpleNamespace(bodies={0: SimpleNamespace(kind="furniture", category="table")},
+                            aabb=lambda b: (np.zeros(3), np.ones(3)))
+    backend = SimpleNamespace(render_at=lambda T: SimpleNamespace(rgb=None, depth=None),
+                              segmentation_for=lambda obs: ids)
+    monkeypatch.setattr(pc, "decode_body_ids", lambda seg: seg)
+    queries = []
+
+    def detector(rgb, depth, names):
+        queries.append(list(names))
+        label = names[2] if len(names) == 3 else "desk"             # the goal receptacle / a look-alike
+        return [Detection(ids == 0, label, 0.9)]
+
+    acc = pc._Accumulator(pc.CalibrationSettings(min_pixels=1), DetectionThresholds())
+    acc.view(SimpleNamespace(world=world, backend=backend), detector, np.eye(4), 0, np.random.default_rng(0))
+    start, goal = acc.task["start receptacle"], acc.task["goal receptacle"]
+    assert queries[1][1] == "table"                                 # the task query: (object, table, goal)
+    assert (start.tp, start.fp, start.instances, start.found) == (0, 0, 1, 0)
+    assert (goal.tp, goal.fp) == (0, 1)
+    assert acc.full["table"].tp == 0 and acc.full["desk"].fp == 1
 
 
 ROW = {"precision": 0.5, "recall": None, "tp": 1, "fp": 1, "instances": 2}
