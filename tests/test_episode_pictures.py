@@ -105,6 +105,23 @@ def test_the_grasp_mark_rings_the_target_above_it_and_the_legend_names_the_event
         assert (legend == EVENT[kind]).all(axis=-1).sum() >= 10, kind
 
 
+def test_a_run_of_tools_spot_says_why_its_pages_have_no_picture(picture_runs, tmp_path):
+    """(audit 2026-12-05) A `tools spot --fake --episode` run folder (robot.yaml beside it) keeps no
+    picture data; its pages blamed --no-pictures or an older version."""
+    import shutil
+
+    from tools.report import make_report
+
+    run = tmp_path / "spot-run"
+    shutil.copytree(picture_runs["root"] / "oracle", run)
+    shutil.rmtree(run / "episodes")
+    (run / "robot.yaml").write_text("hostname: 127.0.0.1\n")
+    report = make_report([run], tmp_path / "rep")
+    page = (tmp_path / "rep" / report["pages"]["spot-run"][0].page).read_text()
+    assert "no picture data: episodes run through the Spot SDK backend (tools spot) keep none" in page
+    assert "--no-pictures" not in page
+
+
 def test_a_failed_episodes_page_names_its_failure_reason(picture_runs):
     root = picture_runs["root"] / "report"
     rec = picture_runs["records"]["helios"]

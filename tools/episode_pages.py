@@ -413,6 +413,8 @@ def write_episode_pages(report_dir: Path, run_index: int, run, index_name: str =
             else:
                 why = trace_problem(trace)
                 damaged = f"is damaged ({why})" if why else None
+        elif (run.path / "robot.yaml").is_file():       # tools spot: a robot, or the fake Spot over the SDK
+            problem = "no picture data: episodes run through the Spot SDK backend (tools spot) keep none"
         else:
             problem = "no picture data: the episode was run with --no-pictures or by an older version"
         files: dict[str, str] = {}
