@@ -16,7 +16,7 @@ import sys
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="63 looks instead of 450 (a smoke check, not the table)")
-    parser.add_argument("--out", default="runs/arm_envelope", help="output folder for arm_envelope.png")
+    parser.add_argument("--out", default="runs/arm_envelope", help="output folder for arm_envelope.png (default: %(default)s)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -78,13 +78,18 @@ def _plot(env, path) -> None:
         grid = np.where(np.isfinite(env.lowest[band]), env.lowest[band], np.nan)
         im = ax.imshow(grid.T, origin="lower", extent=(env.xs[0], env.xs[-1], env.ys[0], env.ys[-1]),
                        cmap="viridis_r", vmin=0.6, vmax=1.1)
-        for x0, x1, half, low in boxes:
+        # each box's height label in its own row above the boxes, a leader line to the box's corner
+        # (side by side at the corners they overlapped: boxes a few cm apart)
+        top = max((half + MARGIN for _, _, half, _ in boxes), default=0.0)
+        for k, (x0, x1, half, low) in enumerate(boxes):
             ax.add_patch(plt.Rectangle((x0 - MARGIN, -half - MARGIN), x1 - x0 + 2 * MARGIN, 2 * (half + MARGIN),
                                        fill=False, edgecolor="red", lw=1))
-            ax.text(x1 + MARGIN, half + MARGIN, f"{low - MARGIN:.2f}", color="red", fontsize=7, va="bottom")
+            y = top + 0.06 + 0.065 * k
+            ax.plot([x1 + MARGIN, x1 + MARGIN + 0.04], [half + MARGIN, y], color="red", lw=0.6)
+            ax.text(x1 + MARGIN + 0.05, y, f"{low - MARGIN:.2f} m", color="red", fontsize=7, va="center")
         ax.add_patch(plt.Rectangle((x_lo, y_lo), x_hi - x_lo, y_hi - y_lo, fill=False, edgecolor="0.45", ls="--", lw=1))
-        ax.set_xlim(-0.6, 1.1)
-        ax.set_ylim(-0.6, 0.6)
+        ax.set_xlim(-0.6, 1.25)
+        ax.set_ylim(-0.6, 0.8)
         ax.set_title(band_name(band), fontsize=9)
         ax.set_xlabel("ahead of the body centre (m)")
     axes[0].set_ylabel("left (m)")

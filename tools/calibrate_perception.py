@@ -33,7 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the view sampling (default 0)")
     parser.add_argument("--min-pixels", type=int, default=50,
                         help="an instance counts for recall when at least this many pixels show (default 50)")
-    parser.add_argument("--out", default="runs/perception_calibration", help="output folder for the JSON and the plot")
+    parser.add_argument("--out", default="runs/perception_calibration",
+                        help="output folder for the JSON and the plot (default: %(default)s)")
     parser.add_argument("--baseline", metavar="JSON", default=None,
                         help="a calibration.json of an earlier run: print its receptacle numbers as 'before'")
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="SimPerceptionConfig overrides")
@@ -187,15 +188,19 @@ def plot(result: dict, path: Path) -> None:
     for i, c in enumerate(cats):
         if c not in OBJECT_CATEGORIES:
             ax.axvspan(i - 0.5, i + 0.5, color="0.92", zorder=0)
-    ax.set_ylim(0, 1.05)
+    # the legends sit in a band above 1.0 that no bar reaches (they covered the first bars)
+    ax.set_ylim(0, 1.22)
+    ax.set_yticks([0, 0.2, 0.4, 0.6, 0.8, 1.0])
+    ax.set_ylabel("single-view precision / recall")
     ax.set_title("Single view, per class (grey: furniture)")
-    ax.legend(loc="lower left")
+    ax.legend(loc="upper center", ncol=2, frameon=False)
     rd = result["recall_by_distance"]
     edges = [0.0] + rd["edges_m"] + [rd["edges_m"][-1] + 2.0]
     mids = [(a + b) / 2 for a, b in zip(edges[:-1], edges[1:])]
     vals = [f / n if n else float("nan") for f, n in zip(rd["found"], rd["instances"])]
     axes[1].plot(mids, vals, "o-", color="#3b75af")
     axes[1].set_xlabel("camera distance (m)")
+    axes[1].set_ylabel("recall")
     axes[1].set_ylim(0, 1.05)
     axes[1].set_title("Small-object recall vs distance")
     cons = result["consistency"]
@@ -207,9 +212,11 @@ def plot(result: dict, path: Path) -> None:
     axes[2].bar([i + 0.2 for i in xi], maj, 0.4, label=f"{result['settings']['group']}-view majority", color="#2a9d55")
     axes[2].set_xticks(list(xi))
     axes[2].set_xticklabels(names)
-    axes[2].set_ylim(0, 1.05)
+    axes[2].set_ylim(0, 1.22)
+    axes[2].set_yticks([0, 0.2, 0.4, 0.6, 0.8, 1.0])
+    axes[2].set_ylabel("share of targets labelled right")
     axes[2].set_title("Label accuracy of the target")
-    axes[2].legend(loc="lower right")
+    axes[2].legend(loc="upper center", ncol=2, frameon=False)
     fig.suptitle(f"Simulated detector calibration: {result['views']} views of {result['settings']['scenes']} "
                  f"{result['settings']['split']} scenes")
     fig.tight_layout()

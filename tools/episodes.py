@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     gen.add_argument("--name", required=True, help="split name (prefix of every episode id)")
     gen.add_argument("--seed", type=int, required=True)
     gen.add_argument("--count", type=int, required=True)
-    gen.add_argument("--difficulty", default="normal", choices=["easy", "normal"])
+    gen.add_argument("--difficulty", default="normal", choices=["easy", "normal"], help="default: %(default)s")
     gen.add_argument("--home-size", type=float, nargs=2, metavar=("MIN", "MAX"), default=None,
                      help="bounds (m) of each home's side lengths, instead of the difficulty's (normal 8-15, "
                           "easy 8-9.5); e.g. 12 15 for a split of large homes only")
