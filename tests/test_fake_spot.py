@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import threading
@@ -57,6 +58,22 @@ def _teardown(sdk, robot, *keepalives):
         k.shutdown()
     sdk.clear_robots()                      # stops the time-sync and token threads
     robot.shutdown()
+
+
+@contextlib.contextmanager
+def _powered(demo):
+    """An unmodified SDK session on the fake, authenticated, time-synced, holding the lease, motors
+    on: yields the robot, torn down after."""
+    sdk, robot = _robot(demo)
+    robot.authenticate(TEST_USER, TEST_PASSWORD, timeout=3)
+    robot.time_sync.wait_for_sync(timeout_sec=3)
+    lease_keepalive = LeaseKeepAlive(robot.ensure_client(LeaseClient.default_service_name), must_acquire=True,
+                                     return_at_exit=True)
+    try:
+        robot.power_on(timeout_sec=3, update_frequency=50)
+        yield robot
+    finally:
+        _teardown(sdk, robot, lease_keepalive)
 
 
 def test_unmodified_bosdyn_robot_drives_the_fake_over_tls(demo):
@@ -175,13 +192,7 @@ def test_the_client_refuses_a_server_it_cannot_verify(tmp_path, which):
 
 
 def test_the_fake_refuses_what_a_robot_refuses(demo):
-    sdk, robot = _robot(demo)
-    robot.authenticate(TEST_USER, TEST_PASSWORD, timeout=3)
-    robot.time_sync.wait_for_sync(timeout_sec=3)
-    lease_keepalive = LeaseKeepAlive(robot.ensure_client(LeaseClient.default_service_name), must_acquire=True,
-                                     return_at_exit=True)
-    try:
-        robot.power_on(timeout_sec=3, update_frequency=50)
+    with _powered(demo) as robot:
         command = robot.ensure_client(RobotCommandClient.default_service_name)
         goal = RobotCommandBuilder.synchro_se2_trajectory_point_command(0.4, 0.1, 0.3, frame_helpers.ODOM_FRAME_NAME)
         with pytest.raises(InvalidRequestError):      # trajectory without an end time
@@ -194,8 +205,6 @@ def test_the_fake_refuses_what_a_robot_refuses(demo):
         with pytest.raises(InvalidRequestError):
             command.robot_command(too_long)
         assert not any(c.kind in ("se2", "arm_joint") for c in demo.fake.commands.values())
-    finally:
-        _teardown(sdk, robot, lease_keepalive)
 
 
 def test_fault_switchboard_names():
@@ -214,13 +223,7 @@ def test_a_behavior_fault_is_in_the_robot_state_refuses_motion_and_clears_only_w
     fake = demo.fake
     with pytest.raises(ValueError, match="cause must be one of fall, hardware"):
         fake.inject("behavior_fault", cause="meteor")
-    sdk, robot = _robot(demo)
-    robot.authenticate(TEST_USER, TEST_PASSWORD, timeout=3)
-    robot.time_sync.wait_for_sync(timeout_sec=3)
-    lease_keepalive = LeaseKeepAlive(robot.ensure_client(LeaseClient.default_service_name), must_acquire=True,
-                                     return_at_exit=True)
-    try:
-        robot.power_on(timeout_sec=3, update_frequency=50)
+    with _powered(demo) as robot:
         command = robot.ensure_client(RobotCommandClient.default_service_name)
         states = robot.ensure_client(RobotStateClient.default_service_name)
         fake.inject("behavior_fault", cause="hardware", clearable=False)
@@ -241,8 +244,6 @@ def test_a_behavior_fault_is_in_the_robot_state_refuses_motion_and_clears_only_w
         assert command.clear_behavior_fault(fault.behavior_fault_id)
         assert not states.get_robot_state().behavior_fault_state.faults
         command.robot_command(RobotCommandBuilder.arm_stow_command())   # accepted again
-    finally:
-        _teardown(sdk, robot, lease_keepalive)
 
 
 def test_unknown_fault_is_a_clear_error(demo):

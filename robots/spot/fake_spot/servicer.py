@@ -366,11 +366,16 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         return f.header(resp, request)
 
     # ---------------------------------------------------------------- power
+    def _lease_refused(self, resp, request) -> bool:
+        """The robot's verdict on the lease a command carries, put in ``resp``; True when it is
+        refused (the response then goes back as it is, as a real robot's does)."""
+        resp.lease_use_result.CopyFrom(self.f.check_lease(request.lease))
+        return resp.lease_use_result.status != lease_pb2.LeaseUseResult.STATUS_OK
+
     def PowerCommand(self, request, context):
         f = self.f
         resp = power_pb2.PowerCommandResponse()
-        resp.lease_use_result.CopyFrom(f.check_lease(request.lease))
-        if resp.lease_use_result.status != lease_pb2.LeaseUseResult.STATUS_OK:
+        if self._lease_refused(resp, request):
             resp.status = power_pb2.STATUS_UNKNOWN
             return f.header(resp, request)
         level, _ = f.stop_level()
@@ -399,8 +404,7 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         f = self.f
         R = robot_command_pb2.RobotCommandResponse
         resp = R()
-        resp.lease_use_result.CopyFrom(f.check_lease(request.lease))
-        if resp.lease_use_result.status != lease_pb2.LeaseUseResult.STATUS_OK:
+        if self._lease_refused(resp, request):
             return f.header(resp, request)
         try:
             with f._lock:
@@ -440,8 +444,7 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         f = self.f
         C = robot_command_pb2.ClearBehaviorFaultResponse
         resp = C()
-        resp.lease_use_result.CopyFrom(f.check_lease(request.lease))
-        if resp.lease_use_result.status != lease_pb2.LeaseUseResult.STATUS_OK:
+        if self._lease_refused(resp, request):
             return f.header(resp, request)
         with f._lock:
             fault = f.behavior_fault
@@ -490,8 +493,7 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
     def ManipulationApi(self, request, context):
         f = self.f
         resp = manipulation_api_pb2.ManipulationApiResponse()
-        resp.lease_use_result.CopyFrom(f.check_lease(request.lease))
-        if resp.lease_use_result.status != lease_pb2.LeaseUseResult.STATUS_OK:
+        if self._lease_refused(resp, request):
             return f.header(resp, request)
         if request.WhichOneof("manipulation_cmd") != "pick_object_in_image":
             return f.header(resp, request, header_pb2.CommonError.CODE_INVALID_REQUEST,
