@@ -275,7 +275,7 @@ def read_config_file(path: str | Path) -> dict:
     loaded = yaml_load_text(read_text(p, f"config file {name}"), f"config file {name}", ConfigError)
     if loaded is None:      # empty or comments only: most likely the wrong file, or a save that failed
         raise ConfigError(f"config file {name} holds no settings (empty or only comments); "
-                          "write '{}' in it to mean all defaults, or leave out --config")
+                          "write '{}' in it to mean all defaults, or do not give the file")
     if not isinstance(loaded, Mapping):
         raise ConfigError(f"config file {str(p)!r} must hold a mapping at the top level, "
                           f"not a {type(loaded).__name__}")

@@ -470,6 +470,14 @@ CASES: list[tuple[str, list[str], str]] = [
     ("spot-episode-unknown", ["spot", "--fake", "--episode", "smoke-99999", "--out", "{ws}/new_spot"],
      "no episode 'smoke-99999'"),
     ("spot-episode-split", ["spot", "--fake", "--episode", "nope-00001", "--out", "{ws}/new_spot"], "unknown split"),
+    # the oracle loaded the models and ignored them; a -gt agent was refused after the robot stood (audit)
+    ("spot-episode-oracle-real", ["spot", "--fake", "--episode", "smoke-00000", "--agent", "oracle", "--perception",
+                                  "real", "--detector-weights", "{ws}", "--scorer-weights", "{ws}", "--out",
+                                  "{ws}/new_spot"], "agent 'oracle' reads the simulator's ground truth"),
+    ("spot-episode-gt-real", ["spot", "--fake", "--episode", "smoke-00000", "--agent", "helios-gt", "--perception",
+                              "real", "--models", "{ws}/m.yaml", "--out", "{ws}/new_spot"],
+     "--perception real: agent 'helios-gt' reads the simulator's ground truth and uses no detector; agents that take "
+     "real perception: helios, helios-5050, helios-no-global, helios-place, trusting"),
     ("spot-agent-unknown", [*SPOT, "--agent", "nope"], "unknown agent 'nope'"),
     ("spot-agent-wrong-kind", [*SPOT, "--agent", "helios"], "runs on"),
     ("spot-set-timeout-zero", [*SPOT, "--out", "{ws}/new_spot", "--set", "rpc_timeout=0"], "rpc_timeout must be"),

@@ -53,7 +53,8 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
-from tasks.registry import DEMO, EPISODE, RunContext, agent_names, check_agent, check_robot_agent, make_agent
+from tasks.registry import (DEMO, EPISODE, RunContext, agent_names, check_agent, check_robot_agent, make_agent,
+                            robot_agent_names)
 from tasks.scripted_demo import DemoHints, physical_outcome
 
 _LOG = logging.getLogger("helios.spot")
@@ -105,10 +106,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                          "(--fake --episode only, its default)")
     hw.add_argument("--models", default=None, metavar="FILE.yaml",
                     help="real perception settings (helios.perception.config.ModelConfig YAML: detector_weights, "
-                         "scorer_weights, device, detector_min_score, depth_mask_tolerance)")
+                         "scorer_weights, device, detector_min_score, depth_mask_tolerance; relative folders are "
+                         "taken from the current directory, not the file's)")
     hw.add_argument("--detector-weights", default=None, metavar="DIR", help="OWLv2 weight folder (overrides --models)")
     hw.add_argument("--scorer-weights", default=None, metavar="DIR", help="CLIP weight folder (overrides --models)")
-    hw.add_argument("--device", choices=("cpu", "cuda", "auto"), default=None, help="torch device for the models")
+    hw.add_argument("--device", choices=("cpu", "cuda", "auto"), default=None,
+                    help="torch device for the models (overrides --models; default cpu)")
     hw.add_argument("--max-time", type=float, default=None,
                     help=f"s of robot time per run before the agent is stopped (default {DEFAULT_MAX_TIME:g}: the "
                          f"paper's 10 minutes)")
@@ -236,9 +239,15 @@ def _validate(args: argparse.Namespace):
             raise CliError("--episode brings its own task; leave out --task")
         if args.agent is None:
             args.agent = "helios"
-        check_agent(args.agent, EPISODE)
+        entry = check_agent(args.agent, EPISODE)
         if args.perception is None:
             args.perception = "sim"
+        if args.perception == "real" and not entry.real_robot:
+            # the oracle and the -gt agents read the simulator's ground truth: real models would be
+            # loaded and ignored (oracle), or refused only after the robot stood up (-gt) (audit)
+            raise CliError(f"--perception real: agent {args.agent!r} reads the simulator's ground truth and uses no "
+                           f"detector; agents that take real perception: "
+                           f"{', '.join(n for n in robot_agent_names() if check_agent(n, None).runs_on == EPISODE)}")
     else:
         if not args.task or not args.task.strip():
             raise CliError("--task must not be empty (e.g. --task \"Move the mug from the stool to the table\")")

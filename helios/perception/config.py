@@ -83,6 +83,7 @@ class ModelConfig:
     (OWLv2 gives boxes, the map wants masks). 0 = use the whole box."""
 
     def __post_init__(self) -> None:
+        require(self.device in ("cpu", "cuda", "auto"), f"device must be cpu, cuda or auto, got {self.device!r}")
         require(0.0 <= self.detector_min_score <= 1.0, f"detector_min_score must be in [0, 1], got {self.detector_min_score}")
         require(math.isfinite(self.depth_mask_tolerance) and self.depth_mask_tolerance >= 0,
                 f"depth_mask_tolerance must be >= 0 m, got {self.depth_mask_tolerance}")

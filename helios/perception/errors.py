@@ -27,5 +27,11 @@ class ModelWeightsMissingError(PerceptionError):
     """A real model's weights are not in the local directory the configuration names."""
 
 
+class ModelWeightsInvalidError(ModelWeightsMissingError):
+    """A real model's weights directory holds something the adapter cannot use: another model
+    type, no tokenizer or image-processor files, weights that do not load or do not cover the
+    model (transformers would fill the gaps with random values and the robot would search blind)."""
+
+
 class PerceptionDependencyError(PerceptionError):
     """An optional dependency (``transformers``) of the real-model adapters is not installed."""
