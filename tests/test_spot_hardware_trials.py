@@ -281,3 +281,17 @@ def test_a_recording_that_fails_to_close_loses_the_recording_never_the_record(
     (record,) = [json.loads(line) for line in (tmp_path / "run" / "episodes.jsonl").read_text().splitlines()]
     assert "closing the recording: RuntimeError: File-writer thread shut down prematurely" in \
         record["recording"]["errors"]
+
+
+def test_swapped_weight_folders_are_refused_naming_the_flag_before_any_robot(tiny_models, tmp_path):
+    """(audit 2026-12-05) CLIP weights given as the detector loaded with a warning, the robot stood
+    up, and the episode failed at its first frame (exit 1, a record written)."""
+    from cli_helpers import run_cli
+
+    owl, clip = tiny_models
+    rc, out, err = run_cli(["spot", "--fake", "--episode", "smoke-00000", "--perception", "real",
+                            "--detector-weights", str(clip), "--scorer-weights", str(clip), "--max-time", "5",
+                            "--out", str(tmp_path / "run")])
+    assert rc == 2 and err.count("\n") == 1, err
+    assert "holds a 'clip' model, not 'owlv2': set --detector-weights (or detector_weights in the --models file)" in err
+    assert "connecting" not in out and not (tmp_path / "run").exists()

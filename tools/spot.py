@@ -546,9 +546,9 @@ def _prepare_trial(args, run_dir: Path) -> _Trial:
         # checked here first, so that the message names this command's flags (the loaders name the
         # config keys: perception.models.*)
         check_weights_dir(models.detector_weights, "OWLv2 detector", "--detector-weights (or detector_weights "
-                          "in the --models file)", "google/owlv2-base-patch16-ensemble")
+                          "in the --models file)", "google/owlv2-base-patch16-ensemble", model_type="owlv2")
         check_weights_dir(models.scorer_weights, "CLIP scorer", "--scorer-weights (or scorer_weights in the "
-                          "--models file)", "openai/clip-vit-base-patch32")
+                          "--models file)", "openai/clip-vit-base-patch32", model_type="clip")
         print(f"[spot] loading real perception: detector {models.detector_weights or '?'}, scorer "
               f"{models.scorer_weights or '?'} ({models.device})")
         perception = load_robot_perception(models)       # missing weights: one error, no robot touched
