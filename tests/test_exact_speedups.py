@@ -184,6 +184,11 @@ def test_renderer_matches_the_previous_implementation_bit_for_bit(seed):
     mask[30:70, 50:140] = True
     assert _same(render_gaussians(means, scales, opacities, cam, pose, cfg, mask),
                  reference_render(means, scales, opacities, cam, pose, cfg, mask))
+    # without depth (view evidence): every other field as the full render's, bit for bit
+    bare = render_gaussians(means, scales, opacities, cam, pose, cfg, depth=False)
+    assert all(torch.equal(getattr(bare, f), getattr(fast, f)) for f in
+               ("gaussian_index", "pixel_index", "weight", "silhouette")) and bare.candidate_pairs == fast.candidate_pairs
+    assert bare.pair_depth.numel() == 0 and not bare.accumulated_depth.any()
 
 
 def test_run_start_subtraction_on_the_cpu_equals_the_torch_ops_bit_for_bit():
@@ -258,6 +263,43 @@ def test_kept_pairs_and_selection_on_the_cpu_equal_the_torch_ops():
     arrays = (alpha.reshape(-1), torch.arange(mask.numel()), alpha.reshape(-1).to(torch.float64))
     fast, slow = _select(mask, *arrays), _select_torch(mask, *arrays)
     assert len(fast[1]) == int(mask.sum()) and all(a.dtype == b.dtype and torch.equal(a, b) for a, b in zip(fast, slow))
+    everything = torch.ones_like(mask)                      # nothing cut: the arrays as they are, no gathers
+    fast, slow = _select(everything, *arrays), _select_torch(everything, *arrays)
+    assert all(a.dtype == b.dtype and torch.equal(a, b) for a, b in zip(fast, slow))
+
+
+def test_is_valid_transform_gives_np_allcloses_answers():
+    """The rigid-transform check with np.allclose written out (a third of the time, ~480 calls an
+    episode): the same verdict on rotations, reflections, near-misses around both tolerances, NaN."""
+    from robots.transforms import is_valid_transform
+
+    def reference(T, tol=1e-6):
+        T = np.asarray(T)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            return False
+        R = T[:3, :3]
+        return bool(np.allclose(R @ R.T, np.eye(3), atol=1e-4) and abs(np.linalg.det(R) - 1.0) < 1e-4
+                    and np.allclose(T[3], [0, 0, 0, 1], atol=tol))
+
+    rng = np.random.default_rng(3)
+    cases = []
+    for _ in range(400):
+        q, _r = np.linalg.qr(rng.normal(size=(3, 3)))
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = q, rng.normal(size=3)
+        cases.append(T)                                           # det +1 or -1 (a reflection)
+        for scale in (1e-7, 3e-5, 5e-5, 1e-4, 1e-3):
+            cases.append(T + np.pad(rng.normal(scale=scale, size=(3, 3)), ((0, 1), (0, 1))))
+            bottom = T.copy()
+            bottom[3, :3] = rng.normal(scale=scale, size=3)
+            cases.append(bottom)
+        cases.append(T.astype(np.float32))
+    nan = np.eye(4)
+    nan[0, 3] = np.nan
+    cases += [nan, np.eye(3), np.eye(4)]
+    verdicts = [is_valid_transform(T) for T in cases]
+    assert verdicts == [reference(T) for T in cases]
+    assert 0 < sum(verdicts) < len(verdicts)
 
 
 def test_clip_index_is_np_clip_for_cell_indices():

@@ -177,7 +177,8 @@ class GaussianMap:
         return self.cfg.alpha_cpa * norm
 
     def render(self, intrinsics: CameraIntrinsics, T_world_cam: np.ndarray, indices=None,
-               pixel_mask: torch.Tensor | None = None, render_cfg: RenderConfig | None = None) -> Rendering:
+               pixel_mask: torch.Tensor | None = None, render_cfg: RenderConfig | None = None,
+               depth: bool = True) -> Rendering:
         """Render all Gaussians (or ``indices``) with the given camera (no subsampling applied).
 
         Pair ``gaussian_index`` values index the rendered subset when ``indices`` is given;
@@ -186,10 +187,10 @@ class GaussianMap:
         cfg = self.cfg.render if render_cfg is None else render_cfg
         if indices is None:
             return render_gaussians(self.means, self.scales, self.opacities, intrinsics, T_world_cam,
-                                    cfg, pixel_mask)
+                                    cfg, pixel_mask, depth=depth)
         sel = torch.as_tensor(np.asarray(indices, dtype=np.int64), device=self.device)
         return render_gaussians(self.means[sel], self.scales[sel], self.opacities[sel], intrinsics,
-                                T_world_cam, cfg, pixel_mask)
+                                T_world_cam, cfg, pixel_mask, depth=depth)
 
     def view_evidence(self, indices: np.ndarray, intrinsics: CameraIntrinsics, T_world_cam: np.ndarray) -> torch.Tensor:
         """(n,) float64 evidence one view from the pose adds to each of ``indices`` if every pixel
@@ -213,7 +214,7 @@ class GaussianMap:
                (cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy))
         hit = self._view_evidence.get(key)
         if hit is None:
-            rendering = self.render(cam, pose, indices=idx, render_cfg=render_cfg)
+            rendering = self.render(cam, pose, indices=idx, render_cfg=render_cfg, depth=False)
             hit = scale * rendering.per_gaussian_sum(rendering.silhouette, idx.size)
             self._view_evidence[key] = hit
             self._view_evidence_bytes += hit.numel() * hit.element_size()

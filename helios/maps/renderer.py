@@ -235,10 +235,8 @@ def _kept(keep: torch.Tensor, base_pix: torch.Tensor, offset_pix: torch.Tensor, 
         k = keep.numpy()
         flat = np.flatnonzero(k)
         counts = np.count_nonzero(k, axis=1)
-        # Row starts repeated over each row's pairs: no integer division by the row length.
-        j = flat - np.repeat(np.arange(0, k.size, k.shape[1], dtype=np.int64), counts)
-        return (torch.from_numpy(counts.astype(np.int64, copy=False)),
-                torch.from_numpy(np.repeat(base_pix.numpy(), counts) + offset_pix.numpy()[j]),
+        pix = np.add(base_pix.numpy()[:, None], offset_pix.numpy()).reshape(-1)[flat]
+        return (torch.from_numpy(counts.astype(np.int64, copy=False)), torch.from_numpy(pix),
                 torch.from_numpy(alpha.numpy().reshape(-1)[flat]))
     return _kept_torch(keep, base_pix, offset_pix, alpha)
 
@@ -256,6 +254,8 @@ def _select(mask: torch.Tensor, *arrays: torch.Tensor) -> tuple[torch.Tensor, ..
     gathers (numpy's on the CPU, ~3x faster than ``torch.nonzero`` and ``index_select``)."""
     if mask.device.type == "cpu":
         kept = np.flatnonzero(mask.numpy())
+        if kept.size == mask.numel():       # nothing cut (about half of the renders): no gathers
+            return arrays
         return tuple(torch.from_numpy(a.numpy()[kept]) for a in arrays)
     return _select_torch(mask, *arrays)
 
@@ -275,7 +275,7 @@ def empty_rendering(height: int, width: int, device: torch.device) -> Rendering:
 
 def render_gaussians(means: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
                      intrinsics: CameraIntrinsics, T_world_cam: np.ndarray, cfg: RenderConfig,
-                     pixel_mask: torch.Tensor | None = None) -> Rendering:
+                     pixel_mask: torch.Tensor | None = None, depth: bool = True) -> Rendering:
     """Rasterise isotropic Gaussians (means (N, 3) world, scales (N,) std-dev in m, opacities (N,)).
 
     ``pixel_mask`` (H, W) bool restricts the output to those pixels (others get no pairs).
@@ -399,11 +399,13 @@ def render_gaussians(means: torch.Tensor, scales: torch.Tensor, opacities: torch
                                                   alpha_all)
     g_all = idx.index_select(0, rank_all)
     weight = (alpha_all.to(torch.float64) * torch.exp(log_T)).to(torch.float32)
-    depth = z.index_select(0, g_all)
-
     sil = torch.zeros(H * W, dtype=torch.float32, device=device)
     sil.index_add_(0, pix_all, weight)
     acc = torch.zeros(H * W, dtype=torch.float32, device=device)
-    acc.index_add_(0, pix_all, weight * depth)
+    if depth:
+        depth = z.index_select(0, g_all)
+        acc.index_add_(0, pix_all, weight * depth)
+    else:
+        depth = torch.zeros(0, dtype=torch.float32, device=device)
     return Rendering(H, W, g_all, pix_all, weight, depth, sil.reshape(H, W), acc.reshape(H, W),
                      candidate_pairs=candidates)
