@@ -230,9 +230,9 @@ def test_coarser_hypothetical_views_render_smaller_and_keep_the_evidence_scale(m
     widths = []
     render = GaussianMap.render
 
-    def spy(self, cam, pose, indices=None, pixel_mask=None, render_cfg=None):
+    def spy(self, cam, pose, indices=None, pixel_mask=None, render_cfg=None, depth=True):
         widths.append(cam.width)
-        return render(self, cam, pose, indices=indices, pixel_mask=pixel_mask, render_cfg=render_cfg)
+        return render(self, cam, pose, indices=indices, pixel_mask=pixel_mask, render_cfg=render_cfg, depth=depth)
 
     monkeypatch.setattr(GaussianMap, "render", spy)
     _, coarse = optimistic_evidence(coarse_map, iid, CAM, POSE)
