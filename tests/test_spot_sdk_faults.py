@@ -457,3 +457,66 @@ def test_a_command_that_passed_its_check_just_before_close_does_not_cut_closes_s
         assert not fake.powered and fake.lease_owner is None
     finally:
         demo.stop()
+
+
+@pytest.mark.parametrize("move", ["walk", "hand"])
+def test_a_blocked_walk_or_stalled_hand_is_stopped_not_left_to_resume(move, monkeypatch):
+    """(fidelity audit 2026-12-05) On a real Spot a blocked SE2 trajectory "may start to move again
+    if a blocked path clears" and a stalled arm trajectory is "not cancelled" (basic_command.proto,
+    arm_command.proto); the fake ended both, and the backend returned COLLISION with the command
+    still live: the body walked 0.6 m on, the hand 10 cm, with no command of the agent's."""
+    from bosdyn.api import arm_command_pb2, basic_command_pb2
+
+    from robots.spot.fake_spot import server, servicer
+
+    F = basic_command_pb2.SE2TrajectoryCommand.Feedback
+    A = arm_command_pb2.ArmCartesianCommand.Feedback
+    real_exec, real_feedback = server.execute_on_sim, servicer.feedback
+
+    def blocked_then_clear(fake, cmd):           # as a real robot: blocked 0.8 s, then on along its trajectory
+        if cmd.kind in ("se2", "arm_cartesian") and not cmd.extra.get("was_blocked"):
+            cmd.extra["blocked_now"] = cmd.extra["was_blocked"] = True
+            fake._wake.wait(0.8)
+            cmd.extra["blocked_now"] = False
+            if cmd.state != "running":           # stopped meanwhile: the robot does not move on
+                return False, cmd.detail or "stopped", {}
+        return real_exec(fake, cmd)
+
+    def reports_blocked(cmd):
+        fb = real_feedback(cmd)
+        if cmd.extra.get("blocked_now") and cmd.state == "running":
+            if cmd.kind == "se2":
+                se2 = fb.synchronized_feedback.mobility_command_feedback.se2_trajectory_feedback
+                se2.status, se2.final_goal_status = F.STATUS_STOPPED, F.FINAL_GOAL_STATUS_BLOCKED
+            else:
+                fb.synchronized_feedback.arm_command_feedback.arm_cartesian_feedback.status = A.STATUS_TRAJECTORY_STALLED
+        return fb
+
+    monkeypatch.setattr(server, "execute_on_sim", blocked_then_clear)
+    monkeypatch.setattr(servicer, "feedback", reports_blocked)
+    demo = start_fake(seed=0)
+    backend = connect(demo)
+    fake = demo.fake
+
+    def where():
+        with fake.sim_lock:
+            if move == "walk":
+                p = fake.sim.spot.base_pose()
+                return np.array([p.x, p.y])
+            return fake.sim.spot.T_world_hand()[:3, 3].copy()
+
+    try:
+        if move == "walk":
+            result = backend.navigate_to(SE2Pose(0.6, 0.0, 0.0))
+        else:
+            T = backend._T(backend._state("test"), "body", "hand")
+            T[:3, 3] += (0.10, 0.0, 0.10)
+            result = backend.move_hand(T)
+        assert not result.success and result.reason is Reason.COLLISION
+        returned_at = where()
+        kinds = [c.kind for c in fake.commands.values()]
+        assert kinds[-1] == "stop" and kinds[-2] in ("se2", "arm_cartesian"), kinds
+        time.sleep(1.5)
+        assert np.abs(where() - returned_at).max() < 0.01, "the robot moved on after the call returned"
+    finally:
+        backend.close()

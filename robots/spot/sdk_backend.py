@@ -366,6 +366,8 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
             abs(math.remainder(final.yaw - goal.yaw, 2 * math.pi)) <= cfg.goal_tolerance
         if ok and arrived:
             return NavigateResult(True, Reason.OK, duration=took, final_pose=final, distance=travelled)
+        if ok:                  # AT_GOAL and STOPPED are one status: stopped short, maybe to move on
+            self._stop_quietly()
         blocked = fb.feedback.synchronized_feedback.mobility_command_feedback.se2_trajectory_feedback \
             .final_goal_status == F.FINAL_GOAL_STATUS_BLOCKED
         if blocked:

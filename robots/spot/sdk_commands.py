@@ -286,7 +286,8 @@ class SdkCommands:
         margin, or (``track``: (actual(state) -> vector, planned(t) -> vector), or (actual, None,
         arrived(state) -> bool) for a move the robot plans itself) makes no progress for
         ``stall_time`` while it is not there yet, raises CommandTimeoutError. Whatever error ends the
-        wait (a fault, a lost time sync, an unanswered RPC), a stop is sent first."""
+        wait (a fault, a lost time sync, an unanswered RPC), a stop is sent first, and so is one after
+        a command that ends without success (blocked, stalled), which a robot keeps active."""
         self._guard()
         cfg = self.config
         try:
@@ -317,6 +318,11 @@ class SdkCommands:
                 finished, ok = done(fb)
                 if finished:
                     self._unresponsive = False
+                    if not ok:
+                        # blocked or stalled is not over on a real Spot: an SE2 trajectory "may start
+                        # to move again if a blocked path clears", a stalled arm trajectory is "not
+                        # cancelled" (basic_command.proto, arm_command.proto); stop it here
+                        self._stop_quietly()
                     return ok, fb, time.monotonic() - t0
                 self._guard()                   # e.g. the lease keep-alive found the lease gone
                 self._check_time_sync()
