@@ -520,3 +520,38 @@ def test_a_blocked_walk_or_stalled_hand_is_stopped_not_left_to_resume(move, monk
         assert np.abs(where() - returned_at).max() < 0.01, "the robot moved on after the call returned"
     finally:
         backend.close()
+
+
+def test_close_during_a_power_on_waits_for_it_and_leaves_the_robot_powered_off():
+    """(fidelity audit 2026-12-05) A real power-on takes seconds and a robot takes no other power
+    command meanwhile; close() from a safety thread read POWERING_ON as off, skipped the power off
+    and returned the lease: the robot finished powering on with nobody holding it."""
+    demo = start_fake(seed=0)
+    fake = demo.fake
+    fake.power_on_seconds = 1.5
+    backend = connect(demo, stop_fake_on_close=False, stand_on_connect=False)
+    out = {}
+
+    def agent():
+        try:
+            out["stand"] = backend.stand()
+        except Exception as exc:  # noqa: BLE001 - the close() below cuts it short
+            out["stand"] = exc
+
+    thread = threading.Thread(target=agent)
+    thread.start()
+    time.sleep(0.4)
+    with fake._lock:
+        assert fake.powering_on()
+    t0 = time.monotonic()
+    backend.close()
+    took = time.monotonic() - t0
+    thread.join(5)
+    assert took < 1.5 + CLOSE_WITHIN, took
+    try:
+        time.sleep(1.6)                       # past the end of the power-on
+        with fake._lock:
+            assert not fake.powering_on() and not fake.powered    # (powering_on() settles a finished power-on)
+            assert not (fake.lease_owner or "").startswith("helios") and not fake._endpoints
+    finally:
+        demo.stop()

@@ -83,8 +83,8 @@ class SdkShutdown:
         """The longest a close() can take (a healthy, slow shutdown of every step): how long a second
         close() waits for the first."""
         cfg = self.config
-        return (6 * cfg.rpc_timeout + cfg.arm_move_timeout + cfg.command_margin + cfg.stand_timeout
-                + cfg.close_budget + 2.0)
+        return (7 * cfg.rpc_timeout + cfg.power_on_timeout + cfg.arm_move_timeout + cfg.command_margin
+                + cfg.stand_timeout + cfg.close_budget + 2.0)
 
     def _close_once(self) -> None:
         t0 = time.monotonic()
@@ -142,10 +142,13 @@ class SdkShutdown:
     def _shutdown_in_turn(self, lease) -> None:
         """Healthy robot: stop, stow, sit and power off, return the lease, deregister the e-stop."""
         cfg, bd = self.config, self._bd
-        self._cmd_client.robot_command(bd.Builder.stop_command(), timeout=cfg.rpc_timeout)
-        state = self._state_client.get_robot_state(timeout=cfg.rpc_timeout)
-        powered = state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_ON
-        if powered and not state.manipulator_state.is_gripper_holding_item and \
+        state = self._after_power_on(self._state_client.get_robot_state(timeout=cfg.rpc_timeout))
+        PS = state.power_state
+        motors = PS.motor_power_state
+        if motors != PS.MOTOR_POWER_STATE_OFF:
+            self._cmd_client.robot_command(bd.Builder.stop_command(), timeout=cfg.rpc_timeout)
+            state = self._state_client.get_robot_state(timeout=cfg.rpc_timeout)
+        if motors == PS.MOTOR_POWER_STATE_ON and not state.manipulator_state.is_gripper_holding_item and \
                 state.manipulator_state.stow_state != state.manipulator_state.STOWSTATE_STOWED:
             try:
                 self.stow_arm()
@@ -153,7 +156,8 @@ class SdkShutdown:
                 _LOG.warning("could not stow the arm at shutdown: %s", exc)
                 if self._fault is not None or self._unresponsive:
                     raise _Unanswered("stow failed") from None
-        if powered and cfg.power_off_on_close:
+        # anything but off is powered: a power-on still in progress after its wait, an error state
+        if motors != PS.MOTOR_POWER_STATE_OFF and cfg.power_off_on_close:
             _LOG.info("sitting down and powering off")
             try:
                 self.robot.power_off(cut_immediately=False, timeout_sec=cfg.stand_timeout,
@@ -167,6 +171,27 @@ class SdkShutdown:
             self._estop_client.deregister(ep._config_id, ep, timeout=cfg.rpc_timeout)
             self._estop_endpoint = None
             _LOG.info("e-stop endpoint deregistered")
+
+    def _after_power_on(self, state):
+        """The robot state once a power-on in progress has ended: a robot takes one power command
+        at a time and does not interrupt it (power_service.proto), so a power off sent meanwhile is
+        refused and, the lease returned, the robot finished powering on with nobody holding it
+        (fidelity audit). Waits at most ``power_on_timeout``; after that the shutdown goes on and
+        the power off is tried anyway."""
+        cfg = self.config
+        PS = state.power_state
+        if state.power_state.motor_power_state != PS.MOTOR_POWER_STATE_POWERING_ON:
+            return state
+        t0 = time.monotonic()
+        while state.power_state.motor_power_state == PS.MOTOR_POWER_STATE_POWERING_ON and \
+                time.monotonic() - t0 < cfg.power_on_timeout:
+            time.sleep(cfg.feedback_period)
+            state = self._state_client.get_robot_state(timeout=cfg.rpc_timeout)
+        still = state.power_state.motor_power_state == PS.MOTOR_POWER_STATE_POWERING_ON
+        _LOG.warning("a power-on was in progress at shutdown (power commands cannot be interrupted): %s",
+                     f"waited {time.monotonic() - t0:.1f} s for it to end" if not still else
+                     f"still powering on after {cfg.power_on_timeout:g} s; powering off anyway")
+        return state
 
     def _warn_if_still_powered(self) -> None:
         """The safe power off did not end within ``stand_timeout``. A robot that answers and still

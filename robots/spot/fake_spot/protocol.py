@@ -85,6 +85,7 @@ def robot_state(fake: FakeSpot) -> robot_state_pb2.RobotState:
 def fill_status(fake: FakeSpot, state: robot_state_pb2.RobotState) -> None:
     """Power, behavior fault and e-stop states (bookkeeping, never stale)."""
     with fake._lock:
+        powering_on = fake.powering_on()
         powered = fake.powered
         endpoints = list(fake._endpoints.values())
         hw = "estop" in fake.faults
@@ -93,8 +94,9 @@ def fill_status(fake: FakeSpot, state: robot_state_pb2.RobotState) -> None:
     if fault is not None:
         state.behavior_fault_state.faults.add().CopyFrom(fault)
     del state.estop_states[:]
-    state.power_state.motor_power_state = (robot_state_pb2.PowerState.MOTOR_POWER_STATE_ON if powered
-                                           else robot_state_pb2.PowerState.MOTOR_POWER_STATE_OFF)
+    PS = robot_state_pb2.PowerState
+    state.power_state.motor_power_state = (PS.MOTOR_POWER_STATE_POWERING_ON if powering_on else
+                                           PS.MOTOR_POWER_STATE_ON if powered else PS.MOTOR_POWER_STATE_OFF)
     state.power_state.timestamp.CopyFrom(cv.seconds_to_timestamp(fake.robot_now()))
     es = state.estop_states.add()
     es.name, es.type = "hardware_estop", robot_state_pb2.EStopState.TYPE_HARDWARE

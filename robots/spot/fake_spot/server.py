@@ -147,6 +147,10 @@ class FakeSpot:
         self.powered = False
         self.standing = False
         self.behavior_fault: robot_state_pb2.BehaviorFault | None = None   # inject("behavior_fault")
+        # A real power-on takes seconds (MOTOR_POWER_STATE_POWERING_ON, feedback IN_PROGRESS) and no
+        # other power command is taken meanwhile; 0 powers on at once (most tests).
+        self.power_on_seconds = 0.0
+        self._powering_on_until: float | None = None
         self._estop_config_id = "estop-config-1"
         self._endpoints: dict[str, Endpoint] = {}
         self._lease_epoch = "epoch-" + secrets.token_hex(4)
@@ -484,10 +488,18 @@ class FakeSpot:
     def estop_level(self) -> int:
         return self.stop_level()[0]
 
+    def powering_on(self) -> bool:
+        """A power-on in progress (locked by caller); one that has run its time ends here, powered."""
+        if self._powering_on_until is not None and time.monotonic() >= self._powering_on_until:
+            self._powering_on_until, self.powered = None, True
+        return self._powering_on_until is not None
+
     def _cut_power(self, why: str) -> None:
-        """Motor power off (locked by caller): running commands end as 'robot frozen'."""
+        """Motor power off (locked by caller): running commands end as 'robot frozen'; an e-stop or
+        a power fault also ends a power-on in progress."""
         if self.powered:
             _LOG.info("motor power cut: %s", why)
+        self._powering_on_until = None
         self.powered = False
         self.standing = False
         self._end_commands("frozen", why)

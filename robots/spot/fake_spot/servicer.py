@@ -382,9 +382,14 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         with f._lock:
             resp.power_command_id = f._next_id
             f._next_id += 1
-            if request.request == power_pb2.PowerCommandRequest.REQUEST_ON_MOTORS:
+            if f.powering_on():            # one power command at a time, not interruptible (power_service.proto)
+                resp.status = power_pb2.STATUS_COMMAND_IN_PROGRESS
+            elif request.request == power_pb2.PowerCommandRequest.REQUEST_ON_MOTORS:
                 if level != estop_pb2.ESTOP_LEVEL_NONE:
                     resp.status = power_pb2.STATUS_ESTOPPED
+                elif f.power_on_seconds > 0 and not f.powered:
+                    f._powering_on_until = time.monotonic() + f.power_on_seconds
+                    resp.status = power_pb2.STATUS_IN_PROGRESS
                 else:
                     f.powered = True
                     resp.status = power_pb2.STATUS_SUCCESS
@@ -396,8 +401,12 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         return f.header(resp, request)
 
     def PowerCommandFeedback(self, request, context):
-        resp = power_pb2.PowerCommandFeedbackResponse(status=power_pb2.STATUS_SUCCESS)
-        return self.f.header(resp, request)
+        f = self.f
+        with f._lock:
+            busy = f.powering_on()
+        resp = power_pb2.PowerCommandFeedbackResponse(status=power_pb2.STATUS_IN_PROGRESS if busy
+                                                      else power_pb2.STATUS_SUCCESS)
+        return f.header(resp, request)
 
     # ---------------------------------------------------------------- robot command
     def RobotCommand(self, request, context):
