@@ -555,3 +555,47 @@ def test_close_during_a_power_on_waits_for_it_and_leaves_the_robot_powered_off()
             assert not (fake.lease_owner or "").startswith("helios") and not fake._endpoints
     finally:
         demo.stop()
+
+
+def test_a_request_of_ours_overtaken_by_another_is_sent_again_not_a_lost_lease(monkeypatch):
+    """(fidelity audit 2026-12-05) A robot refuses a sub-lease older than the newest it has seen
+    (STATUS_OLDER), so a safety thread's stop() that the agent's next command overtakes on the way
+    was refused; the backend took it for a lost lease, ended the session, and close() left the
+    robot standing, powered, under our lease. The fake now keeps the newest sub-lease as a robot
+    does; the backend sends an overtaken request again."""
+    from robots.spot.fake_spot import servicer
+
+    real = servicer.SpotServicer.RobotCommand
+    delay = {"stop": 0.0}
+
+    def overtaken(self, request, context):
+        if request.command.HasField("full_body_command") and delay["stop"]:
+            wait, delay["stop"] = delay["stop"], 0.0
+            time.sleep(wait)                    # this request is overtaken in flight
+        return real(self, request, context)
+
+    monkeypatch.setattr(servicer.SpotServicer, "RobotCommand", overtaken)
+    demo = start_fake(seed=0, time_scale=1.0)
+    backend = connect(demo, stop_fake_on_close=False)
+    fake = demo.fake
+    out = {}
+    try:
+        def safety():
+            delay["stop"] = 0.5
+            out["stop"] = backend.stop()
+
+        thread = threading.Thread(target=safety)
+        thread.start()
+        time.sleep(0.1)
+        walk = backend.navigate_to(SE2Pose(1.5, 0.0, 0.0))     # its sub-lease is newer; it arrives first
+        thread.join(5)
+        assert out["stop"].success, out["stop"]
+        assert backend.fault is None
+        assert not walk.success and walk.reason is Reason.STOPPED      # the stop (sent again) ended the walk
+        kinds = [c.kind for c in fake.commands.values()]
+        assert kinds.count("stop") >= 1 and kinds.index("se2") < len(kinds) - 1, kinds
+    finally:
+        backend.close()
+        with fake._lock:
+            assert not fake.powered and not fake.standing and not (fake.lease_owner or "").startswith("helios")
+        demo.stop()

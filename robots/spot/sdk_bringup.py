@@ -290,6 +290,8 @@ class SdkBringUp:
 
     def _on_lease_keepalive_error(self, exc) -> None:
         bd = self._bd
+        if self._overtaken(exc):            # a check-in that one of our commands overtook: still ours
+            return
         if isinstance(exc, (bd.exc.LeaseUseError, bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease)) \
                 and self._fault is None and not self._closing:
             self._fault = LeaseLostError(f"the body lease was revoked or taken by another client ({type(exc).__name__})")

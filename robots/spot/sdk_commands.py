@@ -164,8 +164,9 @@ class SdkCommands:
         try:   # the robot's word on our lease (the keep-alive may not have checked in since it was taken)
             self._lease_client.retain_lease(lease, timeout=self.config.rpc_timeout)
         except (bd.exc.LeaseUseError, bd.lease.Error) as exc:
-            return self._set_fault(LeaseLostError(f"the body lease was revoked or taken by another client {what} "
-                                                  f"({type(exc).__name__})"))
+            if not self._overtaken(exc):        # (a check-in overtaken by a command of ours: still ours)
+                return self._set_fault(LeaseLostError(f"the body lease was revoked or taken by another client "
+                                                      f"{what} ({type(exc).__name__})"))
         except bd.exc.Error as exc:
             fault = self._translate(exc, what)
             return fault if isinstance(fault, RobotFault) else None
@@ -262,20 +263,47 @@ class SdkCommands:
 
     def _call(self, fn, *args, during: str, moves: bool = False, **kwargs):
         """An SDK call with HAL error translation. Nothing is sent from another thread once close()
-        has begun; ``moves``: a motion command (see :meth:`_sending_to_robot`)."""
-        try:
-            with self._sending_to_robot(during, moves):
-                return fn(*args, **kwargs)
-        except BackendClosedError:
-            raise
-        except Exception as exc:
-            if self._closed_to_this_thread():   # our own teardown, not the robot's fault
-                raise BackendClosedError(f"the backend was closed while {during}") from None
-            if not isinstance(exc, (self._bd.exc.Error, self._bd.lease.Error)):
+        has begun; ``moves``: a motion command (see :meth:`_sending_to_robot`). A request that
+        another of ours overtook on its way (the robot refuses the older sub-lease) is sent once
+        more, with a newer one (:meth:`_overtaken`)."""
+        for attempt in (1, 2):
+            try:
+                with self._sending_to_robot(during, moves):
+                    return fn(*args, **kwargs)
+            except BackendClosedError:
                 raise
-            err = self._translate(exc, during, kwargs.get("timeout"))
-            self._unresponsive = isinstance(err, CommandTimeoutError)
-            raise err from None
+            except Exception as exc:
+                if self._closed_to_this_thread():   # our own teardown, not the robot's fault
+                    raise BackendClosedError(f"the backend was closed while {during}") from None
+                if not isinstance(exc, (self._bd.exc.Error, self._bd.lease.Error)):
+                    raise
+                if attempt == 1 and self._overtaken(exc):
+                    _LOG.info("a request of ours was overtaken by a newer one while %s; sent again", during)
+                    continue
+                err = self._translate(exc, during, kwargs.get("timeout"))
+                self._unresponsive = isinstance(err, CommandTimeoutError)
+                raise err from None
+
+    def _overtaken(self, exc: BaseException) -> bool:
+        """A lease refusal that says nothing about who holds the lease: every request carries a
+        newer sub-lease of ours, a robot refuses one older than the newest it has seen
+        (STATUS_OLDER), and two of our threads' requests can arrive out of order (a safety stop
+        overtaken by the agent's next command; a keep-alive check-in by a command). As the SDK's
+        wallet does (``LeaseState.update_from_lease_use_result``; it is not told of check-in
+        results), the robot's newest known lease decides: ours when our current sub-lease is as new
+        or newer, another client's otherwise. Taken as a lost lease, such a refusal ended the
+        session and close() left the robot powered under our lease (fidelity audit)."""
+        bd = self._bd
+        result = getattr(exc, "lease_use_result", None)
+        if not isinstance(exc, bd.exc.LeaseUseError) or result is None or result.status != result.STATUS_OLDER:
+            return False
+        try:
+            ours = self._lease_client.lease_wallet.get_lease()
+        except bd.lease.Error:
+            return False                        # the wallet saw another client's newer lease: lost
+        latest = bd.lease.Lease(result.latest_known_lease)
+        C = bd.lease.Lease.CompareResult
+        return latest.is_valid_lease() and ours.compare(latest) in (C.NEWER, C.SAME)
 
     def _run_command(self, command, *, during: str, expected: float, done: Callable, end_time_secs=None,
                      track: "tuple | None" = None):

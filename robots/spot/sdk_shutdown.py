@@ -126,10 +126,16 @@ class SdkShutdown:
                        else f"the robot stopped answering during shutdown ({type(exc).__name__})")
                 _LOG.warning("%s; sending the remaining steps without waiting", why)
             except (bd.exc.LeaseUseError, bd.lease.Error) as exc:
-                # another client (the tablet) took the lease while we shut down: nothing more of ours
-                # may move the robot; say so (the shutdown is not done), never log it and go on
-                self._fault = self._fault or LeaseLostError(f"the body lease was taken by another client "
-                                                            f"during the shutdown ({type(exc).__name__})")
+                if self._overtaken(exc):
+                    # one of our own requests overtook this step's: the lease is still ours, and the
+                    # steps go out again, back to back, with newer sub-leases
+                    _LOG.warning("a shutdown step was overtaken by another request of ours; sending the "
+                                 "remaining steps without waiting")
+                else:
+                    # another client (the tablet) took the lease while we shut down: nothing more of
+                    # ours may move the robot; say so (the shutdown is not done), never log it and go on
+                    self._fault = self._fault or LeaseLostError(f"the body lease was taken by another client "
+                                                                f"during the shutdown ({type(exc).__name__})")
             except Exception as exc:  # noqa: BLE001
                 _LOG.warning("shutdown step failed: %s: %s", type(exc).__name__, str(exc).split("\n")[0])
             lease = self._our_lease()

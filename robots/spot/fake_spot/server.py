@@ -64,6 +64,8 @@ from bosdyn.api import (
     time_sync_service_pb2_grpc,
 )
 
+from bosdyn.client.lease import Lease
+
 from robots.hal import HalError, Observation
 from robots.spot import sdk_conversions as cv
 from robots.spot.fake_spot.bookkeeping import STOP_LEVEL_NAMES, Command, Endpoint
@@ -155,6 +157,7 @@ class FakeSpot:
         self._endpoints: dict[str, Endpoint] = {}
         self._lease_epoch = "epoch-" + secrets.token_hex(4)
         self._lease_seq = 0
+        self._newest_used = None        # (lease sequence, the newest sub-lease a command used under it)
         self.lease_owner: str | None = None
         # commands
         self.commands: dict[int, Command] = {}
@@ -532,8 +535,11 @@ class FakeSpot:
         return lease_pb2.Lease(resource="body", epoch=self._lease_epoch, sequence=[self._lease_seq],
                                client_names=[self.lease_owner or ""])
 
-    def check_lease(self, lease: lease_pb2.Lease) -> lease_pb2.LeaseUseResult:
-        """The robot's verdict on a lease attached to a command."""
+    def check_lease(self, lease: lease_pb2.Lease, newest: bool = False) -> lease_pb2.LeaseUseResult:
+        """The robot's verdict on a lease attached to a command. ``newest`` (commands): as a robot's
+        lease validator does, the newest sub-lease used so far under the current lease is kept and an
+        older one is refused (STATUS_OLDER), so two requests of one client that arrive out of order
+        are told apart from a lease taken by another (bosdyn/client/lease_validator.py)."""
         with self._lock:
             result = lease_pb2.LeaseUseResult(attempted_lease=lease, latest_known_lease=self.current_lease())
             if self.lease_owner:
@@ -547,8 +553,15 @@ class FakeSpot:
             elif lease.sequence[0] > self._lease_seq or self.lease_owner is None:
                 result.status = lease_pb2.LeaseUseResult.STATUS_REVOKED if self.lease_owner is None \
                     else lease_pb2.LeaseUseResult.STATUS_INVALID_LEASE
+            elif newest and self._newest_used is not None and self._newest_used[0] == self._lease_seq and \
+                    Lease(lease).compare(self._newest_used[1]) in (Lease.CompareResult.OLDER,
+                                                                   Lease.CompareResult.SUPER_LEASE):
+                result.status = lease_pb2.LeaseUseResult.STATUS_OLDER
+                result.latest_known_lease.CopyFrom(self._newest_used[1].lease_proto)
             else:
                 result.status = lease_pb2.LeaseUseResult.STATUS_OK
+                if newest:
+                    self._newest_used = (self._lease_seq, Lease(lease))
             return result
 
     # ---------------------------------------------------------------- commands

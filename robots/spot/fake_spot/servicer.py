@@ -369,7 +369,7 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
     def _lease_refused(self, resp, request) -> bool:
         """The robot's verdict on the lease a command carries, put in ``resp``; True when it is
         refused (the response then goes back as it is, as a real robot's does)."""
-        resp.lease_use_result.CopyFrom(self.f.check_lease(request.lease))
+        resp.lease_use_result.CopyFrom(self.f.check_lease(request.lease, newest=True))
         return resp.lease_use_result.status != lease_pb2.LeaseUseResult.STATUS_OK
 
     def PowerCommand(self, request, context):
