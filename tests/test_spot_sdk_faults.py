@@ -599,3 +599,37 @@ def test_a_request_of_ours_overtaken_by_another_is_sent_again_not_a_lost_lease(m
         with fake._lock:
             assert not fake.powered and not fake.standing and not (fake.lease_owner or "").startswith("helios")
         demo.stop()
+
+
+def test_a_grasp_waiting_for_data_at_the_image_edge_is_given_up_not_timed_out(monkeypatch):
+    """(fidelity audit 2026-12-05) Without auto gaze a real Spot waits in
+    MANIP_STATE_GRASP_PLANNING_WAITING_DATA_AT_EDGE for a better view that never comes; the backend
+    held the grasp to grasp_timeout, raised CommandTimeoutError and marked the robot unresponsive
+    (so close() skipped the stow)."""
+    from bosdyn.api import manipulation_api_pb2
+
+    from robots.spot.fake_spot import servicer
+
+    real = servicer.SpotServicer.ManipulationApiFeedback
+
+    def at_edge(self, request, context):
+        resp = real(self, request, context)
+        resp.current_state = manipulation_api_pb2.MANIP_STATE_GRASP_PLANNING_WAITING_DATA_AT_EDGE
+        return resp
+
+    monkeypatch.setattr(servicer.SpotServicer, "ManipulationApiFeedback", at_edge)
+    demo = start_fake(seed=0)
+    backend = connect(demo, grasp_timeout=6.0, grasp_edge_wait=0.5)
+    fake = demo.fake
+    try:
+        obs = backend.observe()
+        vs, us = np.nonzero(obs.depth > 0)
+        pixel = (int(us[0]), int(vs[0]))
+        t0 = time.monotonic()
+        result = backend.grasp(obs, pixel)
+        assert time.monotonic() - t0 < 2.0
+        assert not result.success and result.reason is Reason.UNREACHABLE and "image's edge" in result.message
+        assert not result.holding and not backend._unresponsive and backend.fault is None
+        assert [c.kind for c in fake.commands.values()][-1] == "stop"
+    finally:
+        backend.close()

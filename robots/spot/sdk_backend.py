@@ -539,11 +539,24 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
                         M.MANIP_STATE_GRASP_PLANNING_NO_SOLUTION, M.MANIP_STATE_GRASP_FAILED_TO_RAYCAST_INTO_MAP,
                         M.MANIP_STATE_DONE}
             deadline = t0 + cfg.grasp_timeout
+            at_edge_since = None
             while True:
                 fb = self._call(self._manip_client.manipulation_api_feedback_command,
                                 manipulation_api_feedback_request=request, timeout=cfg.rpc_timeout, during="grasping")
                 if fb.current_state in terminal:
                     break
+                if fb.current_state == M.MANIP_STATE_GRASP_PLANNING_WAITING_DATA_AT_EDGE:
+                    # the target sits at the image's edge and, without auto gaze, the robot waits for a
+                    # better view that never comes: it held the grasp to its timeout (fidelity audit)
+                    at_edge_since = at_edge_since or time.monotonic()
+                    if time.monotonic() - at_edge_since >= cfg.grasp_edge_wait:
+                        self._stop_quietly()
+                        return GraspResult(False, Reason.UNREACHABLE, f"the target at pixel ({u}, {v}) is at the "
+                                           f"image's edge and the robot waits for a better view; look at it so it "
+                                           f"sits nearer the image centre", target_world=tgt,
+                                           duration=time.monotonic() - t0)
+                else:
+                    at_edge_since = None
                 self._guard()                 # a sticky fault (the keep-alive's lost lease, ...)
                 if time.monotonic() > deadline:
                     self._unresponsive = True

@@ -69,6 +69,9 @@ class SdkBackendConfig:
     command_margin: float = 2.0            # s a command may run past its planned duration before it times out
     arm_move_timeout: float = 10.0         # s for moves the robot plans itself (gaze, stow, carry)
     grasp_timeout: float = 20.0            # s for a pick-in-image
+    grasp_edge_wait: float = 2.0           # s a pick may wait for data at the image's edge (the robot does
+    #                                        not gaze by itself in PICK_NO_AUTO_WALK_OR_GAZE) before it is
+    #                                        given up as unreachable from this view (home-robot's Spot client: 2 s)
     time_sync_interval: float = 1.0        # s between time-sync updates (SDK default 60): bounds how long a
     #                                        time-sync loss takes to surface during a motion
     close_budget: float = 2.0              # s of wall time close() may spend on a robot after a fault or
@@ -91,7 +94,7 @@ class SdkBackendConfig:
         if not (0 < int(self.port) < 65536):
             raise ValueError(f"port must be within 1..65535, got {self.port}")
         for name in ("estop_timeout", "rpc_timeout", "image_rpc_timeout", "connect_timeout", "power_on_timeout",
-                     "stand_timeout", "feedback_period", "arm_move_timeout", "grasp_timeout",
+                     "stand_timeout", "feedback_period", "arm_move_timeout", "grasp_timeout", "grasp_edge_wait",
                      "time_sync_interval", "lease_retain_period", "close_budget", "stall_time"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
