@@ -249,13 +249,15 @@ def test_close_is_bounded_when_the_robot_accepts_commands_but_never_finishes_the
 def test_close_is_bounded_when_the_robot_never_completes_the_safe_power_off(caplog):
     """A robot that takes the safe power off at shutdown but cannot sit (it goes on standing,
     motors on): close() waits ``stand_timeout`` for the sit, no longer, leaves the power off with
-    the robot (no stop over it), returns the lease, deregisters its e-stop endpoint, joins its
-    threads, and says in one warning that the robot may still be standing powered."""
+    the robot (no stop over it), returns the lease, joins its threads, and says in one warning that
+    the robot may still be standing powered. Its e-stop endpoint it cannot deregister (a robot
+    refuses while the motors are on: the fake said yes, fidelity audit): with the check-ins stopped
+    it cuts the power once estop_timeout has passed."""
     import logging
 
     before = python_threads()
     demo = start_fake(seed=0)
-    backend = connect(demo)                      # stand_timeout 3 s (fast_config)
+    backend = connect(demo, estop_timeout=1.5)   # stand_timeout 3 s (fast_config)
     fake = demo.fake
     assert fake.powered and fake.standing
     fake.inject("power_off_stalls")
@@ -266,13 +268,19 @@ def test_close_is_bounded_when_the_robot_never_completes_the_safe_power_off(capl
     assert closing < backend.config.stand_timeout + CLOSE_WITHIN, f"close() took {closing:.2f} s"
     assert closing > backend.config.stand_timeout - 0.5        # it did wait for the sit
     assert fake.powered and fake.standing                      # the fault: the robot never sat down
-    assert fake.lease_owner is None and not fake._endpoints    # nothing of ours left on the robot
+    assert fake.lease_owner is None and len(fake._endpoints) == 1
     last = list(fake.commands.values())[-1]
     assert (last.kind, last.state) == ("safe_power_off", "running")   # still trying to sit
     assert [c.kind for c in fake.commands.values()].count("safe_power_off") == 1
     warnings = [r.getMessage() for r in caplog.records if "did not power off" in r.getMessage()]
     assert len(warnings) == 1 and "\n" not in warnings[0], [r.getMessage() for r in caplog.records]
     assert "standing" in warnings[0] and "e-stop" in warnings[0]
+    assert any("e-stop endpoint stays registered" in r.getMessage() for r in caplog.records)
+    time.sleep(1.6)                                            # our endpoint's timeout: no check-ins since close
+    from bosdyn.api import estop_pb2
+
+    level, _ = fake.stop_level()
+    assert level != estop_pb2.ESTOP_LEVEL_NONE and not fake.powered        # it cut the power
     leaked = wait_for_threads_to_end(before)
     assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
 

@@ -174,9 +174,12 @@ class SdkShutdown:
         _LOG.info("lease returned")
         if self._estop_endpoint is not None:
             ep = self._estop_endpoint
-            self._estop_client.deregister(ep._config_id, ep, timeout=cfg.rpc_timeout)
+            try:
+                self._estop_client.deregister(ep._config_id, ep, timeout=cfg.rpc_timeout)
+                _LOG.info("e-stop endpoint deregistered")
+            except bd.estop.MotorsOnError:
+                self._estop_kept_powered()
             self._estop_endpoint = None
-            _LOG.info("e-stop endpoint deregistered")
 
     def _after_power_on(self, state):
         """The robot state once a power-on in progress has ended: a robot takes one power command
@@ -199,6 +202,28 @@ class SdkShutdown:
                      f"still powering on after {cfg.power_on_timeout:g} s; powering off anyway")
         return state
 
+    def _refused_motors_on(self, fut) -> bool:
+        """Whether a finished deregistration was refused because the motors are on."""
+        try:
+            future_result(fut, 0.0)
+        except self._bd.estop.MotorsOnError:
+            return True
+        except Exception:  # noqa: BLE001 - any other outcome is reported as unconfirmed
+            return False
+        return False
+
+    def _estop_kept_powered(self) -> None:
+        """Our e-stop endpoint could not be deregistered: a robot keeps an endpoint while its motors
+        are on (estop.proto), and with our check-ins stopped it settles the robot and cuts its power
+        within ``estop_timeout``, also under another client that took the lease (fidelity audit: the
+        fake deregistered it). Said once, and in ``close_problem`` where the robot is another's."""
+        note = (f"our e-stop endpoint stays registered (the robot refuses to deregister one while its motors are "
+                f"on): with its check-ins stopped the robot settles and cuts motor power within "
+                f"{self.config.estop_timeout:g} s")
+        _LOG.warning(note)
+        if self.close_problem is not None:
+            self.close_problem = f"{self.close_problem}; {note}"
+
     def _warn_if_still_powered(self) -> None:
         """The safe power off did not end within ``stand_timeout``. A robot that answers and still
         has motor power took the command and could not sit (something under it, a slope): it stays
@@ -213,8 +238,9 @@ class SdkShutdown:
         if state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_OFF:
             return          # it powered off just after the last check
         _LOG.warning("the robot did not power off within %.1f s of the safe power off (it could not sit "
-                     "down): it may still be standing with motor power on; returning the lease and our "
-                     "e-stop endpoint, take over with the tablet or the e-stop", cfg.stand_timeout)
+                     "down): it may still be standing with motor power on; returning the lease (our e-stop "
+                     "endpoint, if any, cuts power once its check-ins stop), take over with the tablet or the "
+                     "e-stop", cfg.stand_timeout)
 
     def _shutdown_in_flight(self, lease, deadline: float) -> None:
         """Degraded robot or link: stop and safe power off (with our lease), then return the lease
@@ -244,6 +270,8 @@ class SdkShutdown:
         for name, fut in pending:
             if name in done:
                 _LOG.info("shutdown: %s done", name)
+            elif name == "e-stop deregistration" and self._refused_motors_on(fut):
+                self._estop_kept_powered()
             else:
                 cancel_future(fut)
                 _LOG.warning("shutdown: %s not confirmed by the robot", name)

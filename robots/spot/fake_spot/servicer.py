@@ -327,7 +327,9 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         f = self.f
         resp = estop_pb2.DeregisterEstopEndpointResponse()
         with f._lock:
-            if request.target_endpoint.unique_id in f._endpoints:
+            if f.powered or f.powering_on():        # "cannot deregister an endpoint while the motors are on"
+                resp.status = resp.STATUS_MOTORS_ON
+            elif request.target_endpoint.unique_id in f._endpoints:
                 del f._endpoints[request.target_endpoint.unique_id]
                 resp.status = resp.STATUS_SUCCESS
             else:
