@@ -641,3 +641,47 @@ def test_a_grasp_waiting_for_data_at_the_image_edge_is_given_up_not_timed_out(mo
         assert [c.kind for c in fake.commands.values()][-1] == "stop"
     finally:
         backend.close()
+
+
+@pytest.mark.parametrize("move", ["walk", "arm", "hand"])
+def test_a_trajectory_is_stamped_when_it_is_sent_not_when_it_was_built(move, monkeypatch):
+    """(fidelity audit 2026-12-05) The reference time was set when the command was built, before
+    the time-sync check that can take an RPC timeout: the robot would start the trajectory partly
+    in the past and hurry to catch up."""
+    from robots.spot.sdk_backend import SdkSpotBackend
+
+    demo = start_fake(seed=0)
+    backend = connect(demo)
+    sent = []
+    real_check = SdkSpotBackend._check_time_sync
+
+    def slow_check(self):
+        time.sleep(0.4)                          # one more time-sync update of our own, on a slow link
+        return real_check(self)
+
+    def capture(command, **kwargs):
+        sent.append((command, time.time()))
+        return real_send(command, **kwargs)
+
+    real_send = backend._cmd_client.robot_command
+    monkeypatch.setattr(SdkSpotBackend, "_check_time_sync", slow_check)
+    monkeypatch.setattr(backend._cmd_client, "robot_command", capture)
+    try:
+        if move == "walk":
+            assert backend.navigate_to(SE2Pose(0.1, 0.0, 0.0)).success
+        elif move == "arm":
+            assert backend.move_arm_joints(model.ARM_READY).success
+        else:
+            assert backend.move_arm_joints(model.ARM_READY).success
+            T = backend._T(backend._state("test"), "body", "hand")
+            T[:3, 3] += (0.03, 0.0, 0.0)
+            assert backend.move_hand(T).success
+        command, at = sent[-1]
+        sync = command.synchronized_command
+        trajectory = {"walk": lambda: sync.mobility_command.se2_trajectory_request.trajectory,
+                      "arm": lambda: sync.arm_command.arm_joint_move_command.trajectory,
+                      "hand": lambda: sync.arm_command.arm_cartesian_command.pose_trajectory_in_task}[move]()
+        stamp = trajectory.reference_time.seconds + trajectory.reference_time.nanos * 1e-9
+        assert 0 <= at - stamp < 0.1, at - stamp
+    finally:
+        backend.close()

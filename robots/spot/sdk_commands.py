@@ -323,6 +323,7 @@ class SdkCommands:
         except TimeSyncLostError:
             self._stop_quietly()
             raise
+        self._restamp(command)
         t0 = time.monotonic()
         try:
             cmd_id = self._call(self._cmd_client.robot_command, command, end_time_secs=end_time_secs, moves=True,
@@ -377,6 +378,25 @@ class SdkCommands:
             # KeyError from a robot state missing a frame, or Ctrl-C): the robot must not go on moving
             self._stop_quietly()
             raise
+
+    def _restamp(self, command) -> None:
+        """A trajectory's reference time set to now, just before it is sent: the command was built
+        (and stamped) before the time-sync check, which can take an RPC timeout, and a trajectory
+        that starts in the past has the robot hurry to where its plan is by now (fidelity audit)."""
+        sync = command.synchronized_command
+        now = self._local_now_ts(self._bd.cv)
+        stamps = []
+        if sync.HasField("mobility_command") and sync.mobility_command.HasField("se2_trajectory_request"):
+            stamps.append(sync.mobility_command.se2_trajectory_request.trajectory)
+        if sync.HasField("arm_command"):
+            arm = sync.arm_command
+            if arm.HasField("arm_joint_move_command"):
+                stamps.append(arm.arm_joint_move_command.trajectory)
+            if arm.HasField("arm_cartesian_command"):
+                stamps.append(arm.arm_cartesian_command.pose_trajectory_in_task)
+        for trajectory in stamps:
+            if trajectory.HasField("reference_time"):
+                trajectory.reference_time.CopyFrom(now)
 
     def _ended(self, fb) -> bool:
         """True when the command is no longer being processed (overridden, timed out, frozen)."""
