@@ -302,6 +302,21 @@ def as_point(value, name: str) -> np.ndarray:
     return p
 
 
+def as_hand_pose(value, name: str = "hand pose") -> np.ndarray:
+    """A command argument as a rigid 4x4 transform (finite, orthonormal rotation with det +1, last
+    row 0 0 0 1); every backend refuses anything else the same way (the sim backend used to answer
+    a non-rigid pose with IK_FAILED where the SDK backend raised)."""
+    try:
+        T = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InvalidCommandError(f"{name} must be a 4x4 transform, got {type(value).__name__}") from exc
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise InvalidCommandError(f"{name} must be a finite 4x4 transform, got shape {T.shape}")
+    if not is_valid_transform(T):
+        raise InvalidCommandError(f"{name} must be a rigid transform (orthonormal rotation, last row 0 0 0 1)")
+    return T
+
+
 def as_pixel(pixel, obs: Observation) -> tuple[int, int]:
     """A command argument as an integer (u, v) pixel inside ``obs``'s image."""
     try:
@@ -336,7 +351,8 @@ class RobotBackend(Protocol):
         """Move the six arm joints [sh0, sh1, el0, el1, wr0, wr1] (radians) along a smooth path."""
 
     def move_hand(self, T_body_hand: np.ndarray) -> CommandResult:
-        """Move the hand frame to a pose given in the body frame."""
+        """Move the hand frame to a pose given in the body frame (a rigid 4x4 transform, else
+        InvalidCommandError; IK_FAILED when no arm configuration within limits reaches it)."""
 
     def grasp(self, observation: Observation, pixel: tuple[int, int]) -> GraspResult:
         """Pick up what is seen at ``pixel`` of ``observation`` (Spot's pick-in-image)."""

@@ -115,9 +115,13 @@ def test_grasp_and_place_cycle(backend_and_facts):
     assert backend.navigate_to(SE2Pose(mug[0] - 0.95, mug[1], 0.0)).success
     assert backend.gaze_at(mug + [0, 0, 0.05]).success
     obs = backend.observe()
-    res = backend.grasp(obs, _pixel_of(obs, mug + [0, 0, 0.05]))
+    pixel = _pixel_of(obs, mug + [0, 0, 0.05])
+    res = backend.grasp(obs, pixel)
     assert isinstance(res, GraspResult) and res.success and res.holding
     assert backend.observe().holding
+    # where it grasped: the observation's point at the pixel, in the world frame (on the mug)
+    np.testing.assert_allclose(res.target_world, obs.point_at_pixel(*pixel), atol=1e-6)
+    assert np.linalg.norm(np.asarray(res.target_world)[:2] - mug[:2]) < 0.08
     again = backend.grasp(backend.observe(), (10, 10))
     assert not again.success and again.reason is Reason.ALREADY_HOLDING
     assert backend.stow_arm().success and backend.observe().holding
@@ -130,6 +134,9 @@ def test_grasp_and_place_cycle(backend_and_facts):
     placed = backend.place([near_edge[0], near_edge[1], facts["table_height"]])
     assert isinstance(placed, PlaceResult) and placed.success
     assert not backend.observe().holding
+    # where it let go: over the point, in the world frame, above the table by the release height
+    assert np.linalg.norm(np.asarray(placed.release_point[:2]) - near_edge) < 0.1
+    assert facts["table_height"] + 0.10 <= placed.release_point[2] <= facts["table_height"] + 0.35
     empty = backend.place([near_edge[0], near_edge[1], facts["table_height"]])
     assert not empty.success and empty.reason is Reason.NOT_HOLDING
 
@@ -139,12 +146,107 @@ def test_every_command_after_close_raises_backend_closed(name):
     from robots.hal import BackendClosedError, HalError
 
     backend, _ = BACKENDS[name]()
+    obs = backend.observe()
     backend.close()
     backend.close()                                   # twice is fine
     commands = [lambda: backend.observe(), lambda: backend.navigate_to(SE2Pose(0.1, 0.0, 0.0)),
                 lambda: backend.move_arm_joints(model.ARM_READY), lambda: backend.gaze_at([1.0, 0.0, 0.5]),
-                lambda: backend.stow_arm(), lambda: backend.stand(), lambda: backend.stop()]
+                lambda: backend.stow_arm(), lambda: backend.stand(), lambda: backend.stop(),
+                lambda: backend.move_hand(kinematics.hand_pose(model.ARM_READY)),
+                lambda: backend.grasp(obs, (10, 10)), lambda: backend.place([1.0, 0.0, 0.5])]
     for command in commands:
         with pytest.raises(BackendClosedError, match="closed") as info:
             command()
         assert isinstance(info.value, HalError) and isinstance(info.value, RuntimeError)
+
+
+
+# ------------------------------------------------------------------------------------------------
+# Obligations a HAL-contract audit found unchecked on one backend or both (2026-12-05): each of
+# these tests failed under a realistic break of one backend that the suite above let through
+# ------------------------------------------------------------------------------------------------
+def test_stop_twice_is_fine_and_the_robot_still_moves_after(backend_and_facts):
+    backend, _ = backend_and_facts
+    assert backend.stop().success and backend.stop().success
+    assert backend.navigate_to(SE2Pose(0.2, 0.0, 0.0)).success
+
+
+def test_results_report_the_path_walked_and_a_duration(backend_and_facts):
+    """``distance`` is the path's length (via the waypoint), not the straight line; every command
+    reports how long it took (the sim: the plan's duration on its clock)."""
+    from robots.spot.motion import plan_base
+
+    backend, _ = backend_and_facts
+    start = backend.observe().body_pose
+    via, goal = SE2Pose(0.3, 0.0, 0.0), SE2Pose(0.6, -0.4, 0.0)
+    nav = backend.navigate_to(goal, via=[via])
+    assert nav.success and nav.duration > 0
+    assert nav.distance == pytest.approx(0.3 + math.hypot(0.3, 0.4), abs=0.02)
+    if type(backend).__name__ == "SimSpotBackend":      # the unpaced fake's robot clock runs as fast as it can
+        assert nav.duration == pytest.approx(plan_base(start, [via, goal], backend.config.motion.base).duration,
+                                             abs=0.06)
+    for what, res in (("arm", backend.move_arm_joints(model.ARM_READY)), ("gaze", backend.gaze_at([2.0, 0.0, 0.3])),
+                      ("stow", backend.stow_arm())):
+        assert res.success and res.duration > 0, what
+
+
+@pytest.mark.parametrize("call", ["gaze", "place", "release_height", "hand", "arm", "via", "non-rigid hand"])
+def test_a_bad_argument_raises_before_anything_moves(backend_and_facts, call):
+    from robots.hal import InvalidCommandError
+
+    backend, _ = backend_and_facts
+    before = backend.observe()
+    nan_hand = kinematics.hand_pose(model.ARM_READY)
+    nan_hand[0, 3] = np.nan
+    sheared = kinematics.hand_pose(model.ARM_READY)
+    sheared[0, 1] += 0.2                              # finite, but not a rotation (sim said IK_FAILED, sdk raised)
+    calls = {"gaze": lambda: backend.gaze_at([1.0, np.nan, 0.5]),
+             "place": lambda: backend.place([1.0, np.nan, 0.5]),
+             "release_height": lambda: backend.place([1.0, 0.0, 0.5], release_height=float("nan")),
+             "hand": lambda: backend.move_hand(nan_hand), "non-rigid hand": lambda: backend.move_hand(sheared),
+             "arm": lambda: backend.move_arm_joints([0, np.nan, 0, 0, 0, 0]),
+             "via": lambda: backend.navigate_to(SE2Pose(0.1, 0, 0), via=[(np.nan, 0.0, 0.0)])}
+    with pytest.raises(InvalidCommandError):
+        calls[call]()
+    after = backend.observe()
+    assert after.body_pose.distance_to(before.body_pose) < 1e-6
+    np.testing.assert_allclose([after.joint_positions[j] for j in model.ARM_JOINTS],
+                               [before.joint_positions[j] for j in model.ARM_JOINTS], atol=1e-6)
+
+
+def test_a_gaze_the_arm_cannot_make_is_unreachable_and_leaves_the_body_where_it_is(backend_and_facts):
+    backend, _ = backend_and_facts
+    before = backend.observe().body_pose
+    res = backend.gaze_at([before.x - 2.0, before.y, 0.5])      # straight behind the robot
+    after = backend.observe().body_pose
+    assert not res.success and res.reason is Reason.UNREACHABLE
+    assert after.distance_to(before) < 1e-3 and abs(after.yaw - before.yaw) < 1e-3
+
+
+def test_a_grasp_from_too_far_is_out_of_reach(backend_and_facts):
+    backend, facts = backend_and_facts
+    mug = facts["mug_position"]
+    assert backend.navigate_to(SE2Pose(mug[0] - 1.6, mug[1], 0.0)).success
+    assert backend.gaze_at(mug + [0, 0, 0.05]).success
+    obs = backend.observe()
+    res = backend.grasp(obs, _pixel_of(obs, mug + [0, 0, 0.05]))
+    assert not res.success and not res.holding and res.reason is Reason.OUT_OF_REACH
+    assert not backend.observe().holding
+
+
+def test_a_hand_pose_out_of_reach_is_ik_failed(backend_and_facts):
+    backend, _ = backend_and_facts
+    T = np.eye(4)
+    T[:3, 3] = (3.0, 0.0, 0.5)
+    res = backend.move_hand(T)
+    assert not res.success and res.reason is Reason.IK_FAILED
+
+
+def test_a_walk_into_a_table_is_a_collision_at_the_last_free_pose(backend_and_facts):
+    backend, facts = backend_and_facts
+    mug = facts["mug_position"]
+    goal = SE2Pose(mug[0] + 0.5, mug[1], 0.0)                     # through the pick table
+    res = backend.navigate_to(goal)
+    assert not res.success and res.reason is Reason.COLLISION and res.collided
+    assert res.final_pose.distance_to(goal) > 0.3
+    assert backend.observe().body_pose.distance_to(res.final_pose) < 0.02

@@ -170,6 +170,40 @@ def test_release_ten_centimetres_above_a_table_leaves_the_mug_settled_on_it():
         backend.close()
 
 
+def test_a_grasp_too_weak_to_hold_the_mug_through_the_lift_is_slipped_not_held():
+    """(HAL audit 2026-12-05: a slip during the lift reported as success went unnoticed)"""
+    from sim.grasping import GraspConfig
+
+    world, backend, scene = _demo_setup(grasp=GraspConfig(hold_force=0.5))
+    try:
+        _, res = _look_and_grasp(world, backend, scene)
+        assert not res.success and res.reason is Reason.GRASP_SLIPPED and not res.holding
+        assert not backend.observe().holding
+    finally:
+        backend.close()
+
+
+def test_place_opens_the_claw_once_it_has_let_go():
+    """(HAL audit 2026-12-05: a place that only stopped holding, the claw left shut, went unnoticed)"""
+    world, backend, scene = _demo_setup()
+    try:
+        _, res = _look_and_grasp(world, backend, scene)
+        assert res.success and backend.stow_arm().success
+        table = world.body(scene["place_table"])
+        centre = world.position(table.body_id)[:2]
+        robot = np.array(backend.spot.base_pose().as_tuple()[:2])
+        target_xy = centre - (centre - robot) / np.linalg.norm(centre - robot) * 0.15
+        assert backend.navigate_to(approach_pose(WorldTable(world, scene["place_table"]), target_xy, robot, 0.2)).success
+        calls = []
+        real = backend.spot.command_gripper
+        backend.spot.command_gripper = lambda angle, *a, **k: (calls.append((angle, backend.holding)),
+                                                                 real(angle, *a, **k))[1]
+        assert backend.place([target_xy[0], target_xy[1], table.extra["top_height"]]).success
+        assert any(angle <= backend.config.grasp.open_angle + 1e-6 and not held for angle, held in calls), calls
+    finally:
+        backend.close()
+
+
 def test_grasping_a_mug_out_of_reach_fails_with_a_reason():
     world, backend, scene = _demo_setup(seed=0)
     try:

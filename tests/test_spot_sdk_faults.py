@@ -44,12 +44,19 @@ FAULTS = {
 }
 
 
+def model_hand_pose():
+    from robots.spot import kinematics
+
+    return kinematics.hand_pose(model.ARM_READY)
+
+
 def _active(fake) -> list:
     return [(c.kind, c.state) for c in fake.commands.values() if c.state in ("queued", "running", "hung")]
 
 
 def _robot_commands(fake) -> int:
-    return sum(1 for name in fake.rpc_log if name == "RobotCommand")
+    """Requests that would move the robot: robot commands and manipulation (pick) requests."""
+    return sum(1 for name in fake.rpc_log if name in ("RobotCommand", "ManipulationApi"))
 
 
 @pytest.mark.parametrize("fault", sorted(FAULTS))
@@ -61,6 +68,7 @@ def test_fault_ends_in_a_typed_error_and_leaves_the_robot_safe(fault):
     fake = demo.fake
     try:
         assert backend.move_arm_joints(model.ARM_READY).success
+        obs = backend.observe()
         with fake.sim_lock:
             pose_before = fake.sim.spot.base_pose()
         fake.inject(fault, **params)
@@ -95,6 +103,12 @@ def test_fault_ends_in_a_typed_error_and_leaves_the_robot_safe(fault):
                 backend.move_arm_joints(model.ARM_STOW)
             with pytest.raises(expected):
                 backend.stow_arm()
+            with pytest.raises(expected):                # (HAL audit: grasp and place were unchecked)
+                backend.grasp(obs, (obs.intrinsics.width // 2, obs.intrinsics.height // 2))
+            with pytest.raises(expected):
+                backend.place([1.0, 0.0, 0.5])
+            with pytest.raises(expected):
+                backend.move_hand(model_hand_pose())
             if fault in ("estop", "lease_revoked", "power_loss", "behavior_fault"):
                 backend.observe()            # sensing needs neither motor power nor the lease
             else:
@@ -683,5 +697,60 @@ def test_a_trajectory_is_stamped_when_it_is_sent_not_when_it_was_built(move, mon
                       "hand": lambda: sync.arm_command.arm_cartesian_command.pose_trajectory_in_task}[move]()
         stamp = trajectory.reference_time.seconds + trajectory.reference_time.nanos * 1e-9
         assert 0 <= at - stamp < 0.1, at - stamp
+    finally:
+        backend.close()
+
+
+
+def _grasp_the_mug(backend, facts):
+    mug = facts["mug_position"]
+    assert backend.navigate_to(SE2Pose(mug[0] - 0.95, mug[1], 0.0)).success
+    assert backend.gaze_at(mug + [0, 0, 0.05]).success
+    obs = backend.observe()
+    p_cam = np.linalg.inv(obs.T_world_cam) @ np.append(mug + [0, 0, 0.05], 1.0)
+    (u, v), _ = obs.intrinsics.project(p_cam[:3])
+    return backend.grasp(obs, (int(round(float(u))), int(round(float(v)))))
+
+
+def test_a_grasp_the_robot_reports_done_but_that_holds_nothing_is_slipped(monkeypatch):
+    """(HAL audit 2026-12-05: a success trusted without the robot's word that it holds went unnoticed)"""
+    from robots.spot.fake_spot import sim_execution
+
+    real = sim_execution._pick_on_sim
+
+    def pick_then_drop(fake, cmd):
+        ok, message, extra = real(fake, cmd)
+        fake.sim._release()                      # the object falls out right after the robot says done
+        return ok, message, extra
+
+    monkeypatch.setattr(sim_execution, "_pick_on_sim", pick_then_drop)
+    demo = start_fake(seed=0)
+    backend = connect(demo)
+    try:
+        res = _grasp_the_mug(backend, demo.facts)
+        assert not res.success and res.reason is Reason.GRASP_SLIPPED and not res.holding
+    finally:
+        backend.close()
+
+
+def test_a_walk_the_robot_calls_at_goal_but_that_ended_short_is_unreachable():
+    """(HAL audit 2026-12-05: the backend's own arrival check was untested: trusting the robot's
+    AT_GOAL went unnoticed)"""
+    demo = start_fake(seed=0)
+    backend = connect(demo)
+    sim = demo.fake.sim
+    real = sim.follow_base_path
+
+    def slips_back(path):
+        res = real(path)
+        p = sim.spot.base_pose()
+        sim.spot.set_base_pose(SE2Pose(p.x - 0.3, p.y, p.yaw))    # 30 cm short, and it says at goal
+        return res
+
+    sim.follow_base_path = slips_back
+    try:
+        res = backend.navigate_to(SE2Pose(0.8, 0.0, 0.0))
+        assert not res.success and res.reason is Reason.UNREACHABLE
+        assert res.final_pose.distance_to(SE2Pose(0.5, 0.0, 0.0)) < 0.02
     finally:
         backend.close()

@@ -53,6 +53,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from robots.hal import (
+    as_hand_pose,
     as_pixel,
     as_point,
     as_se2,
@@ -87,7 +88,7 @@ from robots.spot.sdk_config import (
 from robots.spot.sdk_bringup import SdkBringUp
 from robots.spot.sdk_commands import SdkCommands
 from robots.spot.sdk_shutdown import SdkShutdown
-from robots.transforms import invert_transform, is_valid_transform, rot_z
+from robots.transforms import invert_transform, rot_z
 
 _LOG = logging.getLogger("helios.spot")
 
@@ -414,11 +415,7 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
 
     @_closing_aware
     def move_hand(self, T_body_hand: np.ndarray) -> CommandResult:
-        T = np.asarray(T_body_hand, dtype=float)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise InvalidCommandError(f"hand pose must be a finite 4x4 transform, got shape {T.shape}")
-        if not is_valid_transform(T):
-            raise InvalidCommandError("hand pose must be a rigid transform (orthonormal rotation, last row 0 0 0 1)")
+        T = as_hand_pose(T_body_hand)
         self._guard()
         q_now = self._arm_q(self._state("planning a hand move"))
         q = kinematics.inverse_kinematics(T, q_now)

@@ -18,6 +18,7 @@ import numpy as np
 
 from helios.schema import ConfigValueError, require_range
 from robots.hal import (
+    as_hand_pose,
     as_pixel,
     as_point,
     as_se2,
@@ -321,9 +322,7 @@ class SimSpotBackend:
 
     def move_hand(self, T_body_hand: np.ndarray) -> CommandResult:
         self._check_open()
-        T = np.asarray(T_body_hand, dtype=float)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise InvalidCommandError(f"hand pose must be a finite 4x4 transform, got shape {T.shape}")
+        T = as_hand_pose(T_body_hand)
         q = kinematics.inverse_kinematics(T, self.spot.arm_q())
         if q is None:
             return CommandResult(False, Reason.IK_FAILED, "no arm configuration within limits reaches that hand pose")
