@@ -41,7 +41,7 @@ compare: setup
 
 # Fast test suite (what CI runs): headless, deterministic, under 5 minutes on 2 cores. Tests run
 # in TEST_WORKERS pytest-xdist processes (auto: one per core, at most 4: a test process's memory
-# peaks near 2 GB; each test single-threaded; about 2.5 min on the 2-core machine against 4 min in
+# peaks near 2 GB; each test single-threaded; about 3.5 min on the 2-core machine (1,377 tests, 2026-12-05); more in
 # one process); TEST_WORKERS=0 runs them in this process (a debugger, `-s`).
 TEST_WORKERS ?= auto
 XDIST = -n $(TEST_WORKERS) --maxprocesses 4 --dist load
