@@ -96,6 +96,9 @@ def test_report_common_compares_runs_on_the_episodes_they_share(tmp_path):
     assert not any("episodes finished (a run in progress" in w for w in shared["warnings"]), shared["warnings"]
     assert "| long | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 |" in shared["markdown"]
     assert "| short | 0.0 ± 0.0 |" in shared["markdown"]
+    # whatever the order: every run is trimmed, not only the first (metrics audit 2026-12-05)
+    other_way = make_report([b, a], tmp_path / "other_way", common=True, episode_pages=False)
+    assert "| long | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 |" in other_way["markdown"]
 
 
 def test_report_says_when_runs_share_no_episode_and_when_a_run_is_unfinished(tmp_path):
@@ -128,6 +131,12 @@ def test_p_values_below_one_percent_are_not_printed_as_zero():
     assert p_text(0.0049) == "p<0.01"
     assert p_text(0.0051) == "p=0.01"
     assert p_text(0.56) == "p=0.56"
+    # next to 0.05 a third decimal: +4 -13 (p = 0.049) is significant, 65 vs 44 (p = 0.055) is not;
+    # both printed "p=0.05" (metrics audit 2026-12-05)
+    from tools.report_stats import sign_test_p
+
+    assert p_text(sign_test_p(4, 13)) == "p=0.049" and p_text(sign_test_p(65, 44)) == "p=0.055"
+    assert p_text(0.0449) == "p=0.04" and p_text(0.0551) == "p=0.06"
 
 
 def test_report_pairs_each_run_with_the_first_episode_by_episode(tmp_path):

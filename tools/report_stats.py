@@ -24,8 +24,11 @@ def sign_test_p(wins: int, losses: int) -> float:
 
 
 def p_text(p: float) -> str:
-    """Two decimals, except below 0.01 (where "p=0.00" would read as impossible)."""
-    return "p<0.01" if p < 0.005 else f"p={p:.2f}"
+    """Two decimals, except below 0.01 (where "p=0.00" would read as impossible) and next to 0.05,
+    where two decimals would put a significant p = 0.049 and a p = 0.051 on the same "p=0.05"."""
+    if p < 0.005:
+        return "p<0.01"
+    return f"p={p:.3f}" if 0.045 <= p < 0.055 else f"p={p:.2f}"
 
 
 def _metrics_by_episode(run: Run) -> dict[str, dict]:
