@@ -109,14 +109,21 @@ def test_arm_moves_and_gaze(backend_and_facts):
     assert backend.stop().success
 
 
-def test_grasp_and_place_cycle(backend_and_facts):
-    backend, facts = backend_and_facts
+def _grasp_the_mug_from(backend, facts, distance: float):
+    """Stand ``distance`` m short of the mug, look at it and grasp at its pixel: (observation,
+    pixel, result)."""
     mug = facts["mug_position"]
-    assert backend.navigate_to(SE2Pose(mug[0] - 0.95, mug[1], 0.0)).success
+    assert backend.navigate_to(SE2Pose(mug[0] - distance, mug[1], 0.0)).success
     assert backend.gaze_at(mug + [0, 0, 0.05]).success
     obs = backend.observe()
     pixel = _pixel_of(obs, mug + [0, 0, 0.05])
-    res = backend.grasp(obs, pixel)
+    return obs, pixel, backend.grasp(obs, pixel)
+
+
+def test_grasp_and_place_cycle(backend_and_facts):
+    backend, facts = backend_and_facts
+    mug = facts["mug_position"]
+    obs, pixel, res = _grasp_the_mug_from(backend, facts, 0.95)
     assert isinstance(res, GraspResult) and res.success and res.holding
     assert backend.observe().holding
     # where it grasped: the observation's point at the pixel, in the world frame (on the mug)
@@ -225,11 +232,7 @@ def test_a_gaze_the_arm_cannot_make_is_unreachable_and_leaves_the_body_where_it_
 
 def test_a_grasp_from_too_far_is_out_of_reach(backend_and_facts):
     backend, facts = backend_and_facts
-    mug = facts["mug_position"]
-    assert backend.navigate_to(SE2Pose(mug[0] - 1.6, mug[1], 0.0)).success
-    assert backend.gaze_at(mug + [0, 0, 0.05]).success
-    obs = backend.observe()
-    res = backend.grasp(obs, _pixel_of(obs, mug + [0, 0, 0.05]))
+    _, _, res = _grasp_the_mug_from(backend, facts, 1.6)
     assert not res.success and not res.holding and res.reason is Reason.OUT_OF_REACH
     assert not backend.observe().holding
 
