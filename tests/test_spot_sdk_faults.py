@@ -29,6 +29,7 @@ from spot_fake_fixtures import connect, python_threads, start_fake, wait_for_thr
 pytestmark = pytest.mark.timeout(60)
 
 SURFACE_WITHIN = 2.0   # s from the faulty call to the typed error
+WALK_SCALE_REAL = 1.0  # wall seconds per robot second: a paced fake, for end times
 CLOSE_WITHIN = 3.0     # s for close() after a fault (bounded by close_budget, never the SDK's 30 s)
 
 # fault -> (params, expected error, sticky: later commands fail locally without reaching the robot)
@@ -752,5 +753,31 @@ def test_a_walk_the_robot_calls_at_goal_but_that_ended_short_is_unreachable():
         res = backend.navigate_to(SE2Pose(0.8, 0.0, 0.0))
         assert not res.success and res.reason is Reason.UNREACHABLE
         assert res.final_pose.distance_to(SE2Pose(0.5, 0.0, 0.0)) < 0.02
+    finally:
+        backend.close()
+
+
+def test_a_walk_the_robot_ends_at_its_end_time_is_a_timeout(monkeypatch):
+    """A robot ends a trajectory command whose end time passes first with STATUS_COMMAND_TIMED_OUT
+    (the fake said done, and the backend STOPPED "interrupted"): the walk's result is TIMEOUT, the
+    HAL's reason for a motion that did not finish in its time, and nothing raises (fidelity audit)."""
+    from robots.spot.fake_spot import servicer
+
+    real = servicer.parse_command
+
+    def short_end_time(fake, command, request):
+        kind, extra = real(fake, command, request)
+        if kind == "se2":
+            extra["end_time"] = fake.robot_now() + 0.3       # as if the walk were slowed down on the way
+        return kind, extra
+
+    monkeypatch.setattr(servicer, "parse_command", short_end_time)
+    demo = start_fake(seed=0, time_scale=WALK_SCALE_REAL)
+    backend = connect(demo)
+    try:
+        result = backend.navigate_to(SE2Pose(1.0, 0.0, 0.0))
+        assert not result.success and result.reason is Reason.TIMEOUT and "end time" in result.message
+        assert 0.0 < result.final_pose.x < 0.9 and backend.fault is None
+        assert backend.navigate_to(SE2Pose(0.0, 0.0, 0.0)).reason is Reason.TIMEOUT    # not sticky, no raise
     finally:
         backend.close()

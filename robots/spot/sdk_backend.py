@@ -361,6 +361,11 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
         final = SE2Pose.from_matrix(self._T(self._state("checking the base pose"), cv.ODOM, cv.BODY))
         travelled = self._travelled(poses, final)
         if ok is None:
+            mobility = fb.feedback.synchronized_feedback.mobility_command_feedback
+            if mobility.status == bd.basic.RobotCommandFeedbackStatus.STATUS_COMMAND_TIMED_OUT:
+                return NavigateResult(False, Reason.TIMEOUT, f"the robot ended the walk at its end time, at "
+                                      f"({final.x:.2f}, {final.y:.2f}), {final.distance_to(goal):.2f} m from the goal",
+                                      duration=took, final_pose=final, distance=travelled)
             return NavigateResult(False, Reason.STOPPED, f"interrupted at ({final.x:.2f}, {final.y:.2f})",
                                   duration=took, final_pose=final, distance=travelled)
         arrived = final.distance_to(goal) <= cfg.goal_tolerance and \

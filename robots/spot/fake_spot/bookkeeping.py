@@ -29,7 +29,8 @@ class Endpoint:
 
 @dataclass
 class Command:
-    """A robot command and its progress. ``state``: queued | running | done | overridden | frozen | hung."""
+    """A robot command and its progress. ``state``: queued | running | done | overridden | frozen |
+    timed_out (its end time passed first) | hung."""
 
     id: int
     kind: str                      # stand, sit, stop, safe_power_off, se2, arm_joint, arm_cartesian,

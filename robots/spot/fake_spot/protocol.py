@@ -284,9 +284,10 @@ def untimed(cmd: robot_command_pb2.RobotCommand) -> bool:
 def feedback(cmd: Command) -> robot_command_pb2.RobotCommandFeedback:
     fb = robot_command_pb2.RobotCommandFeedback()
     done = cmd.state == "done"
-    ended = cmd.state in ("overridden", "frozen")
+    ended = cmd.state in ("overridden", "frozen", "timed_out")
     outer = (_FB.STATUS_PROCESSING if not ended else
-             _FB.STATUS_COMMAND_OVERRIDDEN if cmd.state == "overridden" else _FB.STATUS_ROBOT_FROZEN)
+             _FB.STATUS_COMMAND_OVERRIDDEN if cmd.state == "overridden" else
+             _FB.STATUS_COMMAND_TIMED_OUT if cmd.state == "timed_out" else _FB.STATUS_ROBOT_FROZEN)
     ok = done and cmd.success
     k = cmd.kind
     if k in ("stop", "safe_power_off") and cmd.extra.get("full_body", True):

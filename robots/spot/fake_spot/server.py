@@ -670,8 +670,8 @@ class FakeSpot:
                     cmd.state, cmd.success, cmd.detail = "done", False, "grasp failure (fault injection)"
                     cmd.extra["manip_state"] = manipulation_api_pb2.MANIP_STATE_GRASP_FAILED
                 end = cmd.extra.get("end_time")
-                if end is not None and self.robot_now() > end:
-                    cmd.state, cmd.success, cmd.detail = "done", False, "the command's end time passed"
+                if end is not None and self.robot_now() > end:   # a robot: STATUS_COMMAND_TIMED_OUT
+                    cmd.state, cmd.success, cmd.detail = "timed_out", False, "the command's end time passed"
             if cmd.state != "running" or self._stopped or self.dropped:
                 raise MotionInterrupted(cmd.state)
 
