@@ -403,9 +403,9 @@ def render_gaussians(means: torch.Tensor, scales: torch.Tensor, opacities: torch
     sil.index_add_(0, pix_all, weight)
     acc = torch.zeros(H * W, dtype=torch.float32, device=device)
     if depth:
-        depth = z.index_select(0, g_all)
-        acc.index_add_(0, pix_all, weight * depth)
-    else:
-        depth = torch.zeros(0, dtype=torch.float32, device=device)
-    return Rendering(H, W, g_all, pix_all, weight, depth, sil.reshape(H, W), acc.reshape(H, W),
+        pair_depth = z.index_select(0, g_all)
+        acc.index_add_(0, pix_all, weight * pair_depth)
+    else:                                   # (view evidence reads neither)
+        pair_depth = torch.zeros(0, dtype=torch.float32, device=device)
+    return Rendering(H, W, g_all, pix_all, weight, pair_depth, sil.reshape(H, W), acc.reshape(H, W),
                      candidate_pairs=candidates)

@@ -459,12 +459,11 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
             return f.header(resp, request)
         with f._lock:
             fault = f.behavior_fault
-            if fault is None or fault.behavior_fault_id != request.behavior_fault_id:
-                resp.status = C.STATUS_NOT_CLEARED           # no such fault (the real robot says so too)
-            elif fault.status != fault.STATUS_CLEARABLE:
-                resp.status = C.STATUS_NOT_CLEARED
-            else:
+            if fault is not None and fault.behavior_fault_id == request.behavior_fault_id and \
+                    fault.status == fault.STATUS_CLEARABLE:
                 f.behavior_fault, resp.status = None, C.STATUS_CLEARED
+            else:                       # no such fault, another id, or not clearable
+                resp.status = C.STATUS_NOT_CLEARED
         return f.header(resp, request)
 
     # ---------------------------------------------------------------- images
