@@ -210,6 +210,34 @@ def test_sigterm_and_sighup_stop_a_batch_like_ctrl_c_with_its_message(tmp_path, 
     assert sorted(ids) == [f"smoke-0000{i}" for i in range(N)] and done >= 1   # nothing lost, nothing twice
 
 
+def test_a_sigterm_while_the_summary_prints_says_the_batch_had_finished(reference, tmp_path, monkeypatch):
+    """The handler once ended with the batch, so a SIGTERM that came while the table printed killed
+    the process without a word (exit 143, the run complete); now it takes the interrupt's path and
+    says the results are all there."""
+    import shutil
+
+    import tools.trials
+
+    out = tmp_path / "run"
+    shutil.copytree(reference, out)               # finished: the batch only resumes, then prints
+    printed = tools.trials._print_summary
+
+    def terminated_while_printing(*args):
+        os.kill(os.getpid(), signal.SIGTERM)      # a real signal, through the command's own handler
+        return printed(*args)
+
+    monkeypatch.setattr(tools.trials, "_print_summary", terminated_while_printing)
+    before = signal.getsignal(signal.SIGTERM)
+    rc, stdout, err = run_cli(["trials", "--agent", "oracle", "--split", "smoke", "--episodes", str(N),
+                               "--out", str(out), "--progress", "none", *SHORT])
+    assert signal.getsignal(signal.SIGTERM) == before         # the handler is put back
+    assert rc == 128 + signal.SIGTERM, err
+    assert f"resuming: {N} of {N}" in stdout and "Traceback" not in err
+    assert re.fullmatch(r"interrupted \(SIGTERM\) after the batch finished, while printing its summary; results "
+                        r"in .*summary\.json and .*episodes\.jsonl\n", err), err
+    assert json.loads((out / "summary.json").read_text())["complete"]
+
+
 def test_a_second_batch_on_the_same_folder_is_refused_while_the_first_runs(tmp_path):
     out = tmp_path / "busy"
     proc = subprocess.Popen(_trials_cmd(out, 1, 1), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)

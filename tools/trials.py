@@ -144,11 +144,9 @@ def run(args: argparse.Namespace) -> int:
     from tasks.run_folder import (FolderLock, check_folder_layout, move_aside, prepare_run_folder, read_results,
                                   stale_results)
     from tasks.trial_config import check_devices
-    from tasks.trial_summary import METRIC_NAMES, metrics_table_rows, summarize
     from tasks.trials import BatchReport, EpisodeSetupError, run_batch, run_folder_episodes
     from tools.cli import CliError, check_output_dir
-    from tools.progress import Progress, format_duration
-    from tools.tables import format_markdown, format_table
+    from tools.progress import Progress
 
     config = resolve_config(args)
     check_agent(config.agent)
@@ -189,6 +187,7 @@ def run(args: argparse.Namespace) -> int:
     progress = Progress(len(episodes), done=len(before), successes=sum(bool(r.get("success")) for r in before.values()),
                         workers=args.workers, mode=args.progress)
     report = BatchReport([])
+    finished = False
     try:
         # SIGTERM (kill, a scheduler, Docker) and SIGHUP (a closed terminal) stop the batch the way
         # Ctrl-C does, with its message, instead of killing it silently (the records were safe
@@ -198,6 +197,10 @@ def run(args: argparse.Namespace) -> int:
                                 workers=args.workers, executor=args.executor, address=args.address,
                                 record=args.record, on_tick=progress.tick, report=report,
                                 pictures=not args.no_pictures, worker_episodes=args.worker_episodes)
+            finished = True
+            progress.close()
+            # the handler stays while the summary prints: a signal now ends it with a line, not silently
+            return _print_summary(args, out, records, report)
     except EpisodeSetupError as exc:
         progress.close()
         print(f"error: {exc}" + ("" if os.environ.get("HELIOS_DEBUG") else " (HELIOS_DEBUG=1 shows the traceback)"),
@@ -208,10 +211,23 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt as exc:
         progress.close()
         name = str(exc) if str(exc) in ("SIGTERM", "SIGHUP") else ""
-        print(f"interrupted{f' ({name})' if name else ''}; finished episodes are saved in {out}/episodes.jsonl: "
-              f"re-run the same command to continue", file=sys.stderr)
+        if finished:
+            lost = (f"; {len(report.crashed)} episode(s) whose worker process died were not recorded: re-run the "
+                    f"same command to retry them" if report.crashed else "")
+            print(f"interrupted{f' ({name})' if name else ''} after the batch finished, while printing its summary; "
+                  f"results in {out}/summary.json and {out}/episodes.jsonl{lost}", file=sys.stderr)
+        else:
+            print(f"interrupted{f' ({name})' if name else ''}; finished episodes are saved in {out}/episodes.jsonl: "
+                  f"re-run the same command to continue", file=sys.stderr)
         return 128 + getattr(signal, name) if name else 130
-    progress.close()
+
+
+def _print_summary(args, out: Path, records: list, report) -> int:
+    """The finished batch's warnings, table and file names; the exit status (1 when a worker died)."""
+    from tasks.trial_summary import METRIC_NAMES, metrics_table_rows, summarize
+    from tools.progress import format_duration
+    from tools.tables import format_markdown, format_table
+
     for note in report.notes:
         print(f"warning: {out}: {note}", file=sys.stderr)
     if report.commit_changed:
