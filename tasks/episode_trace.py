@@ -353,8 +353,8 @@ def _project(obs, point: np.ndarray) -> tuple[int, int] | None:
     pc = T[:3, :3] @ point[:3] + T[:3, 3]
     if pc[2] <= 0.05:
         return None
-    u, v = obs.intrinsics.project(pc[None])
-    u, v = float(np.ravel(u)[0]), float(np.ravel(v)[0])
+    uv, _ = obs.intrinsics.project(pc[None])      # pixel coordinates and depth
+    u, v = float(uv[0, 0]), float(uv[0, 1])
     h, w = obs.rgb.shape[:2]
     return (int(round(u)), int(round(v))) if 0 <= u < w and 0 <= v < h else None
 

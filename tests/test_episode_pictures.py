@@ -194,3 +194,21 @@ def test_a_file_where_the_pictures_folder_belongs_is_one_clear_error(tmp_path):
     with pytest.raises(RunFolderError, match="episodes is a file"):
         check_folder_layout(tmp_path / "run", pictures=True)
     check_folder_layout(tmp_path / "run", pictures=False)
+
+
+def test_the_release_cross_is_drawn_where_the_drop_point_projects():
+    """The release frame's cross once sat on the frame's top row whatever the point: the projection
+    took the depth (a second return value) for the pixel row."""
+    from types import SimpleNamespace
+
+    from robots.hal import CameraIntrinsics
+    from tasks.episode_trace import _project
+
+    K = CameraIntrinsics(width=320, height=240, fx=200.0, fy=200.0, cx=160.0, cy=120.0)
+    T_world_cam = np.eye(4)
+    T_world_cam[:3, 3] = [1.0, 2.0, 0.5]                # the camera looks along world +z from here
+    obs = SimpleNamespace(intrinsics=K, T_world_cam=T_world_cam, rgb=np.zeros((240, 320, 3), np.uint8))
+    # 0.3 m right of and 0.4 m below the optical axis, 2.0 m ahead: u = 160 + 200*0.3/2, v = 120 + 200*0.4/2
+    assert _project(obs, np.array([1.3, 2.4, 2.5])) == (190, 160)
+    assert _project(obs, np.array([1.0, 2.0, 0.4])) is None          # behind the camera
+    assert _project(obs, np.array([5.0, 2.0, 2.5])) is None          # outside the frame
