@@ -4,8 +4,9 @@ The trial instrumentation (:class:`tasks.instrument.InstrumentedAgent`) hands ev
 and command to an :class:`EpisodeTracer`, which keeps
 
 - the path walked (body poses from the observations, the via points and end poses of walks),
-- hand-camera frames at the key moments: the agent's first detection of the target object (for
-  agents with an observer, :func:`helios.agents.trace.latest_detection`), the judge's FindObj and
+- hand-camera frames at the key moments: the agent's first detection of the target's class (for
+  agents with an observer, :func:`helios.agents.trace.latest_detection`; captioned whether a mask
+  covers a true target, as the first is often a false detection), the judge's FindObj and
   FindRec moments, every grasp (the frame it used, the grasp pixel marked), every release (the
   last frame before it, the drop point marked) and the last frame,
 - a thinned sequence of small hand-camera frames for an animation,
@@ -130,8 +131,20 @@ class EpisodeTracer:
             rgb = obs.rgb.copy()
             union = np.logical_or.reduce(masks)
             rgb[union] = (0.5 * rgb[union] + 0.5 * np.array([255, 0, 255])).astype(np.uint8)
-            self._key("detected", f"first detection of the {self.object_class}", rgb,
-                      self._last_t if t is None else t)
+            self._key("detected", self._detection_label(obs, masks), rgb, self._last_t if t is None else t)
+
+    def _detection_label(self, obs, masks: list) -> str:
+        """The key frame's caption: the detector's first kept detection of the target's class is of
+        any instance, so say whether a mask covers where a true target (the judge's) projects."""
+        if not self.truth.get("targets"):
+            return f"first detection of a {self.object_class}"       # no ground truth (a real robot)
+        union = np.logical_or.reduce(masks)
+        on_target = False
+        for target in self.truth["targets"]:
+            uv = _project(obs, np.asarray(target["xyz"], dtype=float))
+            on_target = on_target or (uv is not None and bool(union[uv[1], uv[0]]))
+        where = "on a true target" if on_target else "not on a true target: a false or misplaced detection"
+        return f"first detection of a {self.object_class} ({where})"
 
     def _observation(self, obs, t: float) -> None:
         self._last_obs = obs

@@ -212,3 +212,25 @@ def test_the_release_cross_is_drawn_where_the_drop_point_projects():
     assert _project(obs, np.array([1.3, 2.4, 2.5])) == (190, 160)
     assert _project(obs, np.array([1.0, 2.0, 0.4])) is None          # behind the camera
     assert _project(obs, np.array([5.0, 2.0, 2.5])) is None          # outside the frame
+
+
+def test_the_first_detection_frame_says_whether_it_is_on_a_true_target():
+    """The caption once read "first detection of the cup" for a false detection behind the robot;
+    it now says whether a mask covers where a true target projects."""
+    from types import SimpleNamespace
+
+    from robots.hal import CameraIntrinsics
+    from tasks.episode_trace import EpisodeTracer
+
+    K = CameraIntrinsics(width=320, height=240, fx=200.0, fy=200.0, cx=160.0, cy=120.0)
+    obs = SimpleNamespace(intrinsics=K, T_world_cam=np.eye(4), rgb=np.zeros((240, 320, 3), np.uint8))
+    tracer = EpisodeTracer()
+    tracer.object_class = "cup"
+    tracer.truth = {"targets": [{"name": "cup_1", "xyz": [0.3, 0.4, 2.0], "named": True}]}   # pixel (190, 160)
+    on, off = np.zeros((240, 320), bool), np.zeros((240, 320), bool)
+    on[150:170, 180:200] = True
+    off[10:30, 10:30] = True
+    assert tracer._detection_label(obs, [off, on]) == "first detection of a cup (on a true target)"
+    assert tracer._detection_label(obs, [off]).startswith("first detection of a cup (not on a true target")
+    tracer.truth = {}                                     # a run without ground truth (a real robot)
+    assert tracer._detection_label(obs, [on]) == "first detection of a cup"
