@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import types
 import typing
 from pathlib import Path
@@ -323,6 +324,44 @@ class UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+# Numbers as YAML 1.2 reads them, not PyYAML's YAML 1.1: `seed=010` was seed 8 (octal), `1:30` was 90
+# (base 60), `0x10` 16, while `1e3` was the text '1e3'. Integers are decimal only; floats are written
+# with a dot or an exponent (or .inf/.nan); anything else is text, which a numeric setting refuses.
+_INT_TAG, _FLOAT_TAG = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
+_DECIMAL_INT = re.compile(r"^[-+]?[0-9]+$")
+_FLOAT_12 = re.compile(r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
+                       r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$")
+
+
+def _numbers_as_yaml_1_2(cls: type) -> None:
+    """Give a PyYAML loader or dumper class the YAML 1.2 number resolvers (the dumper's decide
+    which strings it must quote, so what it writes reads back the same)."""
+    cls.yaml_implicit_resolvers = {
+        first: [(tag, rx) for tag, rx in resolvers if tag not in (_INT_TAG, _FLOAT_TAG)]
+        for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+    cls.add_implicit_resolver(_INT_TAG, _DECIMAL_INT, list("-+0123456789"))
+    cls.add_implicit_resolver(_FLOAT_TAG, _FLOAT_12, list("-+0123456789."))
+
+
+def _decimal_int(loader, node) -> int:
+    text = loader.construct_scalar(node)
+    if not _DECIMAL_INT.match(text):                  # an explicit `!!int 0x10`
+        raise yaml.constructor.ConstructorError(None, None, f"{short_repr(text, 40)} is not a decimal integer",
+                                                node.start_mark)
+    return int(text)
+
+
+_numbers_as_yaml_1_2(UniqueKeyLoader)
+UniqueKeyLoader.add_constructor(_INT_TAG, _decimal_int)
+
+
+class _ConfigDumper(yaml.SafeDumper):
+    """``yaml.SafeDumper`` that quotes what :class:`UniqueKeyLoader` would read as a number."""
+
+
+_numbers_as_yaml_1_2(_ConfigDumper)
+
+
 def yaml_load_text(text: str, what: str, error: type[Exception] = ConfigError):
     """``yaml.safe_load`` (refusing duplicate keys: :class:`UniqueKeyLoader`) whose errors are one
     line naming ``what`` and the line."""
@@ -359,4 +398,4 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: Iterabl
 
 
 def dump_yaml(cfg: Any) -> str:
-    return yaml.safe_dump(to_dict(cfg), sort_keys=False)
+    return yaml.dump(to_dict(cfg), Dumper=_ConfigDumper, sort_keys=False)

@@ -260,6 +260,31 @@ def replaced_settings(name: str) -> dict[str, object]:
     return out
 
 
+def unread_settings(config) -> dict[str, str]:
+    """Settings (dotted keys) that ``config``'s agent would not read in the mode the config puts it
+    in -> why: the simulated detector's noise with ground-truth semantics, the exact detector's
+    smallest mask without ground-truth roles, the radius arm model's sizes with the measured one."""
+    import dataclasses
+
+    from sim.perception.config import GT_MODE_READS, NOISY_ONLY_WITH_ROLES, SimPerceptionConfig
+
+    out: dict[str, str] = {}
+    if config.agent == "oracle":
+        return out                                    # replaced_settings refuses whole sections
+    perception = [f.name for f in dataclasses.fields(SimPerceptionConfig)]
+    if config.agent.endswith("-gt") or config.perception.mode == "gt":
+        why = "ground-truth semantics (perception.mode=gt) read only " + ", ".join(sorted(GT_MODE_READS))
+        out.update({f"perception.{name}": why for name in perception if name not in GT_MODE_READS})
+    elif not config.perception.gt_roles:
+        out.update({f"perception.{name}": "it applies only with perception.gt_roles (the exact detector of "
+                                          "those roles)" for name in NOISY_ONLY_WITH_ROLES})
+    if config.agent_config.view.arm_model == "measured":
+        out.update({f"agent_config.view.{name}": "the measured arm model (agent_config.view.arm_model, the "
+                                                 "default) does not read it; the radius model does"
+                    for name in ("arm_swing_radius", "arm_swing_height")})
+    return out
+
+
 def check_agent_settings(config, explicit: Iterable[str] = ()) -> None:
     """ConfigError, before any work, when a TrialConfig sets what its agent replaces or never reads
     (:func:`replaced_settings`): ``explicit`` (the KEY of each KEY=VALUE given on the command line)
@@ -290,3 +315,8 @@ def check_agent_settings(config, explicit: Iterable[str] = ()) -> None:
             other = config.agent.removesuffix("-gt") if key == "perception.mode" else "helios"
             raise ConfigError(f"{key}={value!r} with agent {agent}, which sets {key}={forced!r} itself; leave it out, "
                               f"or run agent {short_repr(other, 40)} with it")
+    for key, why in unread_settings(config).items():
+        given = key in named
+        if given or value_at(config, key) != value_at(default, key):
+            raise ConfigError(f"{key}{' (set in the scenario file)' if not given else ''} would change nothing with "
+                              f"agent {short_repr(config.agent, 40)}: {why}; leave it out")

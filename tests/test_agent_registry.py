@@ -144,3 +144,34 @@ def test_check_agent_settings_refuses_what_would_change_nothing_and_allows_the_r
         check("trusting-gt", "perception.mode=noisy")
     with pytest.raises(ConfigError, match="sets agent_config.variant='no_global' itself"):
         check("helios-no-global-gt", "agent_config.variant=trusting", explicit=False)
+
+
+def test_settings_the_agents_mode_never_reads_are_refused():
+    """Audit 2026-12-05 (session 35): `helios-gt perception.p_detect_object=0.01` ran and recorded
+    the setting, with records identical to 0.95 (ground truth reads none of the detector's noise);
+    so did `perception.gt_min_pixels` without gt roles and the radius arm model's sizes under the
+    measured model."""
+    from helios.schema import ConfigError, with_overrides
+    from tasks.registry import check_agent_settings
+
+    def check(agent, *overrides, explicit=True):
+        cfg = with_overrides(TrialConfig(agent=agent), list(overrides))
+        check_agent_settings(cfg, [o.partition("=")[0] for o in overrides] if explicit else ())
+
+    for agent, setting in (("helios-gt", "perception.p_detect_object=0.01"),
+                           ("trusting-gt", "perception.bad_view_object=0.9"),
+                           ("helios", "perception.mode=gt perception.score_logit_std=2")):
+        with pytest.raises(ConfigError, match=r"would change nothing .* ground-truth semantics"):
+            check(agent, *setting.split())
+    with pytest.raises(ConfigError, match=r"perception.p_detect_object \(set in the scenario file\) would change"):
+        check("helios-gt", "perception.p_detect_object=0.5", explicit=False)
+    with pytest.raises(ConfigError, match="applies only with perception.gt_roles"):
+        check("helios", "perception.gt_min_pixels=50")
+    with pytest.raises(ConfigError, match="measured arm model"):
+        check("helios", "agent_config.view.arm_swing_height=0.9")
+    # what those modes do read is allowed
+    check("helios-gt", "perception.gt_min_pixels=50", "perception.scorer_saturation_receptacle=0.1")
+    check("helios", "perception.gt_roles=[object]", "perception.gt_min_pixels=50", "perception.p_detect_object=0.9")
+    check("helios", "agent_config.view.arm_model=radius", "agent_config.view.arm_swing_height=0.9")
+    with pytest.raises(ConfigError, match="would change nothing"):
+        check("helios-gt", "perception.p_detect_object=0.95")   # even at its default: it was asked for

@@ -390,3 +390,39 @@ def test_bad_input_gives_one_clear_error_each(home):
     from tools.cli import user_error_types
 
     assert issubclass(UnknownCategoryError, user_error_types()) and issubclass(PromptError, user_error_types())
+
+
+def test_ground_truth_semantics_read_only_the_settings_trials_lets_a_gt_run_set(home, monkeypatch):
+    """`tools trials` refuses a -gt run every perception setting outside GT_MODE_READS as one that
+    would change nothing; this records what the gt detector and scorer (and their frame analysis)
+    really read, so a new read there cannot be refused unnoticed."""
+    import sys
+
+    from sim.perception.config import GT_MODE_READS
+
+    reads: set[str] = set()
+    plain = object.__getattribute__
+
+    def recording(self, name):
+        caller = sys._getframe(1).f_globals.get("__name__", "")
+        if caller.startswith("sim.perception") and caller != "sim.perception.config":
+            reads.add(name)
+        return plain(self, name)
+
+    world, backend = home.world, home.backend
+    table = home.scene.receptacle_ids[home.table]
+    obs = backend.render_at(camera_around(_centre(world, table), 2.8, 3.14, math.radians(35)))
+    monkeypatch.setattr(SimPerceptionConfig, "__getattribute__", recording)
+    detector, scorer = make_sim_perception(backend, 5, SimPerceptionConfig(mode="gt"), rooms=home.scene.layout.rooms)
+    queries = ["table", "counter", *sorted({world.bodies[home.scene.object_ids[n]].category
+                                            for n in home.table_objects})]
+    assert detector(obs.rgb, obs.depth, queries)
+    assert scorer(obs.rgb, [value_prompt(c) for c in queries]).max() > 0
+    fields = {f.name for f in dataclasses.fields(SimPerceptionConfig)}
+    assert reads & fields <= GT_MODE_READS, sorted(reads & fields - GT_MODE_READS)
+    assert {"mode", "gt_min_pixels", "scorer_saturation_object", "scorer_saturation_receptacle"} <= reads
+    # the noisy detector does read what a gt run is refused: the recorder sees it
+    reads.clear()
+    detector, _ = make_sim_perception(backend, 5, SimPerceptionConfig(), rooms=home.scene.layout.rooms)
+    detector(obs.rgb, obs.depth, queries)
+    assert {"p_detect_object", "bad_view_object"} <= reads

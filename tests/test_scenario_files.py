@@ -95,9 +95,12 @@ def test_precedence_defaults_file_flags_then_key_value(tmp_path):
     with pytest.raises(ConfigError, match="agent 'oracle' reads no helios"):
         resolve_config(_trial_args("--config", str(path), "--agent", "oracle"))
     # key=value overrides come last
-    cfg = resolve_config(_trial_args("--config", str(path), "--episodes", "7", "episodes=9",
+    cfg = resolve_config(_trial_args("--config", str(path), "--episodes", "7", "seed=9",
                                      "runner.max_sim_time=60", "helios.detection.od_object=0.5"))
-    assert (cfg.episodes, cfg.runner.max_sim_time, cfg.helios.detection.od_object) == (9, 60.0, 0.5)
+    assert (cfg.episodes, cfg.seed, cfg.runner.max_sim_time, cfg.helios.detection.od_object) == (7, 9, 60.0, 0.5)
+    # ... and a flag and an override of the same setting are refused: one of them would be dropped
+    with pytest.raises(ConfigError, match="--episodes and 'episodes=9' both set episodes; give one"):
+        resolve_config(_trial_args("--config", str(path), "--episodes", "7", "episodes=9"))
     # without a file: the TrialConfig defaults, as before
     assert resolve_config(_trial_args()) == TrialConfig()
     assert resolve_config(_trial_args("--agent", "helios", "runner.max_sim_time=300")) == with_overrides(

@@ -77,3 +77,27 @@ def test_sim_backend_config_is_a_valid_schema():
     cfg = with_overrides(SimBackendConfig(), ["camera.width=640", "camera.height=480", "motion.base.linear_velocity=0.5"])
     assert cfg.camera.width == 640 and cfg.motion.base.linear_velocity == 0.5
     assert from_dict(SimBackendConfig, to_dict(cfg)) == cfg
+
+
+def test_numbers_read_as_yaml_1_2_not_as_octal_hex_or_base_60(tmp_path):
+    """PyYAML's YAML 1.1 made `seed=010` seed 8, `seed=0x10` 16 and `1:30` 90, and read `1e3` as
+    text; the flags (`--seed 010`) read 10. Now an integer is decimal, a float has a dot or an
+    exponent, and the other spellings are text that a numeric setting refuses."""
+    assert with_overrides(Outer(), ["seed=010"]).seed == 10
+    assert with_overrides(Outer(), ["inner.rate=1e3"]).inner.rate == 1000.0
+    assert with_overrides(Outer(), ["inner.rate=-2.5e-3"]).inner.rate == -0.0025
+    for spelling in ("0x10", "0o7", "1:30", "1_000"):
+        with pytest.raises(ConfigError, match="seed: expected an integer"):
+            with_overrides(Outer(), [f"seed={spelling}"])
+        with pytest.raises(ConfigError, match="inner.rate: expected a number"):
+            with_overrides(Outer(), [f"inner.rate={spelling}"])
+    with pytest.raises(ConfigError, match="not a decimal integer"):
+        with_overrides(Outer(), ["seed=!!int 0x10"])
+    path = tmp_path / "cfg.yaml"
+    path.write_text("seed: 010\ninner: {rate: 1e-2}\n")
+    assert load_config(Outer, path) == with_overrides(Outer(), ["seed=10", "inner.rate=0.01"])
+    # what the config files are written with reads back the same: strings that look like numbers quoted
+    for name in ("1e3", "010", "0x10", "1:30", "1_000", "1.0", ".inf"):
+        cfg = with_overrides(Outer(), {"name": name})
+        path.write_text(dump_yaml(cfg))
+        assert load_config(Outer, path) == cfg, (name, dump_yaml(cfg))

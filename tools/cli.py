@@ -161,6 +161,8 @@ def check_output_file(path: str | Path, flag: str = "--out") -> Path:
     check_text_path(path, flag)
     if p.is_dir():
         raise CliError(f"{flag} {short_repr(str(p))} is a folder; it must name a file")
+    if p.exists() and not p.is_file():      # written by replacing it: /dev/null or a FIFO would be replaced
+        raise CliError(f"{flag} {short_repr(str(p))} is a device, FIFO or socket; it must name a regular file")
     if str(path).endswith(("/", os.sep)):
         raise CliError(f"{flag} {short_repr(str(p))} ends with a slash; it must name a file")
     check_output_dir(p.parent if str(p.parent) else Path("."), flag=f"{flag} {short_repr(str(p))}: its folder")
@@ -189,7 +191,13 @@ def check_finite(value: float, flag: str, positive: bool = False) -> float:
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse, but a usage error is one ``error:`` line (exit status 2) like every other error."""
+    """argparse, but a usage error is one ``error:`` line (exit status 2) like every other error,
+    and no flag may be shortened: ``--ou X`` beside ``--out Y`` once ran in X, past the check
+    for a flag given twice (sub-parsers, made by this class, inherit both)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # noqa: D401 - argparse's hook
         self.exit(2, f"error: {one_line(self.prog + ': ' + message)} (see: {self.prog} --help)\n")
@@ -213,10 +221,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _refuse_repeated_flags(parser: argparse.ArgumentParser, argv: list[str]) -> None:
-    """A flag that takes one value, given twice, is a usage error: argparse keeps the last one
+    """A flag that takes one value (or a fixed number), given twice, is a usage error: argparse keeps the last one
     silently (``make run ARGS="--out X"`` once ran in X and reported the Makefile's folder)."""
     single = {opt: action for action in parser._actions if type(action) is argparse._StoreAction
-              and action.nargs in (None, "?") for opt in action.option_strings}
+              and (action.nargs in (None, "?") or isinstance(action.nargs, int)) for opt in action.option_strings}
     seen: dict[argparse.Action, str] = {}
     for i, token in enumerate(argv):
         if token == "--":
@@ -225,18 +233,22 @@ def _refuse_repeated_flags(parser: argparse.ArgumentParser, argv: list[str]) -> 
         action = single.get(flag)
         if action is None:
             continue
-        given = token if "=" in token or i + 1 >= len(argv) else f"{token} {argv[i + 1]}"
+        n = action.nargs if isinstance(action.nargs, int) else 1
+        given = token if "=" in token else " ".join(argv[i:i + 1 + n])
         if action in seen:
             parser.error(f"{flag} is given twice ({seen[action]!r} and {given!r}); give it once")
         seen[action] = given
 
 
-def _command_parser(parser: argparse.ArgumentParser, command: str) -> argparse.ArgumentParser:
-    """The sub-parser of ``command``, so that its usage errors name it (``helios trials: ...``)."""
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            return action.choices.get(command, parser)
-    return parser
+def _command_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
+    """The innermost sub-parser the arguments chose (``episodes generate``), so that its usage errors
+    name it (``helios trials: ...``) and its flags are the ones checked for repeats."""
+    while True:
+        chosen = next((action.choices.get(getattr(args, action.dest, None)) for action in parser._actions
+                       if isinstance(action, argparse._SubParsersAction)), None)
+        if chosen is None:
+            return parser
+        parser = chosen
 
 
 def parse_arguments(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
@@ -244,7 +256,7 @@ def parse_arguments(parser: argparse.ArgumentParser, argv: list[str] | None) -> 
     (argparse gives a positional list only its first run: ``trials a=1 --out X b=2`` would refuse
     ``b=2``). Later runs are appended in command-line order, so a later override still wins."""
     args, extras = parser.parse_known_args(argv)
-    command = _command_parser(parser, args.command)      # usage errors name it: "helios trials: ..."
+    command = _command_parser(parser, args)      # usage errors name it: "helios trials: ..."
     _refuse_repeated_flags(command, sys.argv[1:] if argv is None else argv)
     if extras:
         overrides = getattr(args, "overrides", None)

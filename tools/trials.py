@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--episodes", type=int, default=None,
                         help="number of episodes from the start of the split (default 20)")
     parser.add_argument("--seed", type=int, default=None, help="master seed (per-episode seeds derive from it; default 0)")
-    parser.add_argument("--out", default="", help="run folder (default: runs/<agent>_<split>_s<seed>)")
+    parser.add_argument("--out", default=None, help="run folder (default: runs/<agent>_<split>_s<seed>)")
     parser.add_argument("--workers", type=int, default=1,
                         help="episodes in parallel: local worker processes, or Ray CPUs with --address local")
     parser.add_argument("--worker-episodes", type=int, default=WORKER_EPISODES, metavar="N",
@@ -83,15 +83,26 @@ def resolve_config(args: argparse.Namespace):
     from tasks.trial_config import TrialConfig, load_trial_config
 
     base = TrialConfig()
+    for flag in ("config", "episodes_file", "split", "agent"):     # an empty one once meant "the default"
+        value = getattr(args, flag, None)
+        if value is not None and not str(value).strip():
+            raise ConfigError(f"--{flag.replace('_', '-')} must not be empty")
     if getattr(args, "config", None):
         header, base = load_trial_config(args.config)
         _check_provenance(args.config, header)
     flags = {name: getattr(args, name) for name in CONFIG_FLAGS if getattr(args, name, None) is not None}
-    if flags.get("split") is not None and flags.get("episodes_file") is not None:
-        raise ConfigError("--split and --episodes-file both name the episodes; give one")
+    # a flag and an override that set the same field: one would be dropped without a word
+    set_by_override = {o.partition("=")[0].strip(): o for o in args.overrides}
+    for name in flags:
+        if name in set_by_override:
+            raise ConfigError(f"--{name.replace('_', '-')} and {short_repr(set_by_override[name], 60)} both set "
+                              f"{name}; give one")
+    given = {**{k: f"--{k.replace('_', '-')}" for k in flags}, **{k: short_repr(v, 60) for k, v in set_by_override.items()}}
     config = with_overrides(with_overrides(base, flags), list(args.overrides))
     if config.episodes_file and config.split not in SPLITS:     # replaced by the file, but never misspelt unseen
         raise ConfigError(f"unknown split {short_repr(config.split, 40)}; valid splits: {', '.join(SPLITS)}")
+    if "split" in given and "episodes_file" in given and config.episodes_file:
+        raise ConfigError(f"{given['split']} and {given['episodes_file']} both name the episodes; give one")
     check_agent_settings(config, explicit=[o.partition("=")[0] for o in args.overrides])
     return config
 
@@ -165,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
     if args.executor == "local" or args.address == "local":
         check_devices(config)                 # (a Ray cluster's workers may have the device this machine lacks)
     episodes = select_episodes(config)
-    out = check_output_dir(args.out if args.out else default_out(config))
+    out = check_output_dir(args.out if args.out is not None else default_out(config))
     if args.replace_stale:
         why = stale_results(out, config)
         if why:

@@ -45,6 +45,16 @@ RECEPTACLE_TARGETS: dict[str, float] = {"precision": 0.65, "recall": 0.60, "tole
 RECEPTACLE_TARGET_ROLE = "start receptacle"
 
 
+GT_MODE_READS = frozenset({"mode", "gt_min_pixels", "scorer_saturation_object", "scorer_saturation_receptacle"})
+"""The settings ground-truth semantics (``mode: gt``) reads: its detector's smallest mask and its
+scorer's saturation; every other setting here shapes the noisy detector and scorer only, so a
+``-gt`` run is refused one (``tasks.registry.check_agent_settings``; checked against what the gt
+detector and scorer read by ``tests/test_perception_sim.py``)."""
+
+NOISY_ONLY_WITH_ROLES = frozenset({"gt_min_pixels"})
+"""Settings the noisy mode reads only with ``gt_roles`` (the exact detector of those roles)."""
+
+
 def _default_category_difficulty() -> dict[str, float]:
     # Thin, transparent or featureless objects are the hard cases of open-vocabulary detectors.
     return {"glass": 1.3, "jar": 1.2, "phone": 1.25, "remote": 1.25, "soap": 1.2, "sponge": 1.2, "candle": 1.2,
