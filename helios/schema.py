@@ -88,6 +88,17 @@ def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
 
 
+def finite_number(value: Any) -> bool:
+    """A real number (not a bool) that is finite, also as a float: ``math.isfinite(10**400)``
+    raises OverflowError, which reached users of episode files and run folders as a traceback."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
 def _coerce(value: Any, tp: Any, path: str) -> Any:
     """Convert a YAML/JSON value into the annotated type, or raise ConfigError naming ``path``."""
     origin = typing.get_origin(tp)
@@ -286,8 +297,11 @@ def read_config_file(path: str | Path) -> dict:
 def read_text(path: str | Path, what: str, error: type[Exception] = ConfigError) -> str:
     """A text file's contents, which must be UTF-8; otherwise ``error`` naming ``what`` and where
     the first bad byte is (never a UnicodeDecodeError traceback)."""
+    p = Path(path)
+    if p.exists() and not p.is_file() and not p.is_dir():     # reading a FIFO would wait for a writer
+        raise error(f"{what} is not a regular file (a FIFO, device or socket)")
     try:
-        data = Path(path).read_bytes()
+        data = p.read_bytes()
     except IsADirectoryError:
         raise error(f"{what} is a directory, not a file") from None
     except OSError as exc:

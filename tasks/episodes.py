@@ -129,6 +129,8 @@ _FIELDS = {
 
 
 def episode_from_dict(d: dict, where: str) -> Episode:
+    from helios.schema import finite_number
+
     if not isinstance(d, dict):
         raise DatasetError(f"{where}: expected a JSON object, got {type(d).__name__}")
     if d.get("schema_version") != SCHEMA_VERSION:
@@ -152,7 +154,7 @@ def episode_from_dict(d: dict, where: str) -> Episode:
         raise DatasetError(f"{where}: field 'scene' must be {{seed: int, min_size, max_size}}, got {_short(scene)}")
     sizes = [scene.get("min_size", SceneRef.min_size), scene.get("max_size", SceneRef.max_size)]
     if isinstance(scene["seed"], bool) or not 0 <= scene["seed"] < 2 ** 63 or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in sizes) or not (
+            finite_number(v) for v in sizes) or not (
             home_sizes_valid(*sizes)):
         raise DatasetError(f"{where}: field 'scene' needs a seed >= 0 and {MIN_HOME_SIZE:g} <= min_size <= max_size "
                            f"<= {MAX_HOME_SIZE:g} (m), got {_short(scene)}")
@@ -164,7 +166,7 @@ def episode_from_dict(d: dict, where: str) -> Episode:
             d["object_category"], d["start_receptacle_category"], d["goal_receptacle_category"]):
         raise DatasetError(f"{where}: the task string disagrees with the category fields")
     start = d["robot_start"]
-    if len(start) != 3 or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in start):
+    if len(start) != 3 or not all(finite_number(v) for v in start):
         raise DatasetError(f"{where}: robot_start must be 3 finite numbers [x, y, yaw], got {_short(start)}")
     if not d["goal_receptacles"] or not all(isinstance(g, str) and g for g in d["goal_receptacles"]):
         raise DatasetError(f"{where}: goal_receptacles must be a non-empty list of instance names")
@@ -208,7 +210,7 @@ def _unique_keys(pairs: list[tuple[str, object]]) -> dict:
 
 def load_episodes(path: str | Path) -> list[Episode]:
     """Read and validate a JSONL episode file; the first bad line raises DatasetError."""
-    from helios.schema import read_text, short_repr
+    from helios.schema import read_text, short_repr, shorten
 
     p = Path(path)
     if p.is_dir():
@@ -230,6 +232,8 @@ def load_episodes(path: str | Path) -> list[Episode]:
         except json.JSONDecodeError as exc:
             raise DatasetError(f"{where}: not valid JSON ({exc.msg} at column {exc.colno}); "
                                f"the file may be truncated or corrupted") from None
+        except ValueError as exc:           # an integer of over 4,300 digits
+            raise DatasetError(f"{where}: not valid JSON ({shorten(exc, 80)})") from None
         except RecursionError:
             raise DatasetError(f"{where}: not valid JSON (nested too deeply)") from None
         ep = episode_from_dict(d, where)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
 import os
 import socket
 import sys
@@ -29,7 +28,7 @@ from typing import Iterable
 import numpy as np
 
 from helios.runtime import cpu_dispatch, cpu_model
-from helios.schema import ConfigError, dump_yaml, from_dict, read_text, shorten, yaml_load_text
+from helios.schema import ConfigError, dump_yaml, finite_number, from_dict, read_text, shorten, yaml_load_text
 from tasks.provenance import PROVENANCE_KEYS, differs, git_commit, package_version, provenance
 from tasks.trial_config import (FINGERPRINT_FIELD, TrialConfig, config_difference, config_fingerprint, config_text,
                                 deterministic_view, is_extension)
@@ -342,7 +341,7 @@ def record_problem(record) -> str | None:
                 f"it names files)")
 
     def number(v) -> bool:
-        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+        return finite_number(v) and v >= 0
 
     m = record.get("metrics")
     if m is not None:
@@ -404,7 +403,7 @@ def record_problem(record) -> str | None:
             n = len(series.get("t", []))
             for key, vals in series.items():
                 if not isinstance(vals, list) or len(vals) != n or not all(
-                        v is None or (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v))
+                        v is None or finite_number(v)
                         for v in vals):
                     return f"memory.series.{key} is malformed"
     return None
@@ -426,6 +425,9 @@ def scan_results(path: Path, episode_ids: Iterable[str] | None = None,
         raise RunFolderError(f"{path} is a directory, where the results file belongs; move it away")
     if not path.exists():
         return scan
+    if not path.is_file():                 # a FIFO: reading it would wait for a writer for ever
+        raise RunFolderError(f"{path} is not a regular file (a FIFO, device or socket), where the results file "
+                             f"belongs; move it away")
     try:
         data = path.read_bytes()
     except OSError as exc:
@@ -446,6 +448,9 @@ def scan_results(path: Path, episode_ids: Iterable[str] | None = None,
         except (json.JSONDecodeError, RecursionError) as exc:
             scan.damaged.append(DamagedLine(lineno, f"not valid JSON ({getattr(exc, 'msg', 'too deeply nested')})",
                                             line))
+            continue
+        except ValueError as exc:                 # an integer of over 4,300 digits
+            scan.damaged.append(DamagedLine(lineno, f"not valid JSON ({shorten(exc, 80)})", line))
             continue
         problem = record_problem(record)
         if problem:

@@ -17,6 +17,7 @@ README "Reliability" lists the guarantees these cases check.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import time
 from pathlib import Path
@@ -37,7 +38,8 @@ RUN_ARGS = ["trials", "--agent", "oracle", "--split", "smoke", "--episodes", "3"
 
 def snapshot(root: Path) -> dict[str, bytes | None]:
     """Every file (bytes) and folder (None) under ``root``."""
-    return {str(p.relative_to(root)): (None if p.is_dir() else p.read_bytes()) for p in sorted(root.rglob("*"))}
+    return {str(p.relative_to(root)): (None if p.is_dir() else p.read_bytes() if p.is_file() else b"<special file>")
+            for p in sorted(root.rglob("*"))}      # (a FIFO is never read: that would wait for a writer)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -104,11 +106,16 @@ def ws(tmp_path_factory):
         "long_id.jsonl": _episode(episode_id="smoke-" + LONG).encode(),
         "schema.jsonl": _episode(schema_version=1).encode(),
         "duplicate.jsonl": (_episode() + "\n" + _episode()).encode(),
+        "start_overflow.jsonl": _episode(robot_start=[1.4, 2.3, 10 ** 400]).encode(),
+        "start_bool.jsonl": _episode(robot_start=[True, 2.3, 1.4]).encode(),
+        "scene_overflow.jsonl": _episode(**{"scene.min_size": 10 ** 400}).encode(),
+        "seed_digits.jsonl": _episode(**{"scene.seed": 123454321}).replace("123454321", "9" * 5000).encode(),
     }
     for name, data in files.items():
         (eps / name).write_bytes(data)
     for name, data in QA_FILES.items():
         (root / name).write_bytes(data)
+    os.mkfifo(root / "fifo")                 # written to or read from, it must be refused, never replaced or waited on
     cfg = root / "cfg"
     cfg.mkdir()
     configs = {
@@ -700,6 +707,37 @@ CASES: list[tuple[str, list[str], str]] = [
      "'findobj' is not a field of metrics"),
     ("unchanged-ignore-top-typo", ["unchanged", "HEAD", "--ignore", "wall_tme", "--out", "{ws}/unch"],
      "'wall_tme' is not a field of an episode record"),
+    # the audit of 2026-12-05 (session 35): inputs that were taken as something else, dropped, or a traceback
+    ("flag-shortened", [*T, "--ou", "{ws}/new_run2"], "unrecognized arguments: --ou"),
+    ("report-flag-shortened", ["report", R + "valid", "--nam", "x", "--out", "{ws}/rep"],
+     "unrecognized arguments: --nam"),
+    ("gen-two-values-twice", ["episodes", "generate", "--name", "x", "--seed", "1", "--count", "1", "--home-size", "8",
+                              "9", "--home-size", "10", "12", "--out", "{ws}/n.jsonl"],
+     "helios episodes generate: --home-size is given twice ('--home-size 8 9' and '--home-size 10 12')"),
+    ("trials-flag-and-override", [*T, "episodes=3"], "--episodes and 'episodes=3' both set episodes; give one"),
+    ("trials-agent-flag-and-override", [*T, "--agent", "helios", "agent=oracle"], "both set agent"),
+    ("trials-split-flag-file-override", ["trials", "--split", "val", "episodes_file=" + E + "duplicate.jsonl",
+                                         "--out", "{ws}/new_run"], "both name the episodes"),
+    ("trials-out-empty-string", ["trials", "--episodes", "1", "--out="], "--out must not be empty"),
+    ("trials-config-empty", ["trials", "--config=", "--out", "{ws}/new_run"], "--config must not be empty"),
+    ("trials-episodes-file-empty", [*T, "--episodes-file="], "--episodes-file must not be empty"),
+    ("gen-out-fifo", ["episodes", "generate", "--name", "x", "--seed", "1", "--count", "1", "--out", "{ws}/fifo"],
+     "is a device, FIFO or socket; it must name a regular file"),
+    ("trials-seed-hex", [*T, "seed=0x10"], "seed: expected an integer, got '0x10'"),
+    ("trials-time-base-60", [*T, "runner.max_sim_time=1:30"], "runner.max_sim_time: expected a number, got '1:30'"),
+    ("trials-gt-noise", [*T, "--agent", "helios-gt", "perception.p_detect_object=0.5"],
+     "perception.p_detect_object would change nothing with agent 'helios-gt': ground-truth semantics"),
+    ("trials-gt-min-pixels-noisy", [*T, "--agent", "helios", "perception.gt_min_pixels=5"],
+     "applies only with perception.gt_roles"),
+    ("trials-arm-swing-measured", [*T, "--agent", "helios", "agent_config.view.arm_swing_radius=0.6"],
+     "the measured arm model"),
+    ("ep-robot-start-overflows", ["episodes", "check", E + "start_overflow.jsonl"],
+     "robot_start must be 3 finite numbers"),
+    ("ep-robot-start-bool", [*T, "--episodes-file", E + "start_bool.jsonl"], "robot_start must be 3 finite numbers"),
+    ("ep-scene-size-overflows", ["episodes", "check", E + "scene_overflow.jsonl"], "field 'scene' needs"),
+    ("ep-seed-5000-digits", [*T, "--episodes-file", E + "seed_digits.jsonl"], "not valid JSON (Exceeds the limit"),
+    ("calibrate-baseline-fifo", ["calibrate-perception", "--views", "5", "--baseline", "{ws}/fifo",
+                                 "--out", "{ws}/cal"], "is not a regular file"),
 ]
 # Files the QA 2026-12-04 cases read, written into the workspace (path under it -> bytes)
 QA_FILES: dict[str, bytes] = {
@@ -860,6 +898,24 @@ def _undo_directory(name: str):
     return fix
 
 
+def _to_fifo(name: str, keep: bool = True):
+    def damage(folder: Path) -> None:
+        p = folder / name
+        if keep:
+            shutil.move(p, folder / (name + ".saved"))
+        else:
+            p.unlink()
+        os.mkfifo(p)
+    return damage
+
+
+def _undo_fifo(name: str):
+    def fix(folder: Path, clean: Path) -> None:
+        (folder / name).unlink()
+        shutil.move(folder / (name + ".saved"), folder / name)
+    return fix
+
+
 def _strip_fingerprints(folder: Path) -> None:
     lines = []
     for line in _lines(folder):
@@ -998,6 +1054,15 @@ DAMAGES = [
      (0, "without a configuration fingerprint"), ([], 2, "carry no configuration fingerprint"),
      lambda f, clean: shutil.copy(clean / "config.yaml", f / "config.yaml")),
     ("duplicate-record", lambda f: _set_lines(f, _lines(f) + _lines(f)[:1]), (0, ""), ([], 0, ""), None),
+    # the audit of 2026-12-05 (session 35): a traceback, or a wait without end
+    ("sim-time-overflows-a-float", _edit_record(1, lambda r: r.update(sim_time=10 ** 400)),
+     (0, "episodes.jsonl:2: sim_time"), ([], 0, "sim_time"), None),
+    ("integer-of-5000-digits", _insert_line(1, b'{"episode_id": "smoke-00001", "sim_time": ' + b"9" * 5000 + b"}\n"),
+     (0, "episodes.jsonl:2: not valid JSON (Exceeds the limit"), ([], 0, "line 2: not valid JSON"), None),
+    ("results-fifo", _to_fifo("episodes.jsonl"), (2, "episodes.jsonl is not a regular file"),
+     ([], 2, "episodes.jsonl is not a regular file"), _undo_fifo("episodes.jsonl")),
+    ("config-fifo", _to_fifo("config.yaml", keep=False), (0, "config.yaml is not a regular file"),
+     ([], 0, "config.yaml is not a regular file (a FIFO, device or socket); moved it to config.yaml.damaged"), None),
     # report and run folders (QA 2026-12-04)
     ("conflicting-duplicate", _append_record(0, success=True, metrics__success=True, metrics__failure_reason=None),
      (0, "episodes.jsonl:4: episode smoke-00000 has records that disagree (this one and line(s) 1, in metrics, "

@@ -130,6 +130,8 @@ def load_baseline(path: str) -> dict:
     if not path.strip():
         raise CliError("--baseline must not be empty")
     name = short_repr(path, 100)
+    if Path(path).exists() and not Path(path).is_file():      # a FIFO would be waited on for ever
+        raise CliError(f"--baseline {name} is not a regular file")
     try:
         doc = json.loads(Path(path).read_text())
     except (OSError, ValueError, RecursionError) as exc:
