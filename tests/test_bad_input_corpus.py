@@ -114,6 +114,7 @@ def ws(tmp_path_factory):
     for name, data in files.items():
         (eps / name).write_bytes(data)
     for name, data in QA_FILES.items():
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
         (root / name).write_bytes(data)
     os.mkfifo(root / "fifo")                 # written to or read from, it must be refused, never replaced or waited on
     cfg = root / "cfg"
@@ -738,6 +739,15 @@ CASES: list[tuple[str, list[str], str]] = [
     ("ep-seed-5000-digits", [*T, "--episodes-file", E + "seed_digits.jsonl"], "not valid JSON (Exceeds the limit"),
     ("calibrate-baseline-fifo", ["calibrate-perception", "--views", "5", "--baseline", "{ws}/fifo",
                                  "--out", "{ws}/cal"], "is not a regular file"),
+    ("bench-agent-oracle", ["bench", "agent", "--agent-name", "oracle"], "the oracle keeps no timings"),
+    ("bench-agent-save-folder", ["bench", "agent", "--agent-save", "{ws}/adir"], "is a folder; it must name a file"),
+    ("bench-agent-save-empty", ["bench", "agent", "--agent-save="], "--agent-save must not be empty"),
+    ("bench-agent-baseline-partial", ["bench", "agent", "--agent-baseline", "{ws}/bench_partial.json"],
+     "a damaged `bench agent --agent-save` file: median_wall is missing"),
+    ("spot-name-reused", [*SPOT, "--out", "{ws}/spotruns", "--name", "a"],
+     "already holds a run (outcome.json); give another --name"),
+    ("spot-seed-scripted-robot", ["spot", "127.0.0.1", "--task", TASK, "--seed", "7", "--out", "{ws}/spotruns"],
+     "--seed is ignored by agent 'scripted-demo' on a robot"),
 ]
 # Files the QA 2026-12-04 cases read, written into the workspace (path under it -> bytes)
 QA_FILES: dict[str, bytes] = {
@@ -749,6 +759,8 @@ QA_FILES: dict[str, bytes] = {
     "random.rrd": bytes(range(256)) * 4,
     "empty.rrd": b"",
     "arrays.npz": b"PK\x05\x06" + b"\0" * 18,         # an empty zip: a .npz without any array
+    "bench_partial.json": b'{"format": "helios-bench-agent/1"}',
+    "spotruns/a/outcome.json": b'{"agent": "scripted-demo"}',
 }
 
 

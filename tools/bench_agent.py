@@ -37,7 +37,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from tools.cli import CliError
+from helios.schema import finite_number, shorten
+from tools.cli import CliError, check_output_file
 
 ROOT = Path(__file__).resolve().parents[1]
 WORKER = Path(__file__).resolve().with_name("bench_agent_worker.py")
@@ -160,6 +161,21 @@ def check_agent_sets(agent: str, sets: list[str]) -> tuple[str, ...]:
     return tuple(sets)
 
 
+def _saved_problem(saved: dict) -> str | None:
+    """What :func:`format_report` would fail on in a saved result (a key it reads, missing or of the
+    wrong kind); None when it can be shown."""
+    for key in ("median_wall", "p90_wall", "table_hours", "peak_rss_mb"):
+        if not finite_number(saved.get(key)):
+            return f"{key} is {'missing' if key not in saved else 'not a number'}"
+    if not isinstance(saved.get("phases"), dict) or not all(finite_number(v) for v in saved["phases"].values()):
+        return "phases is not a mapping of seconds"
+    if not isinstance(saved.get("replans", []), list) or not all(
+            isinstance(r, dict) and {"map", "n", "ok", "median_ms", "p90_ms", "max_ms"} <= set(r)
+            for r in saved.get("replans", [])):
+        return "replans is malformed"
+    return None
+
+
 def _check_baseline(ref: str | None) -> tuple[str, str | None, dict | None]:
     """(label, commit to run, or saved results) of ``--agent-baseline``: reads the file or asks git
     for the commit, but extracts nothing, so :func:`check_inputs` can call it before any suite runs."""
@@ -169,11 +185,14 @@ def _check_baseline(ref: str | None) -> tuple[str, str | None, dict | None]:
     if path.is_file():
         try:
             saved = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise CliError(f"--agent-baseline {ref!r}: not a readable JSON file ({exc})") from None
+        except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+            raise CliError(f"--agent-baseline {ref!r}: not a readable JSON file ({shorten(exc, 100)})") from None
         if not isinstance(saved, dict) or saved.get("format") != SAVE_FORMAT:
             raise CliError(f"--agent-baseline {ref!r}: not a file written by `bench agent --agent-save` "
                            f"(format {SAVE_FORMAT!r})")
+        problem = _saved_problem(saved)
+        if problem:
+            raise CliError(f"--agent-baseline {ref!r}: a damaged `bench agent --agent-save` file: {problem}")
         return saved.get("label", path.name), None, saved
     from tools.commit_tree import commit_has_file, resolve_commit
 
@@ -272,6 +291,9 @@ def check_inputs(args: argparse.Namespace) -> AgentInputs:
     from tasks.registry import check_agent
 
     check_agent(args.agent_name)
+    if args.agent_name in ("oracle",):     # ground truth, no perception, map or planner: nothing to time
+        raise CliError(f"--agent-name {args.agent_name!r}: the oracle keeps no timings of perception, map and "
+                       f"planning; time a HELIOS agent")
     sets = check_agent_sets(args.agent_name, args.agent_set)
     n_eps, n_plans = episode_counts(args)
     n_val = len(load_split("val"))
@@ -281,7 +303,8 @@ def check_inputs(args: argparse.Namespace) -> AgentInputs:
     if not 1 <= repeats <= MAX_REPEATS:
         raise CliError(f"--agent-repeats must be within 1..{MAX_REPEATS}, got {repeats}")
     requests = episode_requests(args.agent_seed, n_eps)
-    if args.agent_save:
+    if args.agent_save is not None:       # a folder, a FIFO, '' or no such folder: before the episodes run
+        check_output_file(args.agent_save, "--agent-save")
         save = Path(args.agent_save)
         if not save.parent.is_dir():
             raise CliError(f"--agent-save {args.agent_save!r}: folder {str(save.parent)!r} does not exist")

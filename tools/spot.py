@@ -408,6 +408,13 @@ def _run(args: argparse.Namespace) -> int:
     trial = None
     if args.episode is not None or check_agent(args.agent, None).runs_on == EPISODE:
         trial = _prepare_trial(args, run_dir)        # folder, operator answers and models: before any robot
+    else:
+        if (run_dir / "outcome.json").exists():     # a scripted run's record is one outcome: never replaced
+            raise CliError(f"run folder {run_dir} already holds a run (outcome.json); give another --name "
+                           f"(or none: the date and time)")
+        if not args.fake and args.seed != 0:
+            raise CliError(f"--seed is ignored by agent {args.agent!r} on a robot (the scripted demo draws nothing "
+                           f"at random; the seed places the mug in the fake Spot's scene)")
     handler = _RunLog()
     root = logging.getLogger()
     root.addHandler(handler)
