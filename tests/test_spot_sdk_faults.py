@@ -781,3 +781,136 @@ def test_a_walk_the_robot_ends_at_its_end_time_is_a_timeout(monkeypatch):
         assert backend.navigate_to(SE2Pose(0.0, 0.0, 0.0)).reason is Reason.TIMEOUT    # not sticky, no raise
     finally:
         backend.close()
+
+
+# ---------------------------------------------------------------- the safety audit of 2026-12-05 (session 35)
+@pytest.mark.parametrize("estop_mode,failures,after_fault", [("external", 2, True), ("endpoint", 2, True),
+                                                             ("external", 3, False)])
+def test_robot_commands_the_link_loses_at_close_are_sent_again(estop_mode, failures, after_fault):
+    """One or two RobotCommand RPCs lost at close() (the next ones get through) left the robot
+    standing with motor power on, and the lease returned: nobody held a powered robot, and with
+    an external e-stop nothing would ever power it off. Now a failed step is sent again while
+    close_budget lasts, and the lease goes back only once the robot took the safe power off."""
+    import grpc
+
+    demo = start_fake(seed=0)
+    fake = demo.fake
+    backend = connect(demo, stop_fake_on_close=False, estop_mode=estop_mode)
+    try:
+        assert backend.navigate_to(SE2Pose(0.2, 0.0, 0.0)).success
+        if after_fault:                       # the session already faulted: the in-flight shutdown
+            fake.fail_calls("RobotCommandFeedback", 1, grpc.StatusCode.INTERNAL)
+            with pytest.raises(ConnectionLostError):
+                backend.navigate_to(SE2Pose(0.4, 0.0, 0.0))
+        fake.fail_calls("RobotCommand", failures, grpc.StatusCode.UNAVAILABLE)
+        t0 = time.monotonic()
+        backend.close()
+        assert time.monotonic() - t0 < CLOSE_WITHIN
+        with fake._lock:
+            assert not fake.powered and not fake.standing, "the robot was left standing with motor power on"
+            assert fake.lease_owner is None and backend.close_problem is None
+            assert fake._calls["RobotCommand"] > failures + 1           # sent again after the losses
+    finally:
+        demo.stop()
+
+
+def test_a_lease_return_the_link_loses_is_sent_again_not_left_on_the_robot():
+    """The SDK's return_lease takes the lease out of the wallet before its RPC: one lost
+    ReturnLease left our lease on the robot, said nothing, and the next session could not
+    acquire it. Now the return is sent again with the lease it held."""
+    import grpc
+
+    demo = start_fake(seed=0)
+    fake = demo.fake
+    backend = connect(demo, stop_fake_on_close=False)
+    try:
+        assert backend.navigate_to(SE2Pose(0.2, 0.0, 0.0)).success
+        fake.fail_calls("ReturnLease", 1, grpc.StatusCode.UNAVAILABLE)
+        backend.close()
+        with fake._lock:
+            assert fake.lease_owner is None and not fake.powered
+            assert fake._calls["ReturnLease"] == 2
+        assert backend.close_problem is None
+        connect(demo, stop_fake_on_close=False).close()        # the next session gets the lease
+    finally:
+        demo.stop()
+
+
+@pytest.mark.parametrize("first,then", [("behavior_fault", "lease_revoked"), ("time_sync_loss", "take")])
+def test_a_lease_lost_after_another_fault_is_said_at_close(first, then):
+    """After a sticky fault, a revoke or a take of the lease was not recorded (only the first
+    fault is): close() sent its steps with a stale lease, they were refused and logged as 'not
+    confirmed', and close_problem stayed None with the robot standing under another client."""
+    from spot_fake_fixtures import take_lease_as_another_client
+
+    demo = start_fake(seed=0)
+    fake = demo.fake
+    backend = connect(demo, stop_fake_on_close=False)
+    try:
+        fake.inject(first)
+        with pytest.raises((BehaviorFaultError, TimeSyncLostError)):
+            backend.navigate_to(SE2Pose(0.3, 0.0, 0.0))
+        if then == "take":
+            take_lease_as_another_client(backend)
+        else:
+            fake.inject(then)
+        backend.close()
+        assert not isinstance(backend.fault, LeaseLostError)          # the first fault stays the fault
+        assert backend.close_problem.startswith("the robot was not shut down by us")
+        assert "possibly standing with motor power on" in backend.close_problem
+        with fake._lock:
+            assert fake.powered                                       # what the message says
+    finally:
+        demo.stop()
+
+
+def test_stop_and_observe_before_the_bring_up_are_typed_errors():
+    """A safety monitor's stop() or observe() while connect() runs in another thread (before the
+    command clients exist), or on a backend whose connect() was not called: an AttributeError."""
+    from robots.spot.sdk_backend import NotConnectedError, SdkSpotBackend
+    from spot_fake_fixtures import credentials_env, fast_config
+
+    demo = start_fake(seed=0)
+    try:
+        demo.fake.delay_calls("GetRobotId", 1, 0.6)        # a bring-up that takes a moment
+        with credentials_env():
+            backend = SdkSpotBackend(fast_config(demo.port), connect=False)
+        for call in (backend.stop, backend.observe):
+            with pytest.raises(NotConnectedError, match="not brought up"):
+                call()
+        seen = []
+
+        def monitor():
+            time.sleep(0.25)
+            for call in (backend.stop, backend.observe):
+                try:
+                    call()
+                    seen.append("ok")
+                except Exception as exc:  # noqa: BLE001 - the type is the point
+                    seen.append(type(exc).__name__)
+
+        thread = threading.Thread(target=monitor)
+        thread.start()
+        with credentials_env():
+            backend.connect()
+        thread.join(5)
+        assert seen == ["NotConnectedError", "NotConnectedError"], seen
+        backend.close()
+    finally:
+        demo.stop()
+
+
+def test_the_service_directory_at_bring_up_is_bounded_by_rpc_timeout():
+    """The SDK lists the robot's services without a deadline (30 s) the first time it meets a
+    service it has no authority for: a robot answering it 8 s late held connect() 8 s."""
+    from robots.spot.sdk_backend import SpotConnectError
+
+    demo = start_fake(seed=0)
+    try:
+        demo.fake.delay_calls("ListServiceEntries", 1, 8.0)
+        t0 = time.monotonic()
+        with pytest.raises(SpotConnectError, match="did not list its services within 1.0 s"):
+            connect(demo, stop_fake_on_close=False)
+        assert time.monotonic() - t0 < 3.0
+    finally:
+        demo.stop()

@@ -80,6 +80,7 @@ from robots.spot.sdk_config import (
     CommandRejectedError,
     CredentialsError,
     GrpcTracingError,
+    NotConnectedError,
     SdkBackendConfig,
     SpotConnectError,
     SpotSdkMissingError,
@@ -94,7 +95,7 @@ _LOG = logging.getLogger("helios.spot")
 
 # What callers import from here: the backend and its vocabulary (configuration, credentials, errors).
 __all__ = ["PASSWORD_ENV", "USERNAME_ENV", "CommandRejectedError", "CredentialsError", "GrpcTracingError",
-           "SdkBackendConfig", "SdkSpotBackend", "SpotConnectError", "SpotSdkMissingError", "credentials_from_env",
+           "NotConnectedError", "SdkBackendConfig", "SdkSpotBackend", "SpotConnectError", "SpotSdkMissingError", "credentials_from_env",
            "estimate_object_base"]
 
 
@@ -233,6 +234,11 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
         self.close_problem: str | None = None
         """Set by close() when it could not stop, sit and power off the robot because the body lease
         was not ours (``robots.spot.sdk_shutdown``): one line for the operator, or None."""
+        self._lease_lost: str | None = None
+        """Why the body lease is no longer ours, once the robot said so (a revoke or take), even
+        after another fault came first: close() then neither commands nor returns it and says so."""
+        self._lease_returning = False           # our own return was sent: the wallet's refusals are ours
+        self._close_steps: set[str] = set()     # the shutdown steps the robot confirmed (close())
         self._closed = False
         self._closing = False
         self._close_lock = threading.Lock()

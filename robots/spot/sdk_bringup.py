@@ -125,6 +125,15 @@ class SdkBringUp:
         finally:
             del password
         self._token_manager_thread = getattr(getattr(robot, "_token_manager", None), "th", None)
+        try:
+            # the service directory, with our deadline: the SDK's first ensure_client of a service
+            # it has no authority for lists it without one (30 s; safety audit: 8 s held connect())
+            robot.sync_with_services_list(robot.ensure_client("directory").list(timeout=cfg.rpc_timeout))
+        except bd.exc.TimedOutError:
+            raise SpotConnectError(f"the robot at {cfg.hostname}:{cfg.port} did not list its services within "
+                                   f"{cfg.rpc_timeout} s") from None
+        except bd.exc.Error as exc:
+            raise self._connect_error(exc) from None
         self._bound_time_sync_rpcs(robot)
         self._bring_up_step()
         try:
@@ -292,7 +301,15 @@ class SdkBringUp:
         bd = self._bd
         if self._overtaken(exc):            # a check-in that one of our commands overtook: still ours
             return
-        if isinstance(exc, (bd.exc.LeaseUseError, bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease)) \
-                and self._fault is None and not self._closing:
-            self._fault = LeaseLostError(f"the body lease was revoked or taken by another client ({type(exc).__name__})")
-            _LOG.warning("lease keep-alive: %s", self._fault)
+        if self._lease_returning:            # our own ReturnLease: the wallet and the robot say it is gone
+            return
+        if isinstance(exc, bd.exc.LeaseUseError) or (
+                isinstance(exc, (bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease)) and not self._closing):
+            # the robot refused our lease: recorded also after another fault and during close(), so
+            # the shutdown neither commands nor returns it and tells the operator (safety audit)
+            why = f"the body lease was revoked or taken by another client ({type(exc).__name__})"
+            if self._lease_lost is None:
+                self._lease_lost = why
+            if self._fault is None and not self._closing:
+                self._fault = LeaseLostError(why)
+                _LOG.warning("lease keep-alive: %s", self._fault)

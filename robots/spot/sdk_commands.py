@@ -32,7 +32,7 @@ from robots.hal import (
     TimeSyncLostError,
 )
 from robots.spot import model
-from robots.spot.sdk_config import CommandRejectedError
+from robots.spot.sdk_config import CommandRejectedError, NotConnectedError
 from robots.spot.sdk_futures import future_result
 from robots.spot.stall_watch import StallWatch
 
@@ -75,6 +75,11 @@ class SdkCommands:
         if self._closing_elsewhere():
             raise BackendClosedError("this backend is shutting the robot down (close() was called); no more "
                                      "commands")
+        if not hasattr(self, "_cmd_client") or not hasattr(self, "_image_client"):
+            # a safety monitor's stop() during connect(), or a call on a backend whose connect()
+            # failed: once an AttributeError (safety audit); nothing of ours moves the robot yet
+            raise NotConnectedError("the robot is not brought up (connect() has not got as far as the command "
+                                    "clients, or it failed): nothing of ours is moving it")
 
     def _set_fault(self, fault: RobotFault) -> RobotFault:
         if isinstance(fault, (*_FATAL, EstopError, PowerError, BehaviorFaultError)) and self._fault is None:

@@ -36,6 +36,11 @@ class SpotConnectError(ConnectionLostError):
     """The robot could not be reached or its TLS certificate was not accepted."""
 
 
+class NotConnectedError(HalError):
+    """A command on a backend that has not brought the robot up (``connect()`` still running in
+    another thread, not called, or failed): nothing of this backend moves the robot yet."""
+
+
 class CommandRejectedError(RobotFault):
     """The robot refused or could not execute a command for a reason the HAL has no type for."""
 

@@ -104,8 +104,14 @@ class SdkShutdown:
                     except Exception:  # noqa: BLE001
                         _LOG.exception("close callback failed")
 
+    def _lease_gone(self) -> str | None:
+        """Why the body lease is not ours any more (the robot said so), or None."""
+        if isinstance(self._fault, LeaseLostError):
+            return str(self._fault)
+        return self._lease_lost
+
     def _our_lease(self):
-        if self._lease_keepalive is None or isinstance(self._fault, LeaseLostError):
+        if self._lease_keepalive is None or self._lease_gone() is not None:
             return None
         try:
             return self._lease_client.lease_wallet.get_lease()
@@ -116,6 +122,7 @@ class SdkShutdown:
         cfg, bd = self.config, self._bd
         lease = self._our_lease()
         healthy = self._fault is None and not self._unresponsive
+        self._close_steps = set()
         if healthy and lease is not None:
             try:
                 self._shutdown_in_turn(lease)
@@ -134,16 +141,31 @@ class SdkShutdown:
                 else:
                     # another client (the tablet) took the lease while we shut down: nothing more of
                     # ours may move the robot; say so (the shutdown is not done), never log it and go on
-                    self._fault = self._fault or LeaseLostError(f"the body lease was taken by another client "
-                                                                f"during the shutdown ({type(exc).__name__})")
+                    why = f"the body lease was taken by another client during the shutdown ({type(exc).__name__})"
+                    self._lease_lost = self._lease_lost or why
+                    self._fault = self._fault or LeaseLostError(why)
             except Exception as exc:  # noqa: BLE001
                 _LOG.warning("shutdown step failed: %s: %s", type(exc).__name__, str(exc).split("\n")[0])
-            lease = self._our_lease()
-        if lease is None and isinstance(self._fault, LeaseLostError):
-            self.close_problem = (f"the robot was not shut down by us: {self._fault}; it is left to the client "
-                                  f"holding the lease (the tablet?), possibly standing with motor power on")
-            _LOG.warning(self.close_problem)
+            # a ReturnLease that failed took the lease out of the wallet first (the SDK's
+            # return_lease): it is still ours to return unless the robot said otherwise (safety audit)
+            lease = None if self._lease_gone() else (self._our_lease() or lease)
+        self._say_if_lease_lost()
         self._shutdown_in_flight(lease, max(t0 + cfg.close_budget, time.monotonic() + 0.5))
+        self._say_if_lease_lost()           # a refusal during it
+
+    def _say_if_lease_lost(self) -> None:
+        """The lease was taken or revoked (before or during the shutdown, also after another fault):
+        the robot was not shut down by us, and ``close_problem`` says so."""
+        gone = self._lease_gone()
+        if gone is None or (self.close_problem or "").startswith("the robot was not shut down by us"):
+            return
+        note = (f"the robot was not shut down by us: {gone}; it is left to the client holding the lease (the "
+                f"tablet?), possibly standing with motor power on")
+        _LOG.warning(note)
+        kept = getattr(self, "_estop_note", None)           # said before the lease was known lost
+        if self.close_problem is None and kept:
+            note = f"{note}; {kept}"
+        self.close_problem = note if self.close_problem is None else f"{note}; {self.close_problem}"
 
     def _shutdown_in_turn(self, lease) -> None:
         """Healthy robot: stop, stow, sit and power off, return the lease, deregister the e-stop."""
@@ -151,8 +173,11 @@ class SdkShutdown:
         state = self._after_power_on(self._state_client.get_robot_state(timeout=cfg.rpc_timeout))
         PS = state.power_state
         motors = PS.motor_power_state
-        if motors != PS.MOTOR_POWER_STATE_OFF:
+        if motors == PS.MOTOR_POWER_STATE_OFF:
+            self._close_steps |= {"stop", "safe power off"}
+        else:
             self._cmd_client.robot_command(bd.Builder.stop_command(), timeout=cfg.rpc_timeout)
+            self._close_steps.add("stop")
             state = self._state_client.get_robot_state(timeout=cfg.rpc_timeout)
         if motors == PS.MOTOR_POWER_STATE_ON and not state.manipulator_state.is_gripper_holding_item and \
                 state.manipulator_state.stow_state != state.manipulator_state.STOWSTATE_STOWED:
@@ -170,7 +195,10 @@ class SdkShutdown:
                                      update_frequency=1.0 / cfg.feedback_period, timeout=cfg.rpc_timeout)
             except bd.power.CommandTimedOutError:
                 self._warn_if_still_powered()
+        self._close_steps.add("safe power off")        # done, or taken by a robot that could not sit
+        self._lease_returning = True
         self._lease_client.return_lease(lease, timeout=cfg.rpc_timeout)
+        self._close_steps.add("lease return")
         _LOG.info("lease returned")
         if self._estop_endpoint is not None:
             ep = self._estop_endpoint
@@ -221,6 +249,7 @@ class SdkShutdown:
                 f"on): with its check-ins stopped the robot settles and cuts motor power within "
                 f"{self.config.estop_timeout:g} s")
         _LOG.warning(note)
+        self._estop_note = note
         if self.close_problem is not None:
             self.close_problem = f"{self.close_problem}; {note}"
 
@@ -243,44 +272,174 @@ class SdkShutdown:
                      "e-stop", cfg.stand_timeout)
 
     def _shutdown_in_flight(self, lease, deadline: float) -> None:
-        """Degraded robot or link: stop and safe power off (with our lease), then return the lease
-        and deregister the e-stop endpoint, each sent without waiting for the one before; replies
-        awaited until ``deadline``. After a bring-up call that went unanswered, the robot is asked
-        what it left and that is returned / deregistered too (:meth:`_clean_up_unanswered_bring_up`)."""
+        """Degraded robot or link: stop and safe power off (with our lease), return the lease and
+        deregister the e-stop endpoint, without waiting for one another, until ``deadline``. A step
+        the link failed (an RPC error, a server error) is sent again after a short pause while
+        there is time: one or two lost RPCs once left the robot standing with motor power on and
+        nobody holding it, or our lease on the robot (safety audit). The lease goes back only once
+        the robot took the safe power off (or stop, with ``power_off_on_close`` off), says its motors
+        are off, or the power off has been on its way 0.3 s without failing (a slow link: the robot
+        acts on it when it arrives, and on the return after it); a power off the link lost fails
+        fast and goes again first. Kept, a real Spot treats our silence as a communications loss
+        and powers off; returned before the power off, a robot standing with motor power on would
+        be nobody's. Steps the healthy
+        shutdown already finished (``_close_steps``) are not sent again. After a bring-up call
+        that went unanswered, the robot is asked what it left and that is returned / deregistered
+        too (:meth:`_clean_up_unanswered_bring_up`)."""
         cfg, bd = self.config, self._bd
-        pending = []
+        plan = []                                          # (step, function, arguments), in order
+        if lease is not None:
+            plan.append(("stop", self._cmd_client.robot_command_async, (bd.Builder.stop_command(),)))
+            if cfg.power_off_on_close:
+                plan.append(("safe power off", self._cmd_client.robot_command_async,
+                             (bd.Builder.safe_power_off_command(),)))
+            plan.append(("lease return", self._return_lease_async, (lease,)))
+        if self._estop_endpoint is not None:
+            ep = self._estop_endpoint
+            plan.append(("e-stop deregistration", self._estop_client.deregister_async, (ep._config_id, ep)))
+        done = {name for name, _, _ in plan if name in self._close_steps}
+        given_up: set[str] = set()
+        flying: dict[str, object] = {}
+        ready_at: dict[str, float] = {}
+        sent_at: dict[str, float] = {}
+        motors_off = [False]
 
-        def send(name, fn, *args):
+        def left() -> float:
+            return max(0.05, deadline - time.monotonic())
+
+        def send(name, fn, *args):          # one call, its reply awaited with the others (no retry)
             try:
-                pending.append((name, fn(*args, timeout=max(0.05, deadline - time.monotonic()))))
+                extra.append((name, fn(*args, timeout=left())))
             except Exception as exc:  # noqa: BLE001 - e.g. a refused connection: fails at once
                 _LOG.debug("shutdown: %s not sent: %s", name, type(exc).__name__)
 
-        if lease is not None:
-            send("stop", self._cmd_client.robot_command_async, bd.Builder.stop_command())
-            if cfg.power_off_on_close:
-                send("safe power off", self._cmd_client.robot_command_async, bd.Builder.safe_power_off_command())
-            self._await(pending[-1:], min(deadline, time.monotonic() + 0.3))   # let the robot take them first
-            send("lease return", self._return_lease_async, lease)
-        if self._estop_endpoint is not None:
-            ep = self._estop_endpoint
-            send("e-stop deregistration", self._estop_client.deregister_async, ep._config_id, ep)
+        extra: list = []
+        state_ask = None
+        if lease is not None and not {"stop", "safe power off"} <= done:
+            try:                                # motors already off (an e-stop, a power fault): no sit needed
+                state_ask = self._state_client.get_robot_state_async(timeout=left())
+            except Exception:  # noqa: BLE001
+                state_ask = None
+        power_step = "safe power off" if cfg.power_off_on_close else "stop"
+
+        def may_send(name: str) -> bool:
+            if name == "lease return":       # power off taken, or on its way for a while (a slow link acts on
+                return power_step in done or motors_off[0] or (       # it when it arrives; a lost one fails fast)
+                    power_step in flying and time.monotonic() - sent_at[power_step] >= 0.3)
+            if name in ("stop", "safe power off"):
+                return not motors_off[0]
+            if name == "e-stop deregistration" and lease is not None:    # refused while the motors are on
+                return power_step in done or motors_off[0] or (
+                    power_step in flying and time.monotonic() - sent_at[power_step] >= 0.3)
+            return True
+
         self._clean_up_unanswered_bring_up(send, deadline)
-        done = self._await(pending, deadline)
-        for name, fut in pending:
+        while time.monotonic() < deadline:
+            now = time.monotonic()
+            for name, fn, args in plan:
+                if name in done or name in given_up or name in flying or ready_at.get(name, 0.0) > now \
+                        or not may_send(name):
+                    continue
+                if name == "lease return":
+                    self._lease_returning = True
+                try:
+                    flying[name], sent_at[name] = fn(*args, timeout=left()), now
+                except Exception as exc:  # noqa: BLE001 - failed before it left: try again shortly
+                    _LOG.debug("shutdown: %s not sent: %s", name, type(exc).__name__)
+                    ready_at[name] = now + 0.1
+            if state_ask is not None and state_ask.done():
+                try:
+                    state = future_result(state_ask, 0.0)
+                    PS = state.power_state
+                    motors_off[0] = PS.motor_power_state == PS.MOTOR_POWER_STATE_OFF
+                except Exception:  # noqa: BLE001 - unanswered: the steps decide
+                    pass
+                state_ask = None
+            if motors_off[0]:
+                done |= {"stop", "safe power off"} & {name for name, _, _ in plan}
+            for name, fut in list(flying.items()):
+                if not fut.done():
+                    continue
+                del flying[name]
+                try:
+                    future_result(fut, 0.0)
+                    done.add(name)
+                except Exception as exc:  # noqa: BLE001 - sorted below
+                    self._shutdown_step_failed(name, exc, given_up, ready_at, lease=lease,
+                                               returning="lease return" in sent_at or "lease return" in done,
+                                               powering_off=power_step in sent_at or motors_off[0],
+                                               deadline=deadline)
+            if self._lease_gone() is not None:      # refused by the robot: nothing of ours to command or return
+                given_up |= {"stop", "safe power off", "lease return"} & {name for name, _, _ in plan}
+            if all(name in done or name in given_up for name, _, _ in plan) and state_ask is None:
+                break
+            time.sleep(0.02)
+        for name, fut in flying.items():
+            cancel_future(fut)
+        for name, _, _ in plan:
             if name in done:
                 _LOG.info("shutdown: %s done", name)
-            elif name == "e-stop deregistration" and self._refused_motors_on(fut):
-                self._estop_kept_powered()
-            else:
-                cancel_future(fut)
+            elif name not in given_up:
                 _LOG.warning("shutdown: %s not confirmed by the robot", name)
+        if lease is not None and "lease return" not in done and self._lease_gone() is None:
+            _LOG.warning("shutdown: the body lease is kept (not returned) because the robot did not confirm it "
+                         "stopped and powered off: with our keep-alive stopped, a Spot treats the silence as a "
+                         "communications loss and powers off")
         if "e-stop deregistration" in done:
             self._estop_endpoint = None
-        if "left e-stop endpoint deregistration" in done:
+        extra_done = self._await(extra, deadline)
+        for name, fut in extra:
+            if name not in extra_done:
+                cancel_future(fut)
+                _LOG.warning("shutdown: %s not confirmed by the robot", name)
+        if "left e-stop endpoint deregistration" in extra_done:
             self._estop_unconfirmed = None
-        if "left lease return" in done:
+        if "left lease return" in extra_done:
             self._lease_unconfirmed = False
+
+    def _older_than_ours(self, exc, lease) -> bool:
+        """A STATUS_OLDER refusal whose newest known lease is a sub-lease of ``lease`` (ours): a newer
+        request of ours arrived first. Compared with the lease we hold, not the wallet's, which our
+        own lease return empties (a race under load read as a lost lease)."""
+        result = getattr(exc, "lease_use_result", None)
+        if lease is None or result is None or result.status != result.STATUS_OLDER:
+            return False
+        latest, ours = result.latest_known_lease, lease.lease_proto
+        return (latest.resource == ours.resource and latest.epoch == ours.epoch and len(latest.sequence) > 0
+                and len(ours.sequence) > 0 and latest.sequence[0] == ours.sequence[0])
+
+    def _shutdown_step_failed(self, name: str, exc: BaseException, given_up: set, ready_at: dict, *,
+                              lease=None, returning: bool = False, powering_off: bool = False,
+                              deadline: float = 0.0) -> None:
+        """A shutdown step's reply was an error: the link (an RPC or server error) is tried again
+        after a pause; a refusal because a newer request of ours arrived first is tried again with
+        a newer sub-lease (moot once the lease is on its way back); any other refusal of our lease
+        means it is not ours any more; a deregistration refused with the motors on is tried again
+        while the power off is on its way, else the endpoint stays (it cuts power when its
+        check-ins stop); any other refusal is final."""
+        bd = self._bd
+        if isinstance(exc, bd.exc.LeaseUseError) and self._older_than_ours(exc, lease):
+            # overtaken by a newer request of ours (the steps go out back to back): again, with a
+            # newer sub-lease, unless the lease is already on its way back (then it is moot)
+            if returning:
+                given_up.add(name)
+            else:
+                ready_at[name] = time.monotonic() + 0.05
+        elif isinstance(exc, bd.exc.LeaseUseError):
+            self._lease_lost = self._lease_lost or f"the robot refused our lease at shutdown ({type(exc).__name__})"
+            given_up.add(name)
+        elif name == "e-stop deregistration" and isinstance(exc, bd.estop.MotorsOnError):
+            if powering_off and time.monotonic() < deadline - 0.25:
+                ready_at[name] = time.monotonic() + 0.15        # the power off is on its way: once it is done
+            else:
+                given_up.add(name)
+                self._estop_kept_powered()
+        elif isinstance(exc, (bd.exc.RpcError, bd.exc.ServerError)):
+            ready_at[name] = time.monotonic() + 0.1
+            _LOG.debug("shutdown: %s failed (%s); sending it again", name, type(exc).__name__)
+        else:
+            given_up.add(name)
+            _LOG.warning("shutdown: %s refused by the robot: %s", name, str(exc).split("\n")[0])
 
     def _clean_up_unanswered_bring_up(self, send, deadline: float) -> None:
         """What a bring-up call answered too late (the robot acted on it, our call had timed out)
