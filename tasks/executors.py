@@ -240,6 +240,8 @@ def _die_with_parent(parent_pid: int) -> None:
 def _worker_loop(conn, parent_pid: int) -> None:
     _die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)    # Ctrl-C reaches the whole group; the parent decides
+    if hasattr(signal, "pthread_sigmask"):           # blocked since the start (_start_quiet): a Ctrl-C that
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})    # came meanwhile is dropped here
     worker_setup()
     try:
         conn.send(("ready",))                       # the parent bounds how long it waits for this
@@ -260,12 +262,28 @@ def _worker_loop(conn, parent_pid: int) -> None:
             return
 
 
+def _start_quiet(process) -> None:
+    """Start a worker process with SIGINT blocked until its loop ignores it: a Ctrl-C (sent to the
+    whole process group) while the new interpreter imports and unpickles its code printed the
+    child's KeyboardInterrupt traceback above the batch's own line (reliability audit). The mask
+    is inherited through fork and exec; in this process it is lifted right after the start, so a
+    Ctrl-C that came meanwhile is delivered then and stops the batch as usual."""
+    if not hasattr(signal, "pthread_sigmask"):
+        process.start()
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        process.start()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 class _Worker:
     def __init__(self, ctx):
         self.conn, child = ctx.Pipe(duplex=True)
         self.process = ctx.Process(target=_worker_loop, args=(child, os.getpid()), daemon=True,
                                    name="helios-trial-worker")
-        self.process.start()
+        _start_quiet(self.process)
         child.close()
         self.job: int | None = None
         self.jobs_done = 0

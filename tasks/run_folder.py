@@ -36,7 +36,9 @@ from tasks.trial_summary import METRIC_KEYS, PHASE_TIME_KEYS
 
 DAMAGED_FILE = "episodes.damaged.jsonl"      # damaged lines of episodes.jsonl, moved here by a resume
 # Files of a run folder (a directory in their place is one clear error, never a traceback).
-FOLDER_FILES = ("config.yaml", "episodes.jsonl", "summary.json", "invocations.jsonl", ".lock", DAMAGED_FILE)
+DIGESTS_FILE = "episode_digests.json"        # episode id -> digest of the episode a record was made from
+FOLDER_FILES = ("config.yaml", "episodes.jsonl", "summary.json", "invocations.jsonl", ".lock", DAMAGED_FILE,
+                DIGESTS_FILE)
 
 
 class RunFolderError(ValueError):
@@ -108,18 +110,33 @@ def stale_results(out: Path, config: TrialConfig, commit: str | None = None) -> 
 
     Two reasons count: a different configuration (a larger ``episodes`` is an extension, not a
     difference) and results written at another commit (``git_commit`` in config.yaml). Anything
-    else wrong with the folder (damage, a missing config.yaml) is left to :func:`prepare_run_folder`
-    to report. ``tools trials --replace-stale`` moves a stale folder aside (``make run`` uses it, so
+    else wrong with the folder (damage) is left to :func:`prepare_run_folder` to report; a missing
+    or unreadable config.yaml counts as a different configuration when the records' fingerprints
+    say so (the fingerprint leaves out the episode count: an extension still resumes). ``tools trials --replace-stale`` moves a stale folder aside (``make run`` uses it, so
     the README's first command shows this checkout's numbers after a pull instead of refusing the
     folder or resuming another version's results)."""
     out = Path(out)
-    if not (out / "episodes.jsonl").is_file() or not (out / "config.yaml").is_file():
+    if not (out / "episodes.jsonl").is_file():
         return None
     try:
-        if not scan_results(out / "episodes.jsonl").records:
-            return None
-        header, _, saved_cfg = _read_saved_config(out)
+        scan = scan_results(out / "episodes.jsonl")
     except RunFolderError:
+        return None
+    if not scan.records:
+        return None
+    known = scan.fingerprints() - {None}
+    cfg_path = out / "config.yaml"
+    try:
+        header, _, saved_cfg = _read_saved_config(out) if cfg_path.is_file() else (None, None, None)
+    except RunFolderError:
+        header = None
+    if header is None:
+        # no readable config.yaml: the records' fingerprints still say whether they are this
+        # configuration's (then prepare_run_folder rewrites it); another's are moved aside, not refused
+        # (reliability audit: --replace-stale refused them, and `make run` with it)
+        if known and known != {config_fingerprint(config)}:
+            return (f"results of a different configuration (config.yaml "
+                    f"{'unreadable' if cfg_path.exists() else 'missing'}; the records' fingerprint is {next(iter(known))})")
         return None
     diff = config_difference(saved_cfg, config)
     if diff and not is_extension(diff, saved_cfg, config):
@@ -151,7 +168,8 @@ def move_aside(out: Path, stamp: str | None = None) -> Path:
 def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | None" = None,
                        dry_run: bool = False, episode_ids: Iterable[str] | None = None,
                        episode_source: str = "the run's episodes",
-                       episode_tasks: dict[str, str] | None = None) -> dict[str, dict]:
+                       episode_tasks: dict[str, str] | None = None,
+                       episode_digests: dict[str, str] | None = None) -> dict[str, dict]:
     """Create or reopen a run folder; returns the episodes already finished (by id).
 
     Reopening checks that the configuration is the one that made the results (results of
@@ -175,6 +193,10 @@ def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | No
     of them with another task is refused, since the episodes changed under the same configuration
     (an episode file edited or regenerated, or a relative ``--episodes-file`` that names another
     file from another working directory; the fingerprint holds the file's name, not its contents).
+    ``episode_digests`` (episode id -> :func:`episode_digest`) does the same for the rest of an
+    episode (its home, start pose, goals: an edit that kept the task once resumed into a mix,
+    reliability audit), against ``episode_digests.json``, which a run keeps from its first start
+    (folders made before it have none, and only the task is checked).
     """
     out = Path(out)
     check_folder_layout(out)
@@ -193,6 +215,14 @@ def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | No
                                  f"{episode_source} now give {shorten(repr(now), 90)}: the episodes changed since the run "
                                  f"started (an edited or regenerated episode file, or a relative --episodes-file naming "
                                  f"another file from here); use another --out, or the file the run was made with")
+    saved_digests, digests_note = _read_digests(out / DIGESTS_FILE)
+    for eid in scan.records if episode_digests else ():
+        was, now = saved_digests.get(eid), episode_digests.get(eid)
+        if was is not None and now is not None and was != now:
+            raise RunFolderError(f"run folder {str(out)!r}: episode {eid} changed since it was run (same task, but "
+                                 f"its home, start pose or goals in {episode_source} differ from those the run was made "
+                                 f"with: an edited or regenerated episode file); use another --out, or the file the "
+                                 f"run was made with")
     fps = {r.get(FINGERPRINT_FIELD) for r in scan.records.values()}
     known = scan.fingerprints() - {None}      # a damaged record of another configuration: a mix, never repaired
     cfg_path = out / "config.yaml"
@@ -277,11 +307,38 @@ def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | No
         if damaged_config:
             _move_aside(cfg_path)
         write_atomic(cfg_path, new_config_text)
+    if episode_digests:
+        if digests_note:
+            notes.append(digests_note)
+        merged = {**saved_digests, **episode_digests}
+        if merged != saved_digests:
+            write_atomic(out / DIGESTS_FILE, json.dumps(merged, indent=0, sort_keys=True) + "\n")
     if report is not None:
         report.fingerprint = folder_fp
         report.saved_commit = saved_commit
         report.notes.extend(notes)
     return dict(scan.records)
+
+
+def episode_digest(episode) -> str:
+    """A short digest of everything that defines an episode (its JSON line)."""
+    import hashlib
+
+    return hashlib.sha256(episode.to_json().encode()).hexdigest()[:16]
+
+
+def _read_digests(path: Path) -> tuple[dict[str, str], str | None]:
+    """The saved episode digests ({} when none) and a note when the file was unreadable (it is then
+    rewritten from the episodes about to run, as config.yaml is)."""
+    if not path.exists():
+        return {}, None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else None
+    except (OSError, ValueError, RecursionError):
+        data = None
+    if isinstance(data, dict) and all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
+        return data, None
+    return {}, f"{path.name} was unreadable; rewrote it (the episodes' tasks were still checked)"
 
 
 def _move_aside(path: Path) -> None:
@@ -433,7 +490,7 @@ def scan_results(path: Path, episode_ids: Iterable[str] | None = None,
     except OSError as exc:
         raise RunFolderError(f"cannot read {path}: {exc.strerror or exc}") from None
     valid: list[tuple[int, bytes, dict]] = []
-    for lineno, line in enumerate(data.splitlines(keepends=True), 1):
+    for lineno, line in enumerate(_lines_of(data), 1):
         if not line.endswith(b"\n"):
             scan.damaged.append(DamagedLine(lineno, "torn last line (an interrupted write)", line, torn=True))
             break
@@ -486,6 +543,15 @@ def scan_results(path: Path, episode_ids: Iterable[str] | None = None,
             scan.legacy += record.get(FINGERPRINT_FIELD) is None
     scan.damaged.sort(key=lambda d: d.lineno)
     return scan
+
+
+def _lines_of(data: bytes) -> list[bytes]:
+    """The file's lines, each ending in its newline (the last may be torn): split at b"\\n" only.
+    ``bytes.splitlines`` also splits at a lone CR (and \\v, \\f, \\x1c..\\x1e): one CR byte in a
+    middle record read as a torn last line, every record after it was dropped, and a resume
+    rewrote the file without them (reliability audit)."""
+    parts = data.split(b"\n")
+    return [part + b"\n" for part in parts[:-1]] + ([parts[-1]] if parts[-1] else [])
 
 
 def _conflict(entries: list[tuple[int, dict]]) -> str:

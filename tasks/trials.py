@@ -27,7 +27,8 @@ from tasks.episodes import Episode
 from tasks.provenance import git_commit
 from tasks.registry import RunContext, make_agent
 from tasks.run_folder import (FolderLock, RunFolderError, append_result, check_folder_layout, cpu_paths_now,
-                              log_invocation, prepare_run_folder, run_cpu_paths, write_atomic, write_bytes_atomic)
+                              episode_digest, log_invocation, prepare_run_folder, run_cpu_paths, write_atomic,
+                              write_bytes_atomic)
 from tasks.runner import run_sim_episode
 from tasks.trial_config import FINGERPRINT_FIELD, TrialConfig, episode_seed, run_episode_ids
 from tasks.trial_summary import METRIC_KEYS, METRIC_NAMES, summarize
@@ -199,7 +200,8 @@ def run_folder_episodes(config: TrialConfig, episodes: list[Episode]) -> dict:
     task means the episode file changed). ``tools trials`` passes the same to its dry run."""
     ids, source = run_episode_ids(config) or (None, "")
     return {"episode_ids": None if ids is None else [*ids, *(e.episode_id for e in episodes)],
-            "episode_source": source, "episode_tasks": {e.episode_id: e.task for e in episodes}}
+            "episode_source": source, "episode_tasks": {e.episode_id: e.task for e in episodes},
+            "episode_digests": {e.episode_id: episode_digest(e) for e in episodes}}
 
 
 def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,

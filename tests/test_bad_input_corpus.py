@@ -117,6 +117,7 @@ def ws(tmp_path_factory):
         (root / name).parent.mkdir(parents=True, exist_ok=True)
         (root / name).write_bytes(data)
     os.mkfifo(root / "fifo")                 # written to or read from, it must be refused, never replaced or waited on
+    os.symlink("loop", root / "loop")        # a symbolic link loop: Path.resolve() raises RuntimeError
     cfg = root / "cfg"
     cfg.mkdir()
     configs = {
@@ -739,6 +740,10 @@ CASES: list[tuple[str, list[str], str]] = [
     ("ep-seed-5000-digits", [*T, "--episodes-file", E + "seed_digits.jsonl"], "not valid JSON (Exceeds the limit"),
     ("calibrate-baseline-fifo", ["calibrate-perception", "--views", "5", "--baseline", "{ws}/fifo",
                                  "--out", "{ws}/cal"], "is not a regular file"),
+    ("report-symlink-loop", ["report", "{ws}/loop", "--out", "{ws}/rep"], "cannot be resolved (a symbolic link loop)"),
+    ("diff-symlink-loop", ["diff", "{ws}/loop", R + "valid"], "cannot be resolved (a symbolic link loop)"),
+    ("report-out-symlink-loop", ["report", R + "valid", "--out", "{ws}/loop"],
+     "/loop' cannot be resolved (a symbolic link loop)"),
     ("bench-agent-oracle", ["bench", "agent", "--agent-name", "oracle"], "the oracle keeps no timings"),
     ("bench-agent-save-folder", ["bench", "agent", "--agent-save", "{ws}/adir"], "is a folder; it must name a file"),
     ("bench-agent-save-empty", ["bench", "agent", "--agent-save="], "--agent-save must not be empty"),
@@ -856,7 +861,22 @@ def test_every_numeric_config_field_has_a_range():
 # Part 2: damaged run folders
 # ------------------------------------------------------------------------------------------------
 def _lines(folder: Path) -> list[bytes]:
-    return (folder / "episodes.jsonl").read_bytes().splitlines(keepends=True)
+    """Its lines at b"\\n" only (a CR inside a line is not a line break, see cr-inside-a-string)."""
+    parts = (folder / "episodes.jsonl").read_bytes().split(b"\n")
+    return [p + b"\n" for p in parts[:-1]] + ([parts[-1]] if parts[-1] else [])
+
+
+def _cr_in_line(i: int, inside_string: bool):
+    """A CR byte in line ``i``: between two tokens (JSON whitespace: the record stays valid) or in
+    the task string (a control character: not JSON). Once either dropped every later record."""
+    def damage(folder: Path) -> None:
+        lines = _lines(folder)
+        line = bytearray(lines[i])
+        at = line.index(b'"task": "') + (len(b'"task": "') + 2 if inside_string else len(b'"task":'))
+        line[at] = 0x0D
+        lines[i] = bytes(line)
+        _set_lines(folder, lines)
+    return damage
 
 
 def _set_lines(folder: Path, lines: list[bytes]) -> None:
@@ -1067,6 +1087,9 @@ DAMAGES = [
      lambda f, clean: shutil.copy(clean / "config.yaml", f / "config.yaml")),
     ("duplicate-record", lambda f: _set_lines(f, _lines(f) + _lines(f)[:1]), (0, ""), ([], 0, ""), None),
     # the audit of 2026-12-05 (session 35): a traceback, or a wait without end
+    ("cr-between-tokens", _cr_in_line(1, inside_string=False), (0, ""), ([], 0, ""), None),
+    ("cr-inside-a-string", _cr_in_line(1, inside_string=True), (0, "episodes.jsonl:2: not valid JSON"),
+     ([], 0, "line 2: not valid JSON"), None),
     ("sim-time-overflows-a-float", _edit_record(1, lambda r: r.update(sim_time=10 ** 400)),
      (0, "episodes.jsonl:2: sim_time"), ([], 0, "sim_time"), None),
     ("integer-of-5000-digits", _insert_line(1, b'{"episode_id": "smoke-00001", "sim_time": ' + b"9" * 5000 + b"}\n"),

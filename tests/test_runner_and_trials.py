@@ -173,6 +173,35 @@ def test_a_resume_refuses_episodes_that_changed_under_the_same_episode_file_name
     assert [r for r in read_results(out / "episodes.jsonl")] == [smoke[0].episode_id, smoke[2].episode_id]
 
 
+def test_a_resume_refuses_an_episode_edited_under_the_same_task(tmp_path, monkeypatch):
+    """(reliability audit 2026-12-05) An episode whose start pose was moved 0.3 m, its task kept,
+    resumed into a mix: the record made from the old pose stood beside a new run's, and the
+    finished run differed from a fresh one. The run folder now keeps each episode's digest."""
+    from tasks.run_folder import DIGESTS_FILE
+
+    smoke = load_split("smoke")
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "eps.jsonl").write_text(smoke[0].to_json() + "\n" + smoke[2].to_json() + "\n")
+    out = tmp_path / "run"
+    args = ["trials", "--agent", "oracle", "--episodes-file", "eps.jsonl", "--progress", "none", "--no-pictures",
+            "--out", str(out), "runner.max_commands=3"]
+    rc, _, err = run_cli([*args, "--episodes", "1"])
+    assert rc == 0, err
+    assert json.loads((out / DIGESTS_FILE).read_text())[smoke[0].episode_id]
+    moved = json.loads(smoke[0].to_json())
+    moved["robot_start"][0] += 0.3                          # the same task, another start pose
+    (tmp_path / "eps.jsonl").write_text(json.dumps(moved) + "\n" + smoke[2].to_json() + "\n")
+    before = (out / "episodes.jsonl").read_bytes()
+    rc, _, err = run_cli([*args, "--episodes", "2"])
+    assert rc == 2 and err.count("\n") == 1, err
+    assert f"episode {smoke[0].episode_id} changed since it was run (same task" in err
+    assert (out / "episodes.jsonl").read_bytes() == before
+    (tmp_path / "eps.jsonl").write_text(smoke[0].to_json() + "\n" + smoke[2].to_json() + "\n")
+    rc, _, err = run_cli([*args, "--episodes", "2"])        # the file the run was made with: it extends
+    assert rc == 0, err
+    assert set(json.loads((out / DIGESTS_FILE).read_text())) == {smoke[0].episode_id, smoke[2].episode_id}
+
+
 @pytest.mark.slow
 def test_oracle_reaches_90_percent_on_the_smoke_split(tmp_path):
     records = run_batch(TrialConfig(agent="oracle", split="smoke", episodes=20), load_split("smoke"), tmp_path)
@@ -266,8 +295,15 @@ def test_stale_results_name_a_different_configuration_or_commit_and_nothing_else
     if here != "unknown":
         assert stale_results(out, cfg, commit="0" * 40) == \
             f"results of commit {here[:10]} (this checkout is 0000000000)"
-    (out / "config.yaml").write_text("[1, 2]\n")                           # damage is prepare_run_folder's to report
-    assert stale_results(out, TrialConfig(seed=9), commit=here) is None
+    # config.yaml damaged or missing: the records' fingerprints decide (reliability audit: another
+    # configuration's folder was refused, not moved aside, by --replace-stale and so by `make run`)
+    (out / "config.yaml").write_text("[1, 2]\n")
+    assert stale_results(out, cfg, commit=here) is None                    # this configuration's: a resume
+    assert stale_results(out, TrialConfig(seed=9), commit=here).startswith(
+        "results of a different configuration (config.yaml unreadable; the records' fingerprint is")
+    (out / "config.yaml").unlink()
+    assert stale_results(out, cfg, commit=here) is None
+    assert "config.yaml missing" in stale_results(out, TrialConfig(seed=9), commit=here)
 
 
 def test_move_aside_keeps_the_folder_under_a_dated_name_and_never_moves_one_in_use(tmp_path):

@@ -238,6 +238,37 @@ def test_a_sigterm_while_the_summary_prints_says_the_batch_had_finished(referenc
     assert json.loads((out / "summary.json").read_text())["complete"]
 
 
+@pytest.mark.parametrize("delay", [0.02, 0.05])
+def test_ctrl_c_while_a_worker_process_starts_prints_no_traceback_of_the_worker(tmp_path, delay):
+    """(reliability audit 2026-12-05) Ctrl-C reaches the whole process group; a worker still
+    importing and unpickling its code (before its loop ignores SIGINT) printed a KeyboardInterrupt
+    traceback, or 'Fatal Python error: init_import_site', above the batch's line (4 of 4 tries at
+    the first spawn). Workers now start with SIGINT blocked until they ignore it."""
+    proc = subprocess.Popen(_trials_cmd(tmp_path / "run", 2), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True, cwd=ROOT, start_new_session=True)
+    deadline = time.monotonic() + 60
+    while True:
+        assert time.monotonic() < deadline and proc.poll() is None, "no worker process started"
+        starting = [c for c in psutil.Process(proc.pid).children()
+                    if any("spawn_main" in part for part in _cmdline(c))]
+        if starting:
+            break
+        time.sleep(0.005)
+    time.sleep(delay)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err[-2000:]
+    assert "Traceback" not in err and "Fatal Python error" not in err and "Exception ignored" not in err, err[-2000:]
+    assert err.strip().splitlines()[-1].startswith("interrupted; finished episodes are saved in"), err[-2000:]
+
+
+def _cmdline(process) -> list[str]:
+    try:
+        return process.cmdline()
+    except (psutil.NoSuchProcess, psutil.AccessDenied, psutil.ZombieProcess):
+        return []
+
+
 def test_a_second_batch_on_the_same_folder_is_refused_while_the_first_runs(tmp_path):
     out = tmp_path / "busy"
     proc = subprocess.Popen(_trials_cmd(out, 1, 1), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)

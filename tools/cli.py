@@ -102,13 +102,22 @@ def _nearest_existing(path: Path) -> tuple[Path, Path | None]:
     return Path("."), None
 
 
+def resolved(path, what: str = "path") -> Path:
+    """``Path(path).resolve()``, or one CliError when it cannot be resolved (a symbolic link loop:
+    Python raises RuntimeError, which reached ``report`` and ``diff`` users as a traceback)."""
+    try:
+        return Path(path).resolve()
+    except (RuntimeError, OSError) as exc:
+        raise CliError(f"{what} '{shown_path(path)}' cannot be resolved ({'a symbolic link loop' if isinstance(exc, RuntimeError) else exc.strerror or exc})") from None
+
+
 def same_folder_twice(paths) -> tuple[str, str] | None:
     """The first of ``paths`` that names an existing folder named before (``./run`` and ``run/``
     alike), with that earlier name; None if none does. A run compared with itself is identical by
     construction (``diff``, ``report``)."""
     seen: dict[Path, str] = {}
     for given in map(str, paths):
-        where = Path(given).resolve()
+        where = resolved(given)
         if where in seen and Path(given).exists():
             return given, seen[where]
         seen.setdefault(where, given)
