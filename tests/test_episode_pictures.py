@@ -234,3 +234,26 @@ def test_the_first_detection_frame_says_whether_it_is_on_a_true_target():
     assert tracer._detection_label(obs, [off]).startswith("first detection of a cup (not on a true target")
     tracer.truth = {}                                     # a run without ground truth (a real robot)
     assert tracer._detection_label(obs, [on]) == "first detection of a cup"
+
+
+def test_a_failed_grasp_is_slashed_not_drawn_like_a_held_one(picture_runs):
+    """(pictures audit 2026-12-05) Six failed grasps drew six rings like the held one; the event's
+    ``ok`` was never read. A failed grasp or release is now slashed."""
+    ep = picture_runs["episode"]
+    trace = load_trace(trace_path(picture_runs["root"] / "oracle", ep.episode_id))
+    grasps = [e for e in trace["meta"]["events"] if e["kind"] == "grasp"]
+    assert grasps and grasps[-1]["ok"], "the oracle's last grasp holds the target"
+    col, row = _pixel(trace, *grasps[-1]["xy"])
+
+    def slash_pixels(ok: bool) -> int:
+        for e in grasps:
+            e["ok"] = ok
+        img = np.asarray(map_picture(trace)[0].convert("RGB"))
+        on = (img == EVENT["grasp"]).all(axis=-1)
+        # the slash runs from the ring's lower left to its upper right, through the middle
+        return sum(int(on[row - k, col + k]) for k in range(-6, 7))
+
+    held, failed = slash_pixels(True), slash_pixels(False)
+    assert failed >= held + 8, (held, failed)
+    legend = np.asarray(map_picture(trace)[0].convert("RGB"))[-FOOTER:]
+    assert (legend == EVENT["grasp"]).all(axis=-1).sum() >= 20          # ring G and the slashed one

@@ -50,7 +50,10 @@ def test_report_on_two_runs_writes_the_table_pngs_and_html(tmp_path):
     assert "helios    90.0 ± 9.5   80.0 ± 12.6  70.0 ± 14.5  70.0 ± 14.5  60.0 ± 15.5" in text
     assert "| trusting | 50.0 ± 15.8 | 50.0 ± 15.8 | 50.0 ± 15.8 | 30.0 ± 14.5 | 30.0 ± 14.5 |" in md
     assert "| run | FindObj | Pick | FindRec | Place | SR |" in md
-    assert (tmp_path / "report" / "table.md").read_text().strip() == md.strip()
+    saved = (tmp_path / "report" / "table.md").read_text()
+    assert saved.startswith(md.strip())                   # then the warnings the terminal printed, if any
+    assert saved.strip() == (md + "".join(f"\n- {w}" if i else f"\n\n**Warnings**\n\n- {w}"
+                                          for i, w in enumerate(result["warnings"]))).strip()
     for name in FIGURES:
         png = tmp_path / "report" / name
         assert png.stat().st_size > 15_000, name
@@ -402,3 +405,40 @@ def test_report_pick_limits_from_the_cli(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "2 picks (the paper's protocol: an episode with more than 2 grasp attempts scores 0" in out
     assert "| a | 25.0 ± 21.7 |" in out and "| a | 50.0 ± 25.0 |" in out
+
+
+def test_the_reports_files_carry_the_warnings_the_terminal_printed(tmp_path):
+    """(pictures audit 2026-12-05) `--common` reporting a run over 4 of its 8 episodes, runs of
+    different lengths, damaged data: said on stderr only; index.html, table.txt and table.md
+    showed the numbers without a word."""
+    import html
+
+    from cli_helpers import run_cli
+
+    a = _make_run(tmp_path / "a", [(5, None), (5, None), (0, "not_found"), (5, None), (0, "not_found"), (5, None)])
+    b = _make_run(tmp_path / "b", [(5, None), (0, "not_found"), (5, None), (5, None)])
+    rc, out, err = run_cli(["report", str(a), str(b), "--out", str(tmp_path / "rep"), "--common"])
+    assert rc == 0, err
+    said = [line.removeprefix("warning: ") for line in err.splitlines() if line.startswith("warning: ")]
+    assert any("compared on the 4 episode(s)" in w for w in said), err
+    html_text = (tmp_path / "rep" / "index.html").read_text()
+    for w in said:
+        assert html.escape(w) in html_text, w
+        assert f"warning: {w}" in (tmp_path / "rep" / "table.txt").read_text()
+        assert f"- {w}" in (tmp_path / "rep" / "table.md").read_text()
+    assert "<h2>How episodes ended (share of all episodes)</h2>" in html_text          # not the file's stem
+
+
+def test_unscored_episodes_have_their_own_count_and_colour():
+    """(pictures audit) An episode without metrics was a grey bar in failures.png (the grey of
+    receptacle_not_found) and no column of the counts table, whose row then fell short."""
+    from types import SimpleNamespace
+
+    from tasks.metrics import FAILURE_REASONS
+    from tools.report import failure_rows
+
+    runs = [SimpleNamespace(name="r", summary={"episodes": 4, "scored": 3, "SR": {"count": 1},
+                                               "failure_reasons": {k: 0 for k in FAILURE_REASONS} | {"pick_failed": 2}})]
+    headers, rows = failure_rows(runs)
+    assert headers[-1] == "unscored" and rows[0][-1] == 1
+    assert sum(rows[0][1:]) == 4

@@ -161,6 +161,8 @@ def map_picture(trace: dict, max_px: int = MAP_PX):
             d.line([x - 5, y + 5, x + 5, y - 5], fill=color, width=2)
         else:
             d.ellipse([x - 10, y - 10, x + 10, y + 10], outline=color, width=2)
+            if not ev.get("ok", True):          # a failed grasp or release: slashed (they looked the same)
+                d.line([x - 8, y + 8, x + 8, y - 8], fill=color, width=2)
             _label(d, x + 8, y - 20, ev["kind"][0].upper(), small, color, taken)
     if len(path):
         x, y = P(float(path[-1, 1]), float(path[-1, 2]))
@@ -192,7 +194,7 @@ def _legend(d, x: int, y: int, font, has_map: bool) -> None:
     items = [("path", "line", PATH), ("target (truth)", "diamond", TARGET), ("goal receptacles", "box", GOAL),
              ("start receptacle", "box", START_RECEPTACLE), ("end", "square", (0, 0, 0)),
              ("grasp", "ring G", EVENT["grasp"]), ("release", "ring R", EVENT["release"]),
-             ("collision", "cross", EVENT["collision"])]
+             ("failed", "slashed", EVENT["grasp"]), ("collision", "cross", EVENT["collision"])]
     if has_map:
         items += [("frontiers: object", "fill", PICK_FRONTIER), ("goal", "fill", PLACE_FRONTIER),
                   ("candidates (Psi): object", "dot", CANDIDATE["object"]), ("start", "dot", CANDIDATE["start"]),
@@ -209,6 +211,9 @@ def _legend(d, x: int, y: int, font, has_map: bool) -> None:
             d.ellipse([x + 3, y + 2, x + 11, y + 10], fill=color, outline=(0, 0, 0))
         elif kind == "fill":
             d.rectangle([x + 1, y + 1, x + 13, y + 11], fill=color, outline=(0, 0, 0))
+        elif kind == "slashed":
+            d.ellipse([x + 1, y, x + 13, y + 12], outline=color, width=2)
+            d.line([x + 2, y + 11, x + 12, y + 1], fill=color, width=2)
         elif kind.startswith("ring"):
             d.ellipse([x + 1, y, x + 13, y + 12], outline=color, width=2)
             d.text((x + 4, y - 1), kind[-1], fill=color, font=font)

@@ -27,7 +27,7 @@ import json
 import math
 from pathlib import Path
 
-from tools.cli import check_text_path
+from tools.cli import check_text_path, resolved
 from tools.report_phase_times import (BUDGET_TITLE, MAX_BUDGETS, SPEED_TITLE, budget_rows, budget_summary,
                                       check_budgets, default_budgets, speed_rows)
 from tools.report_plots import _pyplot, _quiet_plots, plot_budgets, plot_failures, plot_memory, plot_subtasks
@@ -35,6 +35,10 @@ from tools.report_runs import MAX_LISTED_DAMAGE, PHASES, Run, check_names, load_
 from tools.report_stats import POWER_TITLE, paired_rows, power_rows
 
 FIGURES = ("subtasks.png", "failures.png", "memory.png", "budgets.png")
+FIGURE_TITLES = {"subtasks.png": "Subtasks: share of episodes reaching each phase",
+                 "failures.png": "How episodes ended (share of all episodes)",
+                 "memory.png": "Memory over an episode's time",
+                 "budgets.png": "Phases reached within each time budget"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -82,11 +86,16 @@ def detail_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
 
 
 def failure_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
+    """Counts of success and each failure reason per run, and of the unscored episodes (an episode
+    that ended on an exception has no metrics) when there are any: the row adds up to the run's
+    episodes, as failures.png does."""
     from tasks.metrics import FAILURE_REASONS
 
     used = [k for k in FAILURE_REASONS if any(r.summary["failure_reasons"][k] for r in runs)]
-    headers = ["run", "success"] + used
-    rows = [[r.name, r.summary["SR"]["count"]] + [r.summary["failure_reasons"][k] for k in used] for r in runs]
+    unscored = [r.summary["episodes"] - r.summary["scored"] for r in runs]
+    headers = ["run", "success"] + used + (["unscored"] if any(unscored) else [])
+    rows = [[r.name, r.summary["SR"]["count"]] + [r.summary["failure_reasons"][k] for k in used]
+            + ([u] if any(unscored) else []) for r, u in zip(runs, unscored)]
     return headers, rows
 
 
@@ -241,9 +250,10 @@ def _html_table(headers, rows) -> str:
 
 
 def write_html(path: Path, runs: list[Run], tables: list[tuple[str, list, list]], figures: list[Path],
-               episodes: list[tuple[Run, list]] = ()) -> None:
-    """index.html: the tables, the plots (embedded), and per run a failure gallery and the
-    per-episode table, whose rows and thumbnails link to the episode pages (relative links)."""
+               episodes: list[tuple[Run, list]] = (), warnings: list[str] = ()) -> None:
+    """index.html: the warnings (as the terminal printed them), the tables, the plots (embedded),
+    and per run a failure gallery and the per-episode table, whose rows and thumbnails link to the
+    episode pages (relative links)."""
     from tools.episode_pages import episode_table_html, failure_gallery_html
 
     parts = ["<!doctype html><html><head><meta charset='utf-8'><title>HELIOS trial report</title><style>",
@@ -251,18 +261,23 @@ def write_html(path: Path, runs: list[Run], tables: list[tuple[str, list, list]]
              "td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}td:first-child,th:first-child{text-align:left}"
              "img{max-width:100%;margin:1em 0}code{background:#f4f4f4}"
              "table.episodes td,table.episodes th{text-align:left}figure{display:inline-block;margin:4px;vertical-align:top}"
-             "figure img{margin:0;border:1px solid #ccc}figcaption{font-size:85%}",
+             "figure img{margin:0;border:1px solid #ccc}figcaption{font-size:85%}"
+             ".warnings{background:#fff4e5;border:1px solid #f0b429;padding:0.5em 1em}",
              "</style></head><body><h1>HELIOS trial report</h1>"]
     for r in runs:
         cfg = r.config
         parts.append(f"<p><b>{html.escape(r.name)}</b>: <code>{html.escape(str(r.path))}</code>, agent "
                      f"{html.escape(str(cfg.get('agent', '?')))}, {html.escape(str(cfg.get('episodes_file') or 'split ' + str(cfg.get('split', '?'))))}, "
                      f"seed {html.escape(str(cfg.get('seed', '?')))}, commit {html.escape(str(cfg.get('git_commit', '?'))[:10])}</p>")
+    if warnings:
+        parts.append("<div class='warnings'><b>Warnings</b><ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in warnings)
+                     + "</ul></div>")
     for title, headers, rows in tables:
         parts.append(f"<h2>{html.escape(title)}</h2>" + _html_table(headers, rows))
     for fig in figures:
         data = base64.b64encode(fig.read_bytes()).decode()
-        parts.append(f"<h2>{html.escape(fig.stem)}</h2><img alt='{html.escape(fig.stem)}' src='data:image/png;base64,{data}'>")
+        title = FIGURE_TITLES.get(fig.name, fig.stem)
+        parts.append(f"<h2>{html.escape(title)}</h2><img alt='{html.escape(title)}' src='data:image/png;base64,{data}'>")
     for run, pages in episodes:
         parts.append(f"<h2 id='gallery-{html.escape(run.name)}'>Failure gallery: {html.escape(run.name)}</h2>"
                      + failure_gallery_html(pages))
@@ -410,7 +425,7 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     for p in run_paths:
         if not Path(p).is_dir():
             continue
-        run_dir, target = Path(p).resolve(), out.resolve()
+        run_dir, target = resolved(p, "run folder"), resolved(out, "--out")
         if target == run_dir:
             raise CliError(f"--out {str(out)!r} is a run folder given to report; write the report elsewhere "
                            f"(e.g. --out {Path(p).parent / (Path(p).name + '-report')})")
@@ -485,8 +500,6 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
         tables.append((START_REC_TITLE, *start_rec))
     text = "\n\n".join(format_table(h, r, title=t) for t, h, r in tables)
     markdown = "\n\n".join(f"**{t}**\n\n" + format_markdown(h, r) for t, h, r in tables)
-    (out / "table.txt").write_text(text + "\n")
-    (out / "table.md").write_text(markdown + "\n")
     warnings = load_warnings + list(note)
     figures: list[Path] = []
     plt = _pyplot()
@@ -515,7 +528,12 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
             if len(damaged) > MAX_LISTED_DAMAGE:
                 warnings.append(f"{r.path}: {len(damaged) - MAX_LISTED_DAMAGE} more episode(s) with damaged "
                                 f"picture data")
-    write_html(out / "index.html", runs, tables, figures, episodes)
+    # what the terminal printed as warnings goes into the files too: a report read later (or in a
+    # browser) showed run8 over 4 episodes with --common and did not say so (pictures audit)
+    (out / "table.txt").write_text(text + "".join(f"\n\nwarning: {w}" for w in warnings) + "\n")
+    (out / "table.md").write_text(markdown + ("\n\n**Warnings**\n\n" + "\n".join(f"- {w}" for w in warnings)
+                                              if warnings else "") + "\n")
+    write_html(out / "index.html", runs, tables, figures, episodes, warnings)
     from tasks.decisions import (summarize_activity_time, summarize_decisions, summarize_start_receptacle,
                                  summarize_timeouts)
 

@@ -72,7 +72,9 @@ def plot_subtasks(runs: list[Run], path: Path, plt) -> None:
             y = max(v, y_prev + 4.5)                            # keep close labels apart
             ax.text(i + 0.32, y, f"{'='.join(names)} {v:.0f}±{se:.0f}", va="center", ha="left", fontsize=7)
             y_prev = y
-    ax.set_xticks(x, [f"{r.name}\n(n={r.summary['episodes']})" for r in runs], fontsize=8)
+    ax.set_xticks(x, [f"{r.name}\n(n={r.summary['scored']}" + (f" scored of {r.summary['episodes']})"
+                                                             if r.summary["scored"] != r.summary["episodes"] else ")")
+                      for r in runs], fontsize=8)
     ax.set_xlim(-0.6, len(runs) - 0.4 + 0.9)
     ax.set_ylim(0, 105)
     ax.set_ylabel("episodes (%)")
@@ -87,7 +89,9 @@ def plot_subtasks(runs: list[Run], path: Path, plt) -> None:
 
 
 def plot_failures(runs: list[Run], path: Path, plt) -> None:
-    """How episodes ended, per run: success and each failure reason, as shares of the scored episodes."""
+    """How episodes ended, per run: success, each failure reason and (when any) the unscored
+    episodes, as shares of all the run's episodes (so a bar adds up to 100 %; the tables' rates are
+    over the scored ones)."""
     from tasks.metrics import FAILURE_REASONS
 
     cmap = plt.get_cmap("tab10")
@@ -99,7 +103,7 @@ def plot_failures(runs: list[Run], path: Path, plt) -> None:
         parts.append((k, cmap((i + 3) % 10), [r.summary["failure_reasons"][k] for r in runs]))
     crashed = [r.summary["episodes"] - r.summary["scored"] for r in runs]
     if any(crashed):
-        parts.append(("unscored", "#7f7f7f", crashed))
+        parts.append(("unscored", "#1a1a1a", crashed))        # not tab10's grey (receptacle_not_found)
     for label, color, counts in parts:
         share = np.array([100.0 * c / max(1, r.summary["episodes"]) for c, r in zip(counts, runs)])
         if not share.any():
@@ -107,12 +111,13 @@ def plot_failures(runs: list[Run], path: Path, plt) -> None:
         ax.barh(y, share, left=left, color=color, label=label, edgecolor="white", linewidth=0.6)
         for yi, (l0, w) in enumerate(zip(left, share)):
             if w >= 6:
-                ax.text(l0 + w / 2, yi, f"{w:.0f}", ha="center", va="center", fontsize=7, color="white")
+                ax.text(l0 + w / 2, yi, f"{w:.1f}".rstrip("0").rstrip("."), ha="center", va="center", fontsize=7,
+                        color="white")
         left += share
     ax.set_yticks(y, [r.name for r in runs], fontsize=8)
     ax.invert_yaxis()
     ax.set_xlim(0, 100)
-    ax.set_xlabel("episodes (%)")
+    ax.set_xlabel("episodes (% of all, unscored included)")
     ax.set_title("How episodes ended")
     ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False)
     fig.tight_layout()
@@ -170,7 +175,8 @@ def plot_memory(runs: list[Run], path: Path, plt) -> None:
     for ax in list(axes.flat)[len(panels):]:
         ax.set_visible(False)
     fig.legend(list(legend.values()), list(legend), fontsize=7, loc="upper right", frameon=False)
-    fig.suptitle("Memory over episode time (mean over episodes; dashed: max)", fontsize=10, x=0.02, ha="left")
+    fig.suptitle("Memory over episode time (mean over the episodes still running; dashed: max)", fontsize=10,
+                 x=0.02, ha="left")
     fig.tight_layout(rect=(0, 0, 1.0 - 1.6 / (5.0 * cols + 2.2), 1))
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -194,7 +200,7 @@ def plot_budgets(runs: list[Run], path: Path, plt, budgets: tuple[float, ...] = 
         for t in budgets:
             ax.axvline(t, color="0.6", linestyle=":", linewidth=0.8)
         ax.set_xlim(0, cap)
-        ax.set_ylim(0, 100)
+        ax.set_ylim(-3, 103)            # a curve at 0 % or 100 % was hidden under the frame
         ax.set_title(f"{name} within the budget", fontsize=9)
         ax.set_xlabel("budget (simulated s)", fontsize=8)
         ax.set_ylabel("episodes (%)", fontsize=8)
