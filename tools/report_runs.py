@@ -33,8 +33,8 @@ MAX_NAME_CHARS = 100       # a --names name (row labels, file and folder names o
 
 
 def check_names(names: list[str]) -> None:
-    """CliError for a --names name that is empty, too long or holds control characters (names are
-    row labels and become folder names of the episode pages)."""
+    """CliError for a --names name that is empty, too long, holds control characters or is given
+    twice (names are row labels and become folder names of the episode pages)."""
     from helios.schema import short_repr
     from tools.cli import CliError
 
@@ -46,6 +46,9 @@ def check_names(names: list[str]) -> None:
         if not n.isprintable():
             raise CliError(f"--names: the name {short_repr(n)} holds a control character")
         check_text_path(n, "--names: the name")
+    twice = next((n for i, n in enumerate(names) if n in names[:i]), None)
+    if twice is not None:                # the second was silently renamed "NAME (2)"
+        raise CliError(f"--names: the name {short_repr(twice)} is given twice; each run's row needs its own name")
 
 
 def invocations_problem(run_path: Path) -> str | None:

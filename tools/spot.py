@@ -76,7 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--episode", default=None, metavar="ID",
                         help="--fake only: serve this task episode's scene (e.g. smoke-00001) and run the agent "
                              "on it, scored like a simulated trial")
-    parser.add_argument("--split", default="", help="--episode: split to look the id up in (default: the id's prefix)")
+    parser.add_argument("--split", default=None, help="--episode: split to look the id up in (default: the id's prefix)")
     parser.add_argument("--fake", action="store_true",
                         help="start a fake Spot on 127.0.0.1 backed by the simulator and run against it "
                              "(a hardware dry run through the unmodified Spot SDK over TLS)")
@@ -292,6 +292,8 @@ def _validate(args: argparse.Namespace):
         raise CliError("the robot's HOSTNAME is required (or --fake for a dry run against a simulated Spot)")
     if args.port is not None and not 0 < args.port < 65536:
         raise CliError(f"--port must be within 1..65535, got {args.port}")
+    if args.split is not None and not args.split.strip():    # an empty one once meant the id's prefix
+        raise CliError("--split must not be empty")
     if args.episode is None and args.split:
         raise CliError("--split is where --episode ID is looked up; without --episode it is ignored")
     if args.fake:

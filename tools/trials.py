@@ -176,6 +176,9 @@ def run(args: argparse.Namespace) -> int:
     if args.executor == "local" or args.address == "local":
         check_devices(config)                 # (a Ray cluster's workers may have the device this machine lacks)
     episodes = select_episodes(config)
+    if args.record > len(episodes):      # once silently the number of episodes
+        raise CliError(f"--record {args.record} is more than the {len(episodes)} episode(s) of this run; "
+                       f"give at most {len(episodes)}")
     out = check_output_dir(args.out if args.out is not None else default_out(config))
     if args.replace_stale:
         why = stale_results(out, config)

@@ -14,7 +14,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("episode", help="episode id, e.g. smoke-00003")
     parser.add_argument("--split", default=None,       # None: an explicit --split can be told apart
                         help="split to look the id up in (default: from the id's prefix; not with --episodes-file)")
-    parser.add_argument("--episodes-file", default="", help="JSONL episode file to look the id up in (instead of a "
+    parser.add_argument("--episodes-file", default=None, help="JSONL episode file to look the id up in (instead of a "
                                                             "split)")
     parser.add_argument("--out", default="runs/tsdf", help="folder for the mesh")
     parser.add_argument("--stream-hz", type=float, default=2.0, help="hand-camera frames integrated per simulated second")
@@ -35,6 +35,9 @@ def run(args: argparse.Namespace) -> int:
     from tools.cli import CliError, check_finite, check_output_dir, check_output_file
     from tools.tables import format_table
 
+    for flag, value in (("--split", args.split), ("--episodes-file", args.episodes_file)):
+        if value is not None and not value.strip():          # an empty one once meant the default
+            raise CliError(f"{flag} must not be empty")
     if args.split is not None and args.episodes_file:
         # the id is looked up in one place: the file, which would leave --split silently ignored
         raise CliError("--split and --episodes-file both say where to look the episode id up; give one of them "
