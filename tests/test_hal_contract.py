@@ -253,3 +253,15 @@ def test_a_walk_into_a_table_is_a_collision_at_the_last_free_pose(backend_and_fa
     assert not res.success and res.reason is Reason.COLLISION and res.collided
     assert res.final_pose.distance_to(goal) > 0.3
     assert backend.observe().body_pose.distance_to(res.final_pose) < 0.02
+
+
+def test_an_arm_move_to_where_the_arm_already_is_succeeds(backend_and_facts):
+    """(safety audit 2026-12-05) The SDK backend sent a one-point trajectory at time 0 for a move
+    to the current joints; the robot (the fake) refused it as ill-formed: CommandRejectedError
+    where the simulator succeeds."""
+    backend, _ = backend_and_facts
+    for q in (model.ARM_READY, model.ARM_READY, model.ARM_STOW, model.ARM_STOW):
+        res = backend.move_arm_joints(q)
+        assert isinstance(res, CommandResult) and res.success, res
+        now = [backend.observe().joint_positions[j] for j in model.ARM_JOINTS]
+        np.testing.assert_allclose(now, q, atol=0.03)

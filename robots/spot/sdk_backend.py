@@ -402,6 +402,10 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
         cfg, bd = self.config, self._bd
         cv = bd.cv
         q_now = self._arm_q(self._state("planning an arm move"))
+        if np.allclose(q_now, q_goal, atol=1e-3, rtol=0.0):
+            # already there: a trajectory of one point at time 0 is ill-formed to a robot (the fake
+            # refused it as INVALID_REQUEST, a CommandRejectedError); the simulator's move succeeds
+            return CommandResult(True, Reason.OK, "the arm is already at the joint target", duration=0.0)
         traj = plan_arm(q_now, q_goal, cfg.motion.arm)
         times = cv.resample_times(traj.duration, cfg.motion.control_dt, cfg.max_trajectory_points)
         samples = [traj.at_time(float(t)) for t in times]

@@ -291,7 +291,9 @@ class SdkBringUp:
             raise self._translate(exc, "acquiring the lease") from None
         cls = _lease_keep_alive_class(bd)
         cls.rpc_timeout = cfg.rpc_timeout
-        self._lease_keepalive = cls(self._lease_client, must_acquire=True, return_at_exit=False,
+        # must_acquire=False: the lease was just acquired into the wallet above; with True the SDK
+        # acquires again, without a deadline (30 s), should the wallet have lost it meanwhile (safety audit)
+        self._lease_keepalive = cls(self._lease_client, must_acquire=False, return_at_exit=False,
                                     rpc_interval_seconds=cfg.lease_retain_period,
                                     on_failure_callback=self._on_lease_keepalive_error, warnings=False)
         self._lease_unconfirmed = False
