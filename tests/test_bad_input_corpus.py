@@ -118,6 +118,8 @@ def ws(tmp_path_factory):
         (root / name).write_bytes(data)
     os.mkfifo(root / "fifo")                 # written to or read from, it must be refused, never replaced or waited on
     os.symlink("loop", root / "loop")        # a symbolic link loop: Path.resolve() raises RuntimeError
+    (root / "ro_run").mkdir()                 # a run folder whose episodes/ takes no new file (/proc)
+    os.symlink("/proc", root / "ro_run" / "episodes")
     cfg = root / "cfg"
     cfg.mkdir()
     configs = {
@@ -744,6 +746,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("diff-symlink-loop", ["diff", "{ws}/loop", R + "valid"], "cannot be resolved (a symbolic link loop)"),
     ("report-out-symlink-loop", ["report", R + "valid", "--out", "{ws}/loop"],
      "/loop' cannot be resolved (a symbolic link loop)"),
+    ("trials-episodes-folder-unwritable", ["trials", "--episodes", "1", "--out", "{ws}/ro_run"],
+     "ro_run': its episodes/ folder"),
     ("report-names-twice", ["report", R + "valid", R + "other", "--names", "x,x", "--out", "{ws}/rep"],
      "--names: the name 'x' is given twice"),
     ("trials-record-beyond", [*T, "--record", "1000000"], "--record 1000000 is more than the 1 episode(s)"),
@@ -1097,6 +1101,9 @@ DAMAGES = [
      lambda f, clean: shutil.copy(clean / "config.yaml", f / "config.yaml")),
     ("duplicate-record", lambda f: _set_lines(f, _lines(f) + _lines(f)[:1]), (0, ""), ([], 0, ""), None),
     # the audit of 2026-12-05 (session 35): a traceback, or a wait without end
+    ("picture-data-deleted", _delete("episodes/smoke-00001.npz"),
+     (0, "smoke-00001.npz: the picture data is missing (smoke-00001.npz; the run's other episodes have theirs"),
+     ([], 0, ""), None),
     ("cr-between-tokens", _cr_in_line(1, inside_string=False), (0, ""), ([], 0, ""), None),
     ("cr-inside-a-string", _cr_in_line(1, inside_string=True), (0, "episodes.jsonl:2: not valid JSON"),
      ([], 0, "line 2: not valid JSON"), None),

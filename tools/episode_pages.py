@@ -405,6 +405,8 @@ def write_episode_pages(report_dir: Path, run_index: int, run, index_name: str =
     folder.mkdir(parents=True, exist_ok=True)
     pages: list[EpisodePage] = []
     ids = [r["episode_id"] for r in run.records]
+    # a run that kept picture data for some episodes kept it for all: a missing file was lost
+    kept_some = any(trace_path(run.path, eid).exists() for eid in ids)
     for i, rec in enumerate(run.records):
         eid = rec["episode_id"]
         name = slug(eid)
@@ -420,6 +422,9 @@ def write_episode_pages(report_dir: Path, run_index: int, run, index_name: str =
                 damaged = f"is damaged ({why})" if why else None
         elif (run.path / "robot.yaml").is_file():       # tools spot: a robot, or the fake Spot over the SDK
             problem = "no picture data: episodes run through the Spot SDK backend (tools spot) keep none"
+        elif kept_some:        # (the page once blamed --no-pictures, and the report said nothing)
+            damaged = (f"is missing ({tpath.name}; the run's other episodes have theirs: deleted or moved?); "
+                       f"`tools trials` does not make it again for a finished episode")
         else:
             problem = "no picture data: the episode was run with --no-pictures or by an older version"
         files: dict[str, str] = {}

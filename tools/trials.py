@@ -107,6 +107,22 @@ def resolve_config(args: argparse.Namespace):
     return config
 
 
+def _check_writable_parts(out: Path, record: int, pictures: bool) -> None:
+    """The parts of an existing run folder this batch writes to can be written: a read-only
+    ``episodes/`` (or recordings/, or results file) once failed only after the first episode had
+    run, which was then thrown away (reliability audit)."""
+    import os
+
+    from tools.cli import CliError, check_output_dir
+
+    for name, used in (("episodes", pictures), ("recordings", record > 0)):
+        if used and (out / name).is_dir():
+            check_output_dir(out / name, flag=f"--out {str(out)!r}: its {name}/ folder")
+    results = out / "episodes.jsonl"
+    if results.is_file() and not os.access(results, os.W_OK):
+        raise CliError(f"--out {str(out)!r}: its episodes.jsonl cannot be written (read-only)")
+
+
 def _stop_as_interrupt(signum, frame):
     raise KeyboardInterrupt(signal.Signals(signum).name)
 
@@ -186,6 +202,7 @@ def run(args: argparse.Namespace) -> int:
             moved = move_aside(out)
             print(f"[trials] {out} held {why}; moved it to {moved} and starting a new run", flush=True)
     check_folder_layout(out, args.record, not args.no_pictures)
+    _check_writable_parts(out, args.record, not args.no_pictures)
     # refuse a folder before creating or locking anything (checked as run_batch will check it)
     prepare_run_folder(out, config, dry_run=True, **run_folder_episodes(config, episodes))
     FolderLock(out).check_free()      # a folder another batch is running: say so before "resuming: ..."
@@ -255,7 +272,9 @@ def _print_summary(args, out: Path, records: list, report) -> int:
     headers = ["run"] + list(METRIC_NAMES.values())
     rows = [metrics_table_rows(out.name, summary)]
     print()
-    print(format_table(headers, rows, title=f"{len(records)} episodes, percent ± standard error"))
+    scored = summary["scored"]
+    unscored = f" ({scored} scored: the rates are over those)" if scored != len(records) else ""
+    print(format_table(headers, rows, title=f"{len(records)} episodes{unscored}, percent ± standard error"))
     reasons = ", ".join(f"{k} {v}" for k, v in summary["failure_reasons"].items() if v) or "none"
     mem = summary["memory"]["peak_rss_mb"]
     print(f"failure reasons: {reasons}; collisions per episode {summary['collisions_per_episode']:.2f}; "
