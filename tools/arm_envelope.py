@@ -76,7 +76,8 @@ def _plot(env, path) -> None:
     fig, axes = plt.subplots(1, len(BANDS), figsize=(4 * len(BANDS), 4.2), constrained_layout=True)
     for ax, (band, (_, boxes)) in zip(axes, enumerate(BANDS)):
         grid = np.where(np.isfinite(env.lowest[band]), env.lowest[band], np.nan)
-        im = ax.imshow(grid.T, origin="lower", extent=(env.xs[0], env.xs[-1], env.ys[0], env.ys[-1]),
+        hx, hy = (env.xs[1] - env.xs[0]) / 2, (env.ys[1] - env.ys[0]) / 2     # cell edges, not centres
+        im = ax.imshow(grid.T, origin="lower", extent=(env.xs[0] - hx, env.xs[-1] + hx, env.ys[0] - hy, env.ys[-1] + hy),
                        cmap="viridis_r", vmin=0.6, vmax=1.1)
         # each box's height label in its own row above the boxes, a leader line to the box's corner
         # (side by side at the corners they overlapped: boxes a few cm apart)

@@ -180,11 +180,17 @@ def plot(result: dict, path: Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(17, 5.2), gridspec_kw={"width_ratios": [3.2, 1.2, 1.2]})
     cats = [c for c, r in result["per_class"].items() if r["instances"] or r["tp"] + r["fp"]]
     x = range(len(cats))
-    prec = [result["per_class"][c]["precision"] or 0 for c in cats]
-    rec = [result["per_class"][c]["recall"] or 0 for c in cats]
+    prec = [result["per_class"][c]["precision"] for c in cats]
+    rec = [result["per_class"][c]["recall"] for c in cats]
     ax = axes[0]
-    ax.bar([i - 0.2 for i in x], prec, 0.4, label="precision", color="#3b75af")
-    ax.bar([i + 0.2 for i in x], rec, 0.4, label="recall", color="#ef8636")
+    ax.bar([i - 0.2 for i in x], [v or 0 for v in prec], 0.4, label="precision", color="#3b75af")
+    ax.bar([i + 0.2 for i in x], [v or 0 for v in rec], 0.4, label="recall", color="#ef8636")
+    # 0 % and "no data" both drew no bar (pictures audit): say which, at the foot of each bar
+    for i, (p, r) in enumerate(zip(prec, rec)):
+        for dx, v in ((-0.2, p), (0.2, r)):
+            if not v:
+                ax.text(i + dx, 0.01, "n/a" if v is None else "0", ha="center", va="bottom", fontsize=6,
+                        rotation=90, color="0.3")
     ax.set_xticks(list(x))
     ax.set_xticklabels(cats, rotation=70, fontsize=8)
     for i, c in enumerate(cats):
@@ -201,6 +207,9 @@ def plot(result: dict, path: Path) -> None:
     mids = [(a + b) / 2 for a, b in zip(edges[:-1], edges[1:])]
     vals = [f / n if n else float("nan") for f, n in zip(rd["found"], rd["instances"])]
     axes[1].plot(mids, vals, "o-", color="#3b75af")
+    for m, v, n in zip(mids, vals, rd["instances"]):       # how many instances each point stands on
+        if n:
+            axes[1].annotate(f"n={n}", (m, v), textcoords="offset points", xytext=(0, 6), ha="center", fontsize=7)
     axes[1].set_xlabel("camera distance (m)")
     axes[1].set_ylabel("recall")
     axes[1].set_ylim(0, 1.05)
