@@ -257,3 +257,21 @@ def test_a_failed_grasp_is_slashed_not_drawn_like_a_held_one(picture_runs):
     assert failed >= held + 8, (held, failed)
     legend = np.asarray(map_picture(trace)[0].convert("RGB"))[-FOOTER:]
     assert (legend == EVENT["grasp"]).all(axis=-1).sum() >= 20          # ring G and the slashed one
+
+
+def test_the_top_down_picture_has_a_scale_bar_of_true_length(picture_runs):
+    """(pictures audit 2026-12-05) The picture showed no distances: a scale bar of 1, 2 or 5 m now
+    sits in the map's lower right corner, as long as that many metres are in the picture."""
+    from tools.episode_pages import SCALE_BAR, map_frame
+
+    trace = load_trace(trace_path(picture_runs["root"] / "oracle", picture_runs["episode"].episode_id))
+    img = _image(_page_file(picture_runs, "oracle", ".png"))
+    frame = map_frame(trace)
+    per_m = frame.sx / frame.cell_size
+    bar = (img[:-FOOTER] == SCALE_BAR).all(axis=-1)
+    row = int(np.argmax(bar.sum(axis=1)))
+    cols = np.flatnonzero(bar[row])
+    length = cols.max() - cols.min()
+    metres = length / per_m
+    assert min(abs(metres - m) for m in (1, 2, 5, 10)) * per_m <= 2, (length, per_m)
+    assert length >= 38 and cols.max() > img.shape[1] - 40          # in the lower right corner

@@ -172,8 +172,27 @@ def map_picture(trace: dict, max_px: int = MAP_PX):
     head = f"{meta.get('episode_id')}  ·  {meta.get('agent')}  ·  {outcome_text(meta)}"
     d.text((6, 4), head, fill=(0, 0, 0) if meta["outcome"].get("success") else FAILED_TEXT, font=title)
     d.text((6, 24), str(meta.get("task") or ""), fill=(60, 60, 60), font=label)
+    _scale_bar(d, frame, w, h, small)
     _legend(d, 6, HEADER + h + 6, small, meta.get("has_map", False))
     return img, frame
+
+
+SCALE_BAR = (25, 25, 25)
+
+
+def _scale_bar(d, frame: MapFrame, w: int, h: int, font) -> None:
+    """A scale bar of 1, 2 or 5 m (the first at least 40 px long) in the map's lower right corner,
+    on a white patch: the picture had no distances at all (pictures audit)."""
+    per_m = frame.sx / frame.cell_size
+    metres = next((m for m in (1, 2, 5, 10) if m * per_m >= 40), 10)
+    length = round(metres * per_m)
+    x1, y = w - 10, HEADER + h - 10
+    x0 = x1 - length
+    d.rectangle([x0 - 6, y - 18, x1 + 6, y + 5], fill=(255, 255, 255))
+    d.line([x0, y, x1, y], fill=SCALE_BAR, width=2)
+    for x in (x0, x1):
+        d.line([x, y - 4, x, y + 3], fill=SCALE_BAR, width=1)
+    d.text(((x0 + x1) / 2 - 8, y - 17), f"{metres} m", fill=SCALE_BAR, font=font)
 
 
 def _label(d, x: float, y: float, text: str, font, color, taken: list) -> None:
