@@ -70,7 +70,10 @@ def plot_subtasks(runs: list[Run], path: Path, plt) -> None:
         y_prev = -10.0
         for v, names, se in sorted(groups, key=lambda g: g[0]):
             y = max(v, y_prev + 4.5)                            # keep close labels apart
-            ax.text(i + 0.32, y, f"{'='.join(names)} {v:.0f}±{se:.0f}", va="center", ha="left", fontsize=7)
+            # equal phases are consecutive: "FindObj..SR", not a label running into the next bar or
+            # off the axes (pictures audit)
+            which = "=".join(names) if len(names) <= 2 else f"{names[0]}..{names[-1]}"
+            ax.text(i + 0.32, y, f"{which} {v:.0f}±{se:.0f}", va="center", ha="left", fontsize=7)
             y_prev = y
     ax.set_xticks(x, [f"{r.name}\n(n={r.summary['scored']}" + (f" scored of {r.summary['episodes']})"
                                                              if r.summary["scored"] != r.summary["episodes"] else ")")
