@@ -8,9 +8,11 @@ what happened. It exposes nothing beyond the HAL, so agents cannot reach simulat
 
 from __future__ import annotations
 
+import os
 import time
 import traceback
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -147,7 +149,7 @@ def run_episode(agent: Agent, backend: RobotBackend, episode: Episode, config: R
     except RobotFault as exc:
         error = f"{type(exc).__name__}: {exc}"
     except Exception as exc:  # an agent bug must not take the batch down; keep the trace for the log
-        error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=8)}"
+        error = f"{type(exc).__name__}: {exc}\n{_portable(traceback.format_exc(limit=8))}"
     metrics = judge.finalize(robot.limit_hit) if judge is not None else None
     extra: dict = {}
     if clock.totals is not None:
@@ -269,3 +271,13 @@ def run_sim_episode(agent_factory, episode: Episode, config: RunnerConfig = Runn
         return result
     finally:
         sim.close()
+
+
+_ROOT = str(Path(__file__).resolve().parents[1]) + os.sep
+
+
+def _portable(trace: str) -> str:
+    """A traceback with this checkout's paths relative to it: a record is the same wherever the
+    checkout sits (`tools unchanged` runs a commit's code from another folder; the absolute paths
+    made every record with an error differ: determinism audit)."""
+    return trace.replace(_ROOT, "")

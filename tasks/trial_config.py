@@ -93,8 +93,13 @@ def episode_seed(master_seed: int, episode_id: str) -> int:
 
 
 def deterministic_view(record: dict) -> dict:
-    """A record without the fields that vary between identical runs (wall clock, memory, paths)."""
-    return {k: v for k, v in record.items() if k not in NONDETERMINISTIC_FIELDS}
+    """A record without the fields that vary between identical runs (wall clock, memory, paths),
+    and of an ``error`` its first line (the exception and its message): the traceback under it
+    names files and line numbers of the code that ran, which a refactor moves (determinism audit)."""
+    view = {k: v for k, v in record.items() if k not in NONDETERMINISTIC_FIELDS}
+    if isinstance(view.get("error"), str):
+        view["error"] = view["error"].split("\n", 1)[0]
+    return view
 
 
 def config_text(config: TrialConfig | dict) -> str:

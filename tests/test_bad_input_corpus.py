@@ -748,6 +748,8 @@ CASES: list[tuple[str, list[str], str]] = [
      "/loop' cannot be resolved (a symbolic link loop)"),
     ("trials-episodes-folder-unwritable", ["trials", "--episodes", "1", "--out", "{ws}/ro_run"],
      "ro_run': its episodes/ folder"),
+    ("trials-map-smaller-than-homes", [*T, "--agent", "helios", "helios.occupancy.grid_size=64"],
+     "helios.occupancy.grid_size=64 cells of 0.025 m is a 1.6 m map, narrower than these episodes' homes"),
     ("report-names-twice", ["report", R + "valid", R + "other", "--names", "x,x", "--out", "{ws}/rep"],
      "--names: the name 'x' is given twice"),
     ("trials-record-beyond", [*T, "--record", "1000000"], "--record 1000000 is more than the 1 episode(s)"),

@@ -189,3 +189,16 @@ def test_two_real_runs_of_the_same_config_are_identical(tmp_path):
     rc, out, err = run_cli(["diff", str(tmp_path / "a"), str(tmp_path / "b")])
     assert rc == 0, out + err
     assert "identical: 2 of 2" in out and "configurations: the same" in out
+
+
+def test_two_long_values_that_differ_in_the_middle_are_shown_where_they_differ():
+    """(determinism audit 2026-12-05) Shortened in the middle, two different texts of one length
+    printed as the same value."""
+    from tools.diff_runs import _shown_pair, show_value
+
+    x = "A" * 100 + "path/one" + "B" * 100
+    y = "A" * 100 + "path/two" + "B" * 100
+    assert show_value(x) == show_value(y)
+    sx, sy = _shown_pair(x, y)
+    assert sx != sy and "one" in sx and "two" in sy and "from character 90" in sx
+    assert _shown_pair(1, 2) == ("1", "2")

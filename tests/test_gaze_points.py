@@ -331,3 +331,12 @@ def test_can_look_from_predicts_what_a_visit_finds(arm_model):
     assert predicted.tolist() == actual
     assert 30 < int(predicted.sum()) < 270            # both answers occur
     assert body.can_look_from(np.zeros((0, 3)), look_at).shape == (0,)
+
+
+def test_an_instance_off_the_map_grid_has_no_gaze_points():
+    """(determinism audit 2026-12-05) With a small map grid a candidate can lie wholly off it: the
+    window round it was empty and OpenCV's dilation raised, ending every episode on an error."""
+    g, fp = table_grid()
+    far = fp + np.array([40.0, 40.0])                    # the grid spans -5..5 m
+    assert g.gaze(far) == []
+    assert g.gaze(fp)                                     # the same table on the grid: points as before

@@ -239,3 +239,20 @@ def test_a_write_error_names_the_file(tmp_path, monkeypatch):
         run_folder.write_bytes_atomic(tmp_path / "summary.json", b"{}")
     assert info.value.filename == str(tmp_path / "summary.json.tmp")
     monkeypatch.setattr(run_folder.os, "fsync", real_fsync)
+
+
+def test_a_records_error_compares_by_its_first_line_and_keeps_paths_relative():
+    """(determinism audit 2026-12-05) An agent's error kept its traceback with absolute paths:
+    `tools unchanged` (a commit's code in another folder) and a clone elsewhere called identical
+    records different. The trace now names files relative to the checkout, and records compare
+    by the error's first line (the exception and its message), not where in the code it was."""
+    from tasks.runner import _ROOT, _portable
+    from tasks.trial_config import deterministic_view
+
+    trace = f'Traceback (most recent call last):\n  File "{_ROOT}helios/search/gaze_points.py", line 9, in f\n'
+    assert _portable(trace) == 'Traceback (most recent call last):\n  File "helios/search/gaze_points.py", line 9, in f\n'
+    a = {"episode_id": "x", "error": "error: boom\n  File \"a.py\", line 1", "wall_time": 1.0}
+    b = {"episode_id": "x", "error": "error: boom\n  File \"b.py\", line 7", "wall_time": 2.0}
+    assert deterministic_view(a) == deterministic_view(b) == {"episode_id": "x", "error": "error: boom"}
+    assert deterministic_view({**b, "error": "error: bang\nsame"}) != deterministic_view(a)
+    assert deterministic_view({"episode_id": "x", "error": None}) == {"episode_id": "x", "error": None}

@@ -179,7 +179,7 @@ def diff_runs(a, b, episodes: int | None = None, ignore: frozenset[str] = frozen
     path: ``tasks.trial_config.NONDETERMINISTIC_FIELDS``) are always left out; CliError when the runs
     share no episode or an ``ignore`` path names nothing in either run."""
     from helios.schema import short_repr
-    from tasks.trial_config import NONDETERMINISTIC_FIELDS
+    from tasks.trial_config import deterministic_view
     from tools.cli import CliError
 
     ra = {r["episode_id"]: r for r in a.records}
@@ -196,10 +196,10 @@ def diff_runs(a, b, episodes: int | None = None, ignore: frozenset[str] = frozen
         if p not in known:
             raise CliError(f"--ignore {short_repr(p)} names no field of the compared records (fields look like "
                            f"metrics.find_obj, extra.decisions, config_fingerprint)")
-    skip = frozenset(ignore) | frozenset(NONDETERMINISTIC_FIELDS)
     differing = {}
-    for eid in compared:
-        d = differences(ra[eid], rb[eid], skip, tolerance=tolerance)
+    for eid in compared:      # the deterministic view: no wall time, memory, recording; an error's first line
+        d = differences(deterministic_view(ra[eid]), deterministic_view(rb[eid]), frozenset(ignore),
+                        tolerance=tolerance)
         if d:
             differing[eid] = outcomes_first(d)
     cfg_a = {k: v for k, v in a.config.items() if k not in CONFIG_ASIDE}
@@ -231,8 +231,20 @@ def _span(ids: list[str]) -> str:
                                                                    f", {ids[0]} .. {ids[-1]}")
 
 
+def _shown_pair(x, y) -> tuple[str, str]:
+    """Both values as :func:`show_value` prints them; two long texts that shorten alike (the
+    difference in the elided middle) are shown from a little before where they first differ."""
+    sx, sy = show_value(x), show_value(y)
+    if sx != sy or not (isinstance(x, str) and isinstance(y, str)):
+        return sx, sy
+    at = next((i for i, (p, q) in enumerate(zip(x, y)) if p != q), min(len(x), len(y)))
+    start = max(0, at - 15)
+    return tuple(("..." if start else "") + show_value(v[start:start + VALUE_CHARS - 10]) + f" (from character {start})"
+                 for v in (x, y))
+
+
 def _fields(diffs: list[tuple[str, object, object]], limit: int = MAX_FIELDS_LISTED) -> str:
-    shown = "; ".join(f"{p}: {show_value(x)} / {show_value(y)}" for p, x, y in diffs[:limit])
+    shown = "; ".join("{}: {} / {}".format(p, *_shown_pair(x, y)) for p, x, y in diffs[:limit])
     more = f"; and {len(diffs) - limit} more" if len(diffs) > limit else ""
     return shown + more
 

@@ -107,6 +107,23 @@ def resolve_config(args: argparse.Namespace):
     return config
 
 
+def _check_map_covers_homes(config, episodes) -> None:
+    """The agent's map grid is at least as wide as the episodes' homes can be: a 64-cell grid (1.6 m)
+    was accepted and every episode ended on an OpenCV error deep in the search (determinism audit).
+    The oracle reads no map settings (refused elsewhere)."""
+    from tools.cli import CliError
+
+    if config.agent == "oracle":
+        return
+    occ = config.helios.occupancy
+    side = occ.grid_size * occ.cell_size
+    widest = max(e.scene.max_size for e in episodes)
+    if side < widest:
+        raise CliError(f"helios.occupancy.grid_size={occ.grid_size} cells of {occ.cell_size:g} m is a {side:g} m map, "
+                       f"narrower than these episodes' homes (up to {widest:g} m a side); the paper's is 2000 "
+                       f"cells (50 m)")
+
+
 def _check_writable_parts(out: Path, record: int, pictures: bool) -> None:
     """The parts of an existing run folder this batch writes to can be written: a read-only
     ``episodes/`` (or recordings/, or results file) once failed only after the first episode had
@@ -192,6 +209,7 @@ def run(args: argparse.Namespace) -> int:
     if args.executor == "local" or args.address == "local":
         check_devices(config)                 # (a Ray cluster's workers may have the device this machine lacks)
     episodes = select_episodes(config)
+    _check_map_covers_homes(config, episodes)
     if args.record > len(episodes):      # once silently the number of episodes
         raise CliError(f"--record {args.record} is more than the {len(episodes)} episode(s) of this run; "
                        f"give at most {len(episodes)}")

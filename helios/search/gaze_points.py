@@ -104,6 +104,8 @@ def gaze_points(footprint_xy: np.ndarray, top_z: float, geometry: GridGeometry, 
     look = np.array([centre[0], centre[1], max(float(top_z), config.min_look_height)])
     rings = [contour_points(pts, s, config.spacing, config.min_points) for s in config.standoffs]
     window = _Window(geometry, np.concatenate([pts, *rings]), obstacle.shape)
+    if window.r1 <= window.r0 or window.c1 <= window.c0:
+        return []              # the instance and its rings lie off the map grid (OpenCV failed on the empty window)
     own = np.zeros((window.r1 - window.r0, window.c1 - window.c0), dtype=np.uint8)
     r, c = window.local_cells(pts)
     own[r, c] = 1
