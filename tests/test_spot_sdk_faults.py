@@ -914,3 +914,37 @@ def test_the_service_directory_at_bring_up_is_bounded_by_rpc_timeout():
         assert time.monotonic() - t0 < 3.0
     finally:
         demo.stop()
+
+
+def test_a_lease_taken_while_close_stows_the_arm_is_said_and_kept_as_the_fault():
+    """(safety fuzz, seeds 263 and 1057) The tablet took the lease while close() stowed the arm:
+    the stow ran out its time, the wallet then refused every remaining step, which was retried
+    until the deadline and never read as a lost lease; close_problem stayed None and the log said
+    the lease was 'kept', with the robot standing powered under the tablet."""
+    from spot_fake_fixtures import take_lease_as_another_client
+
+    demo = start_fake(seed=0, time_scale=1.0)
+    fake = demo.fake
+    backend = connect(demo, stop_fake_on_close=False)
+    try:
+        assert backend.move_arm_joints(model.ARM_READY).success           # the arm out: close() stows it
+
+        def tablet():
+            while not backend._closing:
+                time.sleep(0.001)
+            time.sleep(0.15)                                             # during the stow
+            take_lease_as_another_client(backend)
+
+        thread = threading.Thread(target=tablet)
+        thread.start()
+        t0 = time.monotonic()
+        backend.close()
+        took = time.monotonic() - t0
+        thread.join(5)
+        assert took < 4.0, took                    # the stow's own bound (3 s at this scale), then at once
+        assert isinstance(backend.fault, LeaseLostError)
+        assert backend.close_problem.startswith("the robot was not shut down by us")
+        with fake._lock:
+            assert fake.powered and not (fake.lease_owner or "").startswith("helios")
+    finally:
+        demo.stop()

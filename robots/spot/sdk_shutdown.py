@@ -162,6 +162,8 @@ class SdkShutdown:
         note = (f"the robot was not shut down by us: {gone}; it is left to the client holding the lease (the "
                 f"tablet?), possibly standing with motor power on")
         _LOG.warning(note)
+        if self._fault is None:                             # the session's fault, as the README says
+            self._fault = LeaseLostError(gone)
         kept = getattr(self, "_estop_note", None)           # said before the lease was known lost
         if self.close_problem is None and kept:
             note = f"{note}; {kept}"
@@ -329,7 +331,7 @@ class SdkShutdown:
             if name in ("stop", "safe power off"):
                 return not motors_off[0]
             if name == "e-stop deregistration" and lease is not None:    # refused while the motors are on
-                return power_step in done or motors_off[0] or (
+                return power_step in done or power_step in given_up or motors_off[0] or (
                     power_step in flying and time.monotonic() - sent_at[power_step] >= 0.3)
             return True
 
@@ -344,6 +346,13 @@ class SdkShutdown:
                     self._lease_returning = True
                 try:
                     flying[name], sent_at[name] = fn(*args, timeout=left()), now
+                except bd.lease.Error as exc:
+                    # the wallet has no lease of ours: after our own return the step is moot; before
+                    # it, a refusal told the wallet the lease is another's (fuzz seed 263: the tablet
+                    # took it during the stow, and the power off was retried until the deadline)
+                    if "lease return" not in sent_at and not self._lease_returning:
+                        self._lease_lost = self._lease_lost or f"the body lease is not ours any more ({type(exc).__name__})"
+                    given_up.add(name)
                 except Exception as exc:  # noqa: BLE001 - failed before it left: try again shortly
                     _LOG.debug("shutdown: %s not sent: %s", name, type(exc).__name__)
                     ready_at[name] = now + 0.1
@@ -357,6 +366,8 @@ class SdkShutdown:
                 state_ask = None
             if motors_off[0]:
                 done |= {"stop", "safe power off"} & {name for name, _, _ in plan}
+            if "safe power off" in done and "stop" not in done:
+                given_up.add("stop")             # the power off took over from it (retrying it was noise)
             for name, fut in list(flying.items()):
                 if not fut.done():
                     continue
@@ -371,7 +382,7 @@ class SdkShutdown:
                                                deadline=deadline)
             if self._lease_gone() is not None:      # refused by the robot: nothing of ours to command or return
                 given_up |= {"stop", "safe power off", "lease return"} & {name for name, _, _ in plan}
-            if all(name in done or name in given_up for name, _, _ in plan) and state_ask is None:
+            if all(name in done or name in given_up for name, _, _ in plan):
                 break
             time.sleep(0.02)
         for name, fut in flying.items():
@@ -382,9 +393,12 @@ class SdkShutdown:
             elif name not in given_up:
                 _LOG.warning("shutdown: %s not confirmed by the robot", name)
         if lease is not None and "lease return" not in done and self._lease_gone() is None:
-            _LOG.warning("shutdown: the body lease is kept (not returned) because the robot did not confirm it "
-                         "stopped and powered off: with our keep-alive stopped, a Spot treats the silence as a "
-                         "communications loss and powers off")
+            if "lease return" in sent_at:
+                _LOG.warning("shutdown: the lease return was sent but not confirmed (a slow or lost link)")
+            else:
+                _LOG.warning("shutdown: the body lease is kept (not returned) because the robot did not confirm it "
+                             "stopped and powered off: with our keep-alive stopped, a Spot treats the silence as a "
+                             "communications loss and powers off")
         if "e-stop deregistration" in done:
             self._estop_endpoint = None
         extra_done = self._await(extra, deadline)
@@ -425,7 +439,8 @@ class SdkShutdown:
                 given_up.add(name)
             else:
                 ready_at[name] = time.monotonic() + 0.05
-        elif isinstance(exc, bd.exc.LeaseUseError):
+        elif isinstance(exc, bd.exc.LeaseUseError) or (name == "lease return" and isinstance(
+                exc, getattr(bd.lease, "NotActiveLeaseError", ()))):
             self._lease_lost = self._lease_lost or f"the robot refused our lease at shutdown ({type(exc).__name__})"
             given_up.add(name)
         elif name == "e-stop deregistration" and isinstance(exc, bd.estop.MotorsOnError):
