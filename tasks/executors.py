@@ -240,8 +240,8 @@ def _die_with_parent(parent_pid: int) -> None:
 def _worker_loop(conn, parent_pid: int) -> None:
     _die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)    # Ctrl-C reaches the whole group; the parent decides
-    if hasattr(signal, "pthread_sigmask"):           # blocked since the start (_start_quiet): a Ctrl-C that
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})    # came meanwhile is dropped here
+    if hasattr(signal, "pthread_sigmask"):           # ignored, and blocked, since the start (_start_quiet)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     worker_setup()
     try:
         conn.send(("ready",))                       # the parent bounds how long it waits for this
@@ -263,19 +263,23 @@ def _worker_loop(conn, parent_pid: int) -> None:
 
 
 def _start_quiet(process) -> None:
-    """Start a worker process with SIGINT blocked until its loop ignores it: a Ctrl-C (sent to the
-    whole process group) while the new interpreter imports and unpickles its code printed the
-    child's KeyboardInterrupt traceback above the batch's own line (reliability audit). The mask
-    is inherited through fork and exec; in this process it is lifted right after the start, so a
-    Ctrl-C that came meanwhile is delivered then and stops the batch as usual."""
-    if not hasattr(signal, "pthread_sigmask"):
-        process.start()
+    """Start a worker process that ignores SIGINT from its first instruction: a Ctrl-C (sent to the
+    whole process group) while the new interpreter imported and unpickled its code printed the
+    child's KeyboardInterrupt traceback above the batch's own line (reliability audit). SIG_IGN is
+    kept across exec (a blocked mask alone is not: native libraries start threads of their own
+    while the worker imports, and the kernel hands the signal to one of them). In this process
+    the handler is put back right after the start; a Ctrl-C in those few milliseconds is dropped
+    (press it again), the price of a clean line."""
+    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+        process.start()                      # signal.signal() works only in the main thread
         return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    old_handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         process.start()
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        signal.signal(signal.SIGINT, old_handler)
+        signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
 
 
 class _Worker:
