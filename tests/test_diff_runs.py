@@ -202,3 +202,20 @@ def test_two_long_values_that_differ_in_the_middle_are_shown_where_they_differ()
     sx, sy = _shown_pair(x, y)
     assert sx != sy and "one" in sx and "two" in sy and "from character 90" in sx
     assert _shown_pair(1, 2) == ("1", "2")
+
+
+def test_records_that_differ_only_below_the_errors_first_line_are_identical(tmp_path):
+    """(mutation audit 2026-12-05) The same exception raised from another line, or from the code in
+    another folder (`tools unchanged`), is the same outcome; another exception is not."""
+    def error(where):
+        def edit(rec):
+            rec["error"] = f"RuntimeError: boom\n  File \"{where}\", line 3, in f\n"
+        return edit
+
+    a = _run(tmp_path / "a", 2, changes={1: error("/x/helios/a.py")})
+    b = _run(tmp_path / "b", 2, changes={1: error("/y/base-tree/helios/a.py")})
+    rc, out, err = run_cli(["diff", str(a), str(b)])
+    assert rc == 0 and "identical: 2 of 2" in out, out + err
+    c = _run(tmp_path / "c", 2, changes={1: lambda rec: rec.update(error="ValueError: bang\n  File \"a.py\"")})
+    rc, out, _ = run_cli(["diff", str(a), str(c)])
+    assert rc == 1 and "error: \"RuntimeError: boom\" / \"ValueError: bang\"" in out, out

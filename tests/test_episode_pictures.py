@@ -275,3 +275,18 @@ def test_the_top_down_picture_has_a_scale_bar_of_true_length(picture_runs):
     metres = length / per_m
     assert min(abs(metres - m) for m in (1, 2, 5, 10)) * per_m <= 2, (length, per_m)
     assert length >= 38 and cols.max() > img.shape[1] - 40          # in the lower right corner
+
+
+def test_the_scale_bar_grows_to_two_five_or_ten_metres_on_a_coarse_picture():
+    """A picture with fewer than 40 px per metre draws a 2, 5 or 10 m bar, at least 40 px long."""
+    from PIL import Image, ImageDraw
+
+    from tools.episode_pages import HEADER, SCALE_BAR, MapFrame, _font, _scale_bar
+
+    for per_m, metres in ((60.0, 1), (20.0, 2), (10.0, 5), (5.0, 10)):
+        frame = MapFrame((0.0, 0.0), 0.025, 100, 100, per_m * 0.025, per_m * 0.025)
+        img = Image.new("RGB", (400, HEADER + 300), (255, 255, 255))
+        _scale_bar(ImageDraw.Draw(img), frame, 400, 300, _font(11))
+        bar = (np.asarray(img) == SCALE_BAR).all(axis=-1)
+        cols = np.flatnonzero(bar[int(np.argmax(bar.sum(axis=1)))])
+        assert abs((cols.max() - cols.min()) - metres * per_m) <= 1.5, (per_m, cols.max() - cols.min())

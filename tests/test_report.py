@@ -442,3 +442,7 @@ def test_unscored_episodes_have_their_own_count_and_colour():
     headers, rows = failure_rows(runs)
     assert headers[-1] == "unscored" and rows[0][-1] == 1
     assert sum(rows[0][1:]) == 4
+    clean = SimpleNamespace(name="c", summary={"episodes": 2, "scored": 2, "SR": {"count": 1},
+                                               "failure_reasons": {k: 0 for k in FAILURE_REASONS} | {"pick_failed": 1}})
+    headers, rows = failure_rows([*runs, clean])             # mixed runs: every row as long as the headers
+    assert all(len(row) == len(headers) for row in rows) and rows[1][-1] == 0 and sum(rows[1][1:]) == 2

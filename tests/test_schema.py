@@ -86,6 +86,8 @@ def test_numbers_read_as_yaml_1_2_not_as_octal_hex_or_base_60(tmp_path):
     assert with_overrides(Outer(), ["seed=010"]).seed == 10
     assert with_overrides(Outer(), ["inner.rate=1e3"]).inner.rate == 1000.0
     assert with_overrides(Outer(), ["inner.rate=-2.5e-3"]).inner.rate == -0.0025
+    for text, value in ((".5", 0.5), ("-.5", -0.5), (".5e1", 5.0), ("+1.", 1.0)):
+        assert with_overrides(Outer(), [f"inner.rate={text}"]).inner.rate == value, text
     for spelling in ("0x10", "0o7", "1:30", "1_000"):
         with pytest.raises(ConfigError, match="seed: expected an integer"):
             with_overrides(Outer(), [f"seed={spelling}"])
@@ -97,7 +99,7 @@ def test_numbers_read_as_yaml_1_2_not_as_octal_hex_or_base_60(tmp_path):
     path.write_text("seed: 010\ninner: {rate: 1e-2}\n")
     assert load_config(Outer, path) == with_overrides(Outer(), ["seed=10", "inner.rate=0.01"])
     # what the config files are written with reads back the same: strings that look like numbers quoted
-    for name in ("1e3", "010", "0x10", "1:30", "1_000", "1.0", ".inf"):
+    for name in ("1e3", "010", "0x10", "1:30", "1_000", "1.0", ".inf", ".5", "-.5"):
         cfg = with_overrides(Outer(), {"name": name})
         path.write_text(dump_yaml(cfg))
         assert load_config(Outer, path) == cfg, (name, dump_yaml(cfg))
