@@ -284,10 +284,9 @@ class SdkShutdown:
         acts on it when it arrives, and on the return after it); a power off the link lost fails
         fast and goes again first. Kept, a real Spot treats our silence as a communications loss
         and powers off; returned before the power off, a robot standing with motor power on would
-        be nobody's. Steps the healthy
-        shutdown already finished (``_close_steps``) are not sent again. After a bring-up call
-        that went unanswered, the robot is asked what it left and that is returned / deregistered
-        too (:meth:`_clean_up_unanswered_bring_up`)."""
+        be nobody's. Steps the healthy shutdown already finished (``_close_steps``) are not sent
+        again. After a bring-up call that went unanswered, the robot is asked what it left and
+        that is returned / deregistered too (:meth:`_clean_up_unanswered_bring_up`)."""
         cfg, bd = self.config, self._bd
         plan = []                                          # (step, function, arguments), in order
         if lease is not None:
