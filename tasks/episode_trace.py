@@ -139,10 +139,8 @@ class EpisodeTracer:
         if not self.truth.get("targets"):
             return f"first detection of a {self.object_class}"       # no ground truth (a real robot)
         union = np.logical_or.reduce(masks)
-        on_target = False
-        for target in self.truth["targets"]:
-            uv = _project(obs, np.asarray(target["xyz"], dtype=float))
-            on_target = on_target or (uv is not None and bool(union[uv[1], uv[0]]))
+        pixels = (_project(obs, np.asarray(target["xyz"], dtype=float)) for target in self.truth["targets"])
+        on_target = any(uv is not None and bool(union[uv[1], uv[0]]) for uv in pixels)
         where = "on a true target" if on_target else "not on a true target: a false or misplaced detection"
         return f"first detection of a {self.object_class} ({where})"
 

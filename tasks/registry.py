@@ -260,6 +260,12 @@ def replaced_settings(name: str) -> dict[str, object]:
     return out
 
 
+def reads_section(name: str, section: str) -> bool:
+    """Whether agent ``name`` reads TrialConfig section ``section`` at all (the oracle reads no
+    ``helios``, ``agent_config`` or ``perception``: :func:`replaced_settings`)."""
+    return replaced_settings(name).get(section) is not IGNORED
+
+
 def unread_settings(config) -> dict[str, str]:
     """Settings (dotted keys) that ``config``'s agent would not read in the mode the config puts it
     in -> why: the simulated detector's noise with ground-truth semantics, the exact detector's
@@ -269,8 +275,8 @@ def unread_settings(config) -> dict[str, str]:
     from sim.perception.config import GT_MODE_READS, NOISY_ONLY_WITH_ROLES, SimPerceptionConfig
 
     out: dict[str, str] = {}
-    if config.agent == "oracle":
-        return out                                    # replaced_settings refuses whole sections
+    if not reads_section(config.agent, "perception"):
+        return out                                    # replaced_settings refuses the whole section
     perception = [f.name for f in dataclasses.fields(SimPerceptionConfig)]
     if config.agent.endswith("-gt") or config.perception.mode == "gt":
         why = "ground-truth semantics (perception.mode=gt) read only " + ", ".join(sorted(GT_MODE_READS))

@@ -112,9 +112,10 @@ def stale_results(out: Path, config: TrialConfig, commit: str | None = None) -> 
     difference) and results written at another commit (``git_commit`` in config.yaml). Anything
     else wrong with the folder (damage) is left to :func:`prepare_run_folder` to report; a missing
     or unreadable config.yaml counts as a different configuration when the records' fingerprints
-    say so (the fingerprint leaves out the episode count: an extension still resumes). ``tools trials --replace-stale`` moves a stale folder aside (``make run`` uses it, so
-    the README's first command shows this checkout's numbers after a pull instead of refusing the
-    folder or resuming another version's results)."""
+    say so (the fingerprint leaves out the episode count: an extension still resumes). ``tools
+    trials --replace-stale`` moves a stale folder aside (``make run`` uses it, so the README's
+    first command shows this checkout's numbers after a pull instead of refusing the folder or
+    resuming another version's results)."""
     out = Path(out)
     if not (out / "episodes.jsonl").is_file():
         return None

@@ -62,10 +62,10 @@ def _check_options(args: argparse.Namespace) -> None:
     if twice is not None:
         raise CliError(f"suite {short_repr(twice, 40)} is given twice")
     _check_unselected(args)
-    recording = getattr(args, "maps_recording", None) or os.environ.get("HELIOS_MAPS_RECORDING")
-    if getattr(args, "maps_synthetic", False) and recording:       # the recording won, silently
-        raise CliError(f"--maps-synthetic and {'--maps-recording' if getattr(args, 'maps_recording', None) else 'HELIOS_MAPS_RECORDING'} "
-                       f"both choose what the maps suite replays; give one")
+    flag_recording = getattr(args, "maps_recording", None)
+    if getattr(args, "maps_synthetic", False) and (flag_recording or os.environ.get("HELIOS_MAPS_RECORDING")):
+        given = "--maps-recording" if flag_recording else "HELIOS_MAPS_RECORDING"     # the recording won, silently
+        raise CliError(f"--maps-synthetic and {given} both choose what the maps suite replays; give one")
     seeded = "agent" in args.suites or ("maps" in args.suites and getattr(args, "maps_synthetic", False))
     if args.seed != 0 and not seeded:          # read by the agent suite and the synthetic maps replay only
         raise CliError(f"--seed is read by the agent suite and by maps --maps-synthetic only; the selected suite(s) "

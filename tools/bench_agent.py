@@ -291,7 +291,7 @@ def check_inputs(args: argparse.Namespace) -> AgentInputs:
     from tasks.registry import check_agent
 
     check_agent(args.agent_name)
-    if args.agent_name in ("oracle",):     # ground truth, no perception, map or planner: nothing to time
+    if args.agent_name == "oracle":     # ground truth, no perception, map or planner: nothing to time
         raise CliError(f"--agent-name {args.agent_name!r}: the oracle keeps no timings of perception, map and "
                        f"planning; time a HELIOS agent")
     sets = check_agent_sets(args.agent_name, args.agent_set)

@@ -108,7 +108,8 @@ def resolved(path, what: str = "path") -> Path:
     try:
         return Path(path).resolve()
     except (RuntimeError, OSError) as exc:
-        raise CliError(f"{what} '{shown_path(path)}' cannot be resolved ({'a symbolic link loop' if isinstance(exc, RuntimeError) else exc.strerror or exc})") from None
+        why = "a symbolic link loop" if isinstance(exc, RuntimeError) else exc.strerror or exc
+        raise CliError(f"{what} '{shown_path(path)}' cannot be resolved ({why})") from None
 
 
 def same_folder_twice(paths) -> tuple[str, str] | None:
@@ -230,8 +231,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _refuse_repeated_flags(parser: argparse.ArgumentParser, argv: list[str]) -> None:
-    """A flag that takes one value (or a fixed number), given twice, is a usage error: argparse keeps the last one
-    silently (``make run ARGS="--out X"`` once ran in X and reported the Makefile's folder)."""
+    """A flag that takes one value (or a fixed number of them), given twice, is a usage error:
+    argparse keeps the last one silently (``make run ARGS="--out X"`` once ran in X and reported the
+    Makefile's folder)."""
     single = {opt: action for action in parser._actions if type(action) is argparse._StoreAction
               and (action.nargs in (None, "?") or isinstance(action.nargs, int)) for opt in action.option_strings}
     seen: dict[argparse.Action, str] = {}

@@ -239,8 +239,8 @@ def _shown_pair(x, y) -> tuple[str, str]:
         return sx, sy
     at = next((i for i, (p, q) in enumerate(zip(x, y)) if p != q), min(len(x), len(y)))
     start = max(0, at - 15)
-    return tuple(("..." if start else "") + show_value(v[start:start + VALUE_CHARS - 10]) + f" (from character {start})"
-                 for v in (x, y))
+    lead = "..." if start else ""
+    return tuple(f"{lead}{show_value(v[start:start + VALUE_CHARS - 10])} (from character {start})" for v in (x, y))
 
 
 def _fields(diffs: list[tuple[str, object, object]], limit: int = MAX_FIELDS_LISTED) -> str:

@@ -181,7 +181,7 @@ SCALE_BAR = (25, 25, 25)
 
 
 def _scale_bar(d, frame: MapFrame, w: int, h: int, font) -> None:
-    """A scale bar of 1, 2 or 5 m (the first at least 40 px long) in the map's lower right corner,
+    """A scale bar of 1, 2, 5 or 10 m (the first at least 40 px long) in the map's lower right corner,
     on a white patch: the picture had no distances at all (pictures audit)."""
     per_m = frame.sx / frame.cell_size
     metres = next((m for m in (1, 2, 5, 10) if m * per_m >= 40), 10)

@@ -270,8 +270,8 @@ def write_html(path: Path, runs: list[Run], tables: list[tuple[str, list, list]]
                      f"{html.escape(str(cfg.get('agent', '?')))}, {html.escape(str(cfg.get('episodes_file') or 'split ' + str(cfg.get('split', '?'))))}, "
                      f"seed {html.escape(str(cfg.get('seed', '?')))}, commit {html.escape(str(cfg.get('git_commit', '?'))[:10])}</p>")
     if warnings:
-        parts.append("<div class='warnings'><b>Warnings</b><ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in warnings)
-                     + "</ul></div>")
+        items = "".join(f"<li>{html.escape(w)}</li>" for w in warnings)
+        parts.append(f"<div class='warnings'><b>Warnings</b><ul>{items}</ul></div>")
     for title, headers, rows in tables:
         parts.append(f"<h2>{html.escape(title)}</h2>" + _html_table(headers, rows))
     for fig in figures:

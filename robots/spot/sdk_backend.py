@@ -239,6 +239,7 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
         after another fault came first: close() then neither commands nor returns it and says so."""
         self._lease_returning = False           # our own return was sent: the wallet's refusals are ours
         self._close_steps: set[str] = set()     # the shutdown steps the robot confirmed (close())
+        self._estop_note: str | None = None      # close(): our e-stop endpoint stays registered, said once
         self._closed = False
         self._closing = False
         self._close_lock = threading.Lock()

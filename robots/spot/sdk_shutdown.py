@@ -164,10 +164,8 @@ class SdkShutdown:
         _LOG.warning(note)
         if self._fault is None:                             # the session's fault, as the README says
             self._fault = LeaseLostError(gone)
-        kept = getattr(self, "_estop_note", None)           # said before the lease was known lost
-        if self.close_problem is None and kept:
-            note = f"{note}; {kept}"
-        self.close_problem = note if self.close_problem is None else f"{note}; {self.close_problem}"
+        # close_problem is set here first; an endpoint note said before the loss was known joins it
+        self.close_problem = f"{note}; {self._estop_note}" if self._estop_note else note
 
     def _shutdown_in_turn(self, lease) -> None:
         """Healthy robot: stop, stow, sit and power off, return the lease, deregister the e-stop."""
@@ -231,16 +229,6 @@ class SdkShutdown:
                      f"waited {time.monotonic() - t0:.1f} s for it to end" if not still else
                      f"still powering on after {cfg.power_on_timeout:g} s; powering off anyway")
         return state
-
-    def _refused_motors_on(self, fut) -> bool:
-        """Whether a finished deregistration was refused because the motors are on."""
-        try:
-            future_result(fut, 0.0)
-        except self._bd.estop.MotorsOnError:
-            return True
-        except Exception:  # noqa: BLE001 - any other outcome is reported as unconfirmed
-            return False
-        return False
 
     def _estop_kept_powered(self) -> None:
         """Our e-stop endpoint could not be deregistered: a robot keeps an endpoint while its motors
@@ -323,15 +311,19 @@ class SdkShutdown:
                 state_ask = None
         power_step = "safe power off" if cfg.power_off_on_close else "stop"
 
+        def powered_off_or_on_its_way() -> bool:
+            """The power off taken, the motors off, or the power off on its way for a while (a slow
+            link acts on it when it arrives; one the link lost fails fast and goes again)."""
+            return power_step in done or motors_off[0] or (
+                power_step in flying and time.monotonic() - sent_at[power_step] >= 0.3)
+
         def may_send(name: str) -> bool:
-            if name == "lease return":       # power off taken, or on its way for a while (a slow link acts on
-                return power_step in done or motors_off[0] or (       # it when it arrives; a lost one fails fast)
-                    power_step in flying and time.monotonic() - sent_at[power_step] >= 0.3)
+            if name == "lease return":
+                return powered_off_or_on_its_way()
             if name in ("stop", "safe power off"):
                 return not motors_off[0]
             if name == "e-stop deregistration" and lease is not None:    # refused while the motors are on
-                return power_step in done or power_step in given_up or motors_off[0] or (
-                    power_step in flying and time.monotonic() - sent_at[power_step] >= 0.3)
+                return power_step in given_up or powered_off_or_on_its_way()
             return True
 
         self._clean_up_unanswered_bring_up(send, deadline)
