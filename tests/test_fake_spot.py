@@ -336,3 +336,55 @@ def test_stop_is_bounded_when_a_command_hangs_in_the_simulator(caplog, monkeypat
             fake._robot_thread.join(5.0)
         _teardown(sdk, robot)
         fake.sim.close()                          # stop() could not: the hung command held it (idempotent)
+
+
+def test_an_estop_check_in_must_answer_the_previous_challenge(demo):
+    """estop.proto: after the first check-in, each must carry the response to the previous
+    challenge; the SDK's EstopEndpoint answers with the 64-bit complement of the challenge
+    (``bosdyn.client.estop.response_from_challenge``). The fake issued challenges and never
+    checked them, so our check-ins were never proven right. A wrong answer is now refused with
+    STATUS_INCORRECT_CHALLENGE_RESPONSE (and a new challenge), releases no stop and does not count
+    as a check-in for the endpoint's timeout; the SDK's own endpoint and keep-alive pass."""
+    from bosdyn.api import estop_pb2
+    from bosdyn.client.estop import IncorrectChallengeResponseError, response_from_challenge
+
+    sdk, robot = _robot(demo)
+    keepalive = None
+    try:
+        robot.authenticate(TEST_USER, TEST_PASSWORD, timeout=3)
+        client = robot.ensure_client(EstopClient.default_service_name)
+        endpoint = EstopEndpoint(client, "pytest-estop", 0.6)
+        endpoint.force_simple_setup()                 # registers; the first check-in (CUT) seeds a challenge
+        current = endpoint.get_challenge()
+        assert current is not None and robot.is_estopped()
+
+        def refused(challenge, response):
+            with pytest.raises(IncorrectChallengeResponseError) as info:
+                client.check_in(estop_pb2.ESTOP_LEVEL_NONE, endpoint, challenge, response, timeout=2)
+            return info.value.response.challenge      # the robot's next challenge comes with the refusal
+
+        current = refused(current, response_from_challenge(current) ^ 1)          # a wrong response
+        current = refused(current ^ 1, response_from_challenge(current ^ 1))      # another challenge's answer
+        current = refused(current, 0)                                             # no answer
+        assert robot.is_estopped()                    # a wrong answer releases nothing
+        endpoint.set_challenge(current)
+        endpoint.allow(timeout=2)                     # the SDK's answer is accepted
+        assert not robot.is_estopped()
+        released = time.monotonic()
+        while time.monotonic() - released < 1.0:      # only wrong answers for longer than the timeout ...
+            current = refused(current, response_from_challenge(current) ^ (1 << 63))
+            time.sleep(0.05)
+        level, _ = demo.fake.stop_level()
+        assert level == estop_pb2.ESTOP_LEVEL_SETTLE_THEN_CUT    # ... and the endpoint timed out
+        endpoint.set_challenge(current)
+        keepalive = EstopKeepAlive(endpoint, rpc_timeout_seconds=1.0, rpc_interval_seconds=0.1)
+        time.sleep(1.5)                               # 2.5 timeouts: only accepted check-ins keep it released
+        assert not robot.is_estopped()
+        statuses = []
+        while not keepalive.status_queue.empty():
+            statuses.append(keepalive.status_queue.get_nowait()[0])
+        assert EstopKeepAlive.KeepAliveStatus.ERROR not in statuses, statuses
+    finally:
+        if keepalive is not None:
+            keepalive.shutdown()
+        _teardown(sdk, robot)

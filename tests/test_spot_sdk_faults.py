@@ -216,6 +216,36 @@ def test_keep_alive_threads_stop_at_close():
     assert demo.fake.lease_owner is None and not demo.fake.powered   # lease returned, powered off
 
 
+def test_our_estop_check_ins_answer_the_robots_challenges(monkeypatch):
+    """A robot refuses an e-stop check-in that does not answer its previous challenge, and a refused
+    one does not keep the endpoint alive (the fake checks both since 2026-12-06): the bring-up's
+    first check-in and every keep-alive check-in must be right for the robot to stay released and
+    powered past ``estop_timeout``."""
+    from bosdyn.api import estop_pb2
+
+    from robots.spot.fake_spot.bookkeeping import Endpoint
+
+    answers = []
+    real = Endpoint.answers
+
+    def recorded(self, challenge, response):
+        answers.append(real(self, challenge, response))
+        return answers[-1]
+
+    monkeypatch.setattr(Endpoint, "answers", recorded)
+    demo = start_fake(seed=0)
+    backend = connect(demo, estop_timeout=0.6)         # a check-in every 0.2 s
+    fake = demo.fake
+    try:
+        time.sleep(2.0)                                # more than three timeouts
+        assert fake.stop_level()[0] == estop_pb2.ESTOP_LEVEL_NONE and fake.powered
+        assert len(answers) >= 8 and all(answers), answers
+        assert backend.navigate_to(SE2Pose(0.2, 0.0, 0.0)).success
+    finally:
+        backend.close()
+    assert not fake._endpoints                         # deregistered at close
+
+
 def test_stop_interrupts_a_running_command():
     demo = start_fake(seed=0)
     backend = connect(demo)

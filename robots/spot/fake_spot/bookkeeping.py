@@ -19,12 +19,31 @@ STOP_LEVEL_NAMES = {estop_pb2.ESTOP_LEVEL_CUT: "CUT", estop_pb2.ESTOP_LEVEL_SETT
                      estop_pb2.ESTOP_LEVEL_NONE: "NONE"}
 
 
+_UINT64 = (1 << 64) - 1
+
+
 @dataclass
 class Endpoint:
+    """A registered software e-stop endpoint: the stop level it asserts, when it last checked in
+    with a valid response (the clock of its ``timeout``), and the challenge it must answer next.
+
+    The challenge-response rule is the SDK's: ``EstopEndpoint`` answers a challenge ``c`` with
+    ``response_from_challenge(c) = ctypes.c_ulonglong(~c).value``, the 64-bit complement of ``c``
+    (``bosdyn/client/estop.py``, bosdyn-client 5.2.0), and ``estop.proto`` says a check-in "must
+    include [the] response to [the] previous challenge" after the first one, which sets neither.
+    ``challenge`` is None until the robot has issued one (the first check-in is then accepted as
+    it is)."""
+
     proto: estop_pb2.EstopEndpoint
     level: int = estop_pb2.ESTOP_LEVEL_CUT
     last_checkin: float = field(default_factory=time.monotonic)
-    challenge: int = 0
+    challenge: int | None = None
+
+    def answers(self, challenge: int, response: int) -> bool:
+        """Whether a check-in's (challenge, response) answers the challenge issued last."""
+        if self.challenge is None:
+            return True
+        return challenge == self.challenge and response == (~self.challenge) & _UINT64
 
 
 @dataclass

@@ -337,6 +337,12 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         return f.header(resp, request)
 
     def EstopCheckIn(self, request, context):
+        """A check-in must answer the endpoint's previous challenge (``Endpoint.answers``). A
+        wrong answer is STATUS_INCORRECT_CHALLENGE_RESPONSE with a new challenge (the SDK takes
+        the challenge from that error response, ``EstopEndpoint``); it does not count as a
+        valid response, so the endpoint's ``timeout`` runs on, and it cannot release a stop.
+        A stop it asks for (CUT, SETTLE_THEN_CUT) is applied anyway: what a robot does with
+        the level of a refused check-in is not documented, and the fake keeps to the safe side."""
         f = self.f
         resp = estop_pb2.EstopCheckInResponse()
         with f._lock:
@@ -344,11 +350,16 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
             if ep is None:
                 resp.status = resp.STATUS_ENDPOINT_UNKNOWN
             else:
-                ep.level = request.stop_level
-                ep.last_checkin = time.monotonic()
-                ep.challenge = secrets.randbits(63)
+                if ep.answers(request.challenge, request.response):
+                    ep.level = request.stop_level
+                    ep.last_checkin = time.monotonic()
+                    resp.status = resp.STATUS_OK
+                else:
+                    if request.stop_level in (estop_pb2.ESTOP_LEVEL_CUT, estop_pb2.ESTOP_LEVEL_SETTLE_THEN_CUT):
+                        ep.level = min(ep.level, request.stop_level)
+                    resp.status = resp.STATUS_INCORRECT_CHALLENGE_RESPONSE
+                ep.challenge = secrets.randbits(64)      # uint64 in estop.proto
                 resp.challenge = ep.challenge
-                resp.status = resp.STATUS_OK
         f.stop_level()   # a CUT check-in cuts power
         return f.header(resp, request)
 
