@@ -388,3 +388,55 @@ def test_an_estop_check_in_must_answer_the_previous_challenge(demo):
         if keepalive is not None:
             keepalive.shutdown()
         _teardown(sdk, robot)
+
+
+def test_time_sync_is_estimated_from_the_round_trips_the_client_reports(demo):
+    """time_sync.proto: the service answers STATUS_MORE_SAMPLES_NEEDED until it has an estimate,
+    which it makes from the round trips the client reports (``previous_round_trip``). The fake
+    answered STATUS_OK at once with its own clock skew, whatever the client reported. A client
+    whose clock runs 100 s ahead of ours reports its own stamps: the skew it is given is the
+    robot's clock minus its clock, not ours."""
+    from bosdyn.api import time_sync_pb2
+    from bosdyn.client.exceptions import InvalidRequestError
+    from bosdyn.client.time_sync import TimeSyncClient
+
+    from robots.spot.fake_spot.time_sync import SAMPLES_FOR_ESTIMATE
+
+    S = time_sync_pb2.TimeSyncState
+    ahead = 100.0
+    sdk, robot = _robot(demo)
+    try:
+        robot.authenticate(TEST_USER, TEST_PASSWORD, timeout=3)
+        client = robot.ensure_client(TimeSyncClient.default_service_name)
+        sent = time.time()
+        answer = client.get_time_sync_update(None, None, timeout=2)
+        got = time.time()
+        clock_id = answer.clock_identifier
+        assert clock_id and answer.state.status == S.STATUS_MORE_SAMPLES_NEEDED
+        statuses = []
+        for _ in range(SAMPLES_FOR_ESTIMATE):
+            trip = time_sync_pb2.TimeSyncRoundTrip(
+                client_tx=cv.seconds_to_timestamp(sent + ahead), server_rx=answer.header.request_received_timestamp,
+                server_tx=answer.header.response_timestamp, client_rx=cv.seconds_to_timestamp(got + ahead))
+            sent = time.time()
+            answer = client.get_time_sync_update(trip, clock_id, timeout=2)
+            got = time.time()
+            assert answer.clock_identifier == clock_id
+            statuses.append(answer.state.status)
+        assert statuses == [S.STATUS_MORE_SAMPLES_NEEDED] * (SAMPLES_FOR_ESTIMATE - 1) + [S.STATUS_OK]
+        skew = cv.duration_to_seconds(answer.state.best_estimate.clock_skew)
+        assert abs(skew - (demo.fake.clock_skew - ahead)) < 0.05, skew
+        assert 0.0 <= cv.duration_to_seconds(answer.state.best_estimate.round_trip_time) < 0.5
+        assert abs(cv.duration_to_seconds(answer.previous_estimate.clock_skew) - skew) < 0.05
+        # an identifier the robot does not know starts over; a round trip without one is refused
+        fresh = client.get_time_sync_update(None, "never-assigned", timeout=2)
+        assert fresh.clock_identifier not in ("never-assigned", clock_id)
+        assert fresh.state.status == S.STATUS_MORE_SAMPLES_NEEDED
+        with pytest.raises(InvalidRequestError):
+            client.get_time_sync_update(trip, None, timeout=2)
+        # the SDK's own time-sync thread gets there, and finds the skew between our clock and the robot's
+        robot.time_sync.wait_for_sync(timeout_sec=3)
+        found = robot.time_sync.get_robot_clock_skew()
+        assert abs(found.seconds + found.nanos * 1e-9 - demo.fake.clock_skew) < 0.05
+    finally:
+        _teardown(sdk, robot)

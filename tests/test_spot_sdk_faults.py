@@ -733,6 +733,56 @@ def test_a_trajectory_is_stamped_when_it_is_sent_not_when_it_was_built(move, mon
 
 
 
+@pytest.mark.parametrize("skew", [-3600.5, 7.25])
+def test_commands_carry_robot_times_converted_with_the_skew_time_sync_measured(skew, monkeypatch):
+    """The fake's clock runs ``skew`` s from ours and its time sync measures it from the round
+    trips our client reports (it gave its own skew until 2026-12-06): the end time and reference
+    times of our walk, arm and hand commands arrive in robot time, each within 0.25 s of the
+    robot's clock when it receives them (the end time: the walk's planned duration plus
+    ``command_margin`` after it)."""
+    from robots.spot.fake_spot import servicer
+
+    received = []
+    real_parse = servicer.parse_command
+
+    def parse(fake, command, request):
+        received.append((fake.robot_now(), command))
+        return real_parse(fake, command, request)
+
+    monkeypatch.setattr(servicer, "parse_command", parse)
+    demo = start_fake(seed=0, clock_skew=skew)
+    backend = connect(demo)
+    try:
+        assert backend.navigate_to(SE2Pose(0.3, 0.0, 0.0)).success
+        assert backend.move_arm_joints(model.ARM_READY).success
+        T = backend._T(backend._state("test"), "body", "hand")
+        T[:3, 3] += (0.03, 0.0, 0.0)
+        assert backend.move_hand(T).success
+    finally:
+        backend.close()
+
+    def seconds(stamp):
+        return stamp.seconds + stamp.nanos * 1e-9
+
+    checked = []
+    for at, command in received:
+        sync = command.synchronized_command
+        if sync.mobility_command.HasField("se2_trajectory_request"):
+            se2 = sync.mobility_command.se2_trajectory_request
+            planned = seconds(se2.trajectory.points[-1].time_since_reference)
+            assert abs(seconds(se2.end_time) - (at + planned + backend.config.command_margin)) < 0.25
+            trajectory = se2.trajectory
+        elif sync.arm_command.HasField("arm_joint_move_command"):
+            trajectory = sync.arm_command.arm_joint_move_command.trajectory
+        elif sync.arm_command.HasField("arm_cartesian_command"):
+            trajectory = sync.arm_command.arm_cartesian_command.pose_trajectory_in_task
+        else:
+            continue
+        assert -0.05 < at - seconds(trajectory.reference_time) < 0.25, (at, seconds(trajectory.reference_time))
+        checked.append(type(trajectory).__name__)
+    assert sorted(checked) == ["ArmJointTrajectory", "SE2Trajectory", "SE3Trajectory"], checked
+
+
 def _grasp_the_mug(backend, facts):
     mug = facts["mug_position"]
     assert backend.navigate_to(SE2Pose(mug[0] - 0.95, mug[1], 0.0)).success

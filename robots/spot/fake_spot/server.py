@@ -16,7 +16,8 @@ released between control steps so robot state and images are always fresh while 
 at every control step the motion checks the e-stop, the lease, motor power, the connection and
 the command's end time, stopping where it is when one fails. Without ``time_scale`` motions run
 as fast as the simulator can (feedback turns final as soon as the simulated motion ends). The
-robot clock is the wall clock plus a fixed skew that the client's time sync must find.
+robot clock is the wall clock plus a fixed skew that the client's time sync must find: the
+time-sync service estimates it from the round trips the client reports (``time_sync.py``).
 
 Faults (``FakeSpot.inject``) model what goes wrong on real hardware; each persists until
 ``clear``: see ``FAULTS``. Scripted faults: ``inject_at`` (at a time), ``inject_on_call`` (on
@@ -26,8 +27,9 @@ the Nth call of an RPC), ``fail_calls`` (an RPC fails N times, then recovers), `
 This module is the robot: :class:`FakeSpot` (faults, leases, e-stop, power, commands and the robot
 thread) and its fault switchboard ``FAULTS``. ``servicer.py`` holds the gRPC gate and the RPC
 handlers it serves, ``protocol.py`` builds the Spot messages they answer with and parses the
-commands they accept, ``sim_execution.py`` carries out accepted commands on the simulator, and
-``bookkeeping.py`` holds the records they all name (e-stop endpoints, commands).
+commands they accept, ``sim_execution.py`` carries out accepted commands on the simulator,
+``bookkeeping.py`` holds the records they all name (e-stop endpoints, commands) and
+``time_sync.py`` is the time-sync service.
 """
 
 from __future__ import annotations
@@ -73,6 +75,7 @@ from robots.spot.fake_spot.certs import TestPKI
 from robots.spot.fake_spot.servicer import Gate, SimulatorBusy, SpotServicer
 from robots.spot.fake_spot.sim_execution import execute_on_sim
 from robots.spot.fake_spot.sim_robot import FakeRobotSim
+from robots.spot.fake_spot.time_sync import TimeSyncService
 from robots.spot.sim_backend import MotionInterrupted
 
 _LOG = logging.getLogger("helios.fake_spot")
@@ -144,7 +147,7 @@ class FakeSpot:
         self.rpc_log: list[str] = []
         self.faults: dict[str, dict] = {}
         self._fault_event = threading.Event()     # interrupts 'slow' delays on clear/stop
-        self._clock_id = "fake-clock-" + secrets.token_hex(4)
+        self.time_sync = TimeSyncService()       # the clients' clocks, estimated from their round trips
         # power, e-stop, lease
         self.powered = False
         self.standing = False
@@ -333,7 +336,7 @@ class FakeSpot:
                 self._end_commands("overridden", "lease taken by another client")
                 self._jobs.put(self._sim_stop)
             elif fault == "time_sync_loss":
-                self._clock_id = "fake-clock-" + secrets.token_hex(4)   # old identifiers become invalid
+                self.time_sync.forget()        # old identifiers become invalid
             elif fault == "command_timeout":
                 for cmd in self.commands.values():
                     if cmd.state in ("queued", "running") and cmd.kind not in ("stop", "safe_power_off"):

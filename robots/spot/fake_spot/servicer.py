@@ -55,6 +55,7 @@ from robots.spot.fake_spot.protocol import (
     robot_state,
     untimed,
 )
+from robots.spot.fake_spot.time_sync import InvalidTimeSyncRequest
 
 # Services the directory lists: name -> (type, authority). The authorities must be covered by the
 # server certificate's subjectAltNames ("*.spot.robot" covers the non-bootstrap ones).
@@ -168,18 +169,18 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         return self.f.header(resp, request)
 
     def TimeSyncUpdate(self, request, context):
+        """Estimated from the round trips the client reports (``time_sync.TimeSyncService``)."""
         f = self.f
         received = f.robot_now()
-        resp = time_sync_pb2.TimeSyncUpdateResponse()
         if f.has_fault("time_sync_loss"):
-            return f.header(resp, request, header_pb2.CommonError.CODE_INTERNAL_SERVER_ERROR,
-                            "time-sync service failed", received=received)
-        resp.clock_identifier = f._clock_id
-        st = resp.state
-        st.status = time_sync_pb2.TimeSyncState.STATUS_OK
-        st.best_estimate.clock_skew.CopyFrom(cv.seconds_to_duration(f.clock_skew))
-        st.best_estimate.round_trip_time.CopyFrom(cv.seconds_to_duration(0.001))
-        st.measurement_time.CopyFrom(cv.seconds_to_timestamp(received))
+            return f.header(time_sync_pb2.TimeSyncUpdateResponse(), request,
+                            header_pb2.CommonError.CODE_INTERNAL_SERVER_ERROR, "time-sync service failed",
+                            received=received)
+        try:
+            resp = f.time_sync.update(request)
+        except InvalidTimeSyncRequest as exc:
+            return f.header(time_sync_pb2.TimeSyncUpdateResponse(), request,
+                            header_pb2.CommonError.CODE_INVALID_REQUEST, str(exc), received=received)
         return f.header(resp, request, received=received)
 
     # ---------------------------------------------------------------- robot state
@@ -430,7 +431,7 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
             return f.header(resp, request)
         try:
             with f._lock:
-                clock_ok = request.clock_identifier == f._clock_id and not f.has_fault("time_sync_loss")
+                clock_ok = f.time_sync.established(request.clock_identifier) and not f.has_fault("time_sync_loss")
             if not clock_ok and not untimed(request.command):
                 raise Reject(R.STATUS_NO_TIMESYNC, "unknown clock identifier: time sync with the robot first")
             kind, extra = parse_command(f, request.command, request)
