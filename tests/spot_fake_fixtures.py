@@ -112,16 +112,37 @@ def wait_for_threads_to_end(before: set, timeout: float = 3.0) -> set:
     return extra
 
 
+QUIET_TABLET_COMMS_LOSS_TIMEOUT = 60.0
+"""``comms_loss_timeout`` (s) for a fake whose robot must stay powered under the tablet of
+``take_lease_as_another_client``: that tablet takes the lease and goes quiet, where a real one keeps
+retaining it, and a fake with the default 3 s would sit and power off under it (comms_loss.py)."""
+
+
 def take_lease_as_another_client(backend) -> None:
     """What the tablet does: a second client takes the body lease from ours (with the credentials
-    in the environment where a command set them, as ``tools spot --fake`` does, else the tests')."""
+    in the environment where a command set them, as ``tools spot --fake`` does, else the tests').
+    It does not retain it afterwards (see ``QUIET_TABLET_COMMS_LOSS_TIMEOUT``)."""
+    _lease_as_another_client(backend, "take")
+
+
+def acquire_lease_as_another_client(backend) -> None:
+    """Another client acquires the body lease with AcquireLease (not a take), which a robot grants
+    only while nobody holds it or its holder's lease is stale (a refusal raises the SDK's
+    ResourceAlreadyClaimedError). It does not retain it afterwards either."""
+    _lease_as_another_client(backend, "acquire")
+
+
+def _lease_as_another_client(backend, verb: str) -> None:
     import bosdyn.client
     from bosdyn.client.lease import LeaseClient
 
     sdk = bosdyn.client.create_standard_sdk("tablet-in-a-test", cert_resource_glob=backend.config.cert_path)
     robot = sdk.create_robot("127.0.0.1")
     robot.update_secure_channel_port(backend.config.port)
-    robot.authenticate(os.environ.get(USERNAME_ENV, TEST_USER), os.environ.get(PASSWORD_ENV, TEST_PASSWORD),
-                       timeout=3)
-    robot.ensure_client(LeaseClient.default_service_name).take(timeout=2)
-    sdk.clear_robots()
+    try:
+        robot.authenticate(os.environ.get(USERNAME_ENV, TEST_USER), os.environ.get(PASSWORD_ENV, TEST_PASSWORD),
+                           timeout=3)
+        client = robot.ensure_client(LeaseClient.default_service_name)
+        getattr(client, verb)(timeout=2)
+    finally:
+        sdk.clear_robots()

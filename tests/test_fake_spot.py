@@ -209,7 +209,8 @@ def test_the_fake_refuses_what_a_robot_refuses(demo):
 
 def test_fault_switchboard_names():
     assert set(FAULTS) == {"estop", "lease_revoked", "connection_drop", "command_timeout", "grasp_failure",
-                           "time_sync_loss", "slow", "power_off_stalls", "power_loss", "behavior_fault"}
+                           "time_sync_loss", "slow", "power_off_stalls", "power_loss", "behavior_fault",
+                           "lease_retains_lost"}
 
 
 def test_a_behavior_fault_is_in_the_robot_state_refuses_motion_and_clears_only_when_clearable(demo):
@@ -338,6 +339,15 @@ def test_stop_is_bounded_when_a_command_hangs_in_the_simulator(caplog, monkeypat
         fake.sim.close()                          # stop() could not: the hung command held it (idempotent)
 
 
+def _wait_for(condition, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
 def test_an_estop_check_in_must_answer_the_previous_challenge(demo):
     """estop.proto: after the first check-in, each must carry the response to the previous
     challenge; the SDK's EstopEndpoint answers with the 64-bit complement of the challenge
@@ -440,3 +450,58 @@ def test_time_sync_is_estimated_from_the_round_trips_the_client_reports(demo):
         assert abs(found.seconds + found.nanos * 1e-9 - demo.fake.clock_skew) < 0.05
     finally:
         _teardown(sdk, robot)
+
+
+def test_a_silent_lease_owner_goes_stale_the_robot_powers_off_and_anyone_may_acquire_it():
+    """lease.proto, lease_service.md: an owner that stops retaining its lease for the robot's
+    comms-loss timeout loses it to staleness: the robot stops, sits and powers off, and the lease
+    may be acquired by any client (AcquireLease, not only TakeLease); the owner's next retain
+    makes it fresh again (the robot stays off). The fake's AcquireLease refused whenever an owner
+    existed and nothing happened when the retains stopped (``lease_retains_lost`` drops them)."""
+    from bosdyn.client.lease import ResourceAlreadyClaimedError
+
+    timeout = 0.5
+    demo = start_fake(seed=0, comms_loss_timeout=timeout)
+    fake = demo.fake
+    owner_sdk, owner = _robot(demo, name="owner")
+    tablet_sdk, tablet = _robot(demo, name="tablet")
+    keepalive = None
+    try:
+        owner.authenticate(TEST_USER, TEST_PASSWORD, timeout=3)
+        owner.time_sync.wait_for_sync(timeout_sec=3)
+        keepalive = LeaseKeepAlive(owner.ensure_client(LeaseClient.default_service_name), must_acquire=True,
+                                   rpc_interval_seconds=0.1)
+        owner.power_on(timeout_sec=3, update_frequency=50)
+        tablet.authenticate(TEST_USER, TEST_PASSWORD, timeout=3)
+        tablet_leases = tablet.ensure_client(LeaseClient.default_service_name)
+
+        def body():
+            return next(r for r in tablet_leases.list_leases(timeout=2) if r.resource == "body")
+
+        time.sleep(3 * timeout)                       # retained: fresh, powered, not to be acquired
+        assert fake.powered and not body().is_stale
+        with pytest.raises(ResourceAlreadyClaimedError):
+            tablet_leases.acquire(timeout=2)
+        fake.inject("lease_retains_lost")
+        t0 = time.monotonic()
+        assert _wait_for(lambda: not fake.powered, 3.0), "the robot stayed powered without retains"
+        silent = time.monotonic() - t0
+        assert silent < timeout + 0.5, silent         # within the timeout of the last retain heard
+        assert body().is_stale and not fake.standing
+        fake.clear("lease_retains_lost")              # the owner is heard again: fresh, still off
+        assert _wait_for(lambda: not body().is_stale, 2.0)
+        assert not fake.powered
+        with pytest.raises(ResourceAlreadyClaimedError):
+            tablet_leases.acquire(timeout=2)
+        fake.inject("lease_retains_lost")
+        assert _wait_for(lambda: body().is_stale, 3.0)
+        lease = tablet_leases.acquire(timeout=2)      # stale: AcquireLease is enough
+        assert fake.lease_owner.startswith("tablet") and not body().is_stale
+        assert lease.lease_proto.sequence[0] > 1
+    finally:
+        fake.clear()                                  # answers a retain held as lost (the SDK waits 30 s)
+        if keepalive is not None:
+            keepalive.shutdown()
+        _teardown(tablet_sdk, tablet)
+        _teardown(owner_sdk, owner)
+        demo.stop()

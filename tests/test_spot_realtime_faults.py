@@ -47,6 +47,7 @@ from robots.spot.motion import MotionConfig, plan_arm, plan_base  # noqa: E402
 from robots.spot.sdk_backend import GrpcTracingError, SdkSpotBackend  # noqa: E402
 from robots.spot.signals import handling_signals, outside_grpc  # noqa: E402
 from spot_fake_fixtures import (  # noqa: E402
+    QUIET_TABLET_COMMS_LOSS_TIMEOUT,
     TEST_PASSWORD,
     TEST_USER,
     connect,
@@ -228,7 +229,7 @@ def test_a_lease_taken_by_another_client_during_the_shutdown_is_said_not_hidden(
     SUCCESS, exit 0, with the robot standing, motors on (audit 2026-12-05). Now the backend says
     so in ``close_problem`` and keeps the lost lease as its fault."""
     before = python_threads()
-    demo = start_fake(seed=0, time_scale=WALK_SCALE)
+    demo = start_fake(seed=0, time_scale=WALK_SCALE, comms_loss_timeout=QUIET_TABLET_COMMS_LOSS_TIMEOUT)
     backend = connect(demo, stop_fake_on_close=False)
     fake = demo.fake
     try:

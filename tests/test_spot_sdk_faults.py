@@ -921,9 +921,9 @@ def test_a_lease_lost_after_another_fault_is_said_at_close(first, then):
     """After a sticky fault, a revoke or a take of the lease was not recorded (only the first
     fault is): close() sent its steps with a stale lease, they were refused and logged as 'not
     confirmed', and close_problem stayed None with the robot standing under another client."""
-    from spot_fake_fixtures import take_lease_as_another_client
+    from spot_fake_fixtures import QUIET_TABLET_COMMS_LOSS_TIMEOUT, take_lease_as_another_client
 
-    demo = start_fake(seed=0)
+    demo = start_fake(seed=0, comms_loss_timeout=QUIET_TABLET_COMMS_LOSS_TIMEOUT)
     fake = demo.fake
     backend = connect(demo, stop_fake_on_close=False)
     try:
@@ -1001,9 +1001,9 @@ def test_a_lease_taken_while_close_stows_the_arm_is_said_and_kept_as_the_fault()
     the stow ran out its time, the wallet then refused every remaining step, which was retried
     until the deadline and never read as a lost lease; close_problem stayed None and the log said
     the lease was 'kept', with the robot standing powered under the tablet."""
-    from spot_fake_fixtures import take_lease_as_another_client
+    from spot_fake_fixtures import QUIET_TABLET_COMMS_LOSS_TIMEOUT, take_lease_as_another_client
 
-    demo = start_fake(seed=0, time_scale=1.0)
+    demo = start_fake(seed=0, time_scale=1.0, comms_loss_timeout=QUIET_TABLET_COMMS_LOSS_TIMEOUT)
     fake = demo.fake
     backend = connect(demo, stop_fake_on_close=False)
     try:

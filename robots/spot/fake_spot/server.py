@@ -22,14 +22,16 @@ time-sync service estimates it from the round trips the client reports (``time_s
 Faults (``FakeSpot.inject``) model what goes wrong on real hardware; each persists until
 ``clear``: see ``FAULTS``. Scripted faults: ``inject_at`` (at a time), ``inject_on_call`` (on
 the Nth call of an RPC), ``fail_calls`` (an RPC fails N times, then recovers), ``delay_calls``
-(N calls of one RPC are acted on at once but answered late, the other RPCs promptly).
+(N calls of one RPC are acted on at once but answered late, the other RPCs promptly). Without
+any fault, a lease owner that stops retaining its lease for ``comms_loss_timeout`` meets the
+robot's comms-loss behaviour (``comms_loss.py``).
 
 This module is the robot: :class:`FakeSpot` (faults, leases, e-stop, power, commands and the robot
 thread) and its fault switchboard ``FAULTS``. ``servicer.py`` holds the gRPC gate and the RPC
 handlers it serves, ``protocol.py`` builds the Spot messages they answer with and parses the
 commands they accept, ``sim_execution.py`` carries out accepted commands on the simulator,
-``bookkeeping.py`` holds the records they all name (e-stop endpoints, commands) and
-``time_sync.py`` is the time-sync service.
+``bookkeeping.py`` holds the records they all name (e-stop endpoints, commands), ``time_sync.py``
+is the time-sync service and ``comms_loss.py`` the watchdog of the lease owner's retains.
 """
 
 from __future__ import annotations
@@ -72,6 +74,7 @@ from robots.hal import HalError, Observation
 from robots.spot import sdk_conversions as cv
 from robots.spot.fake_spot.bookkeeping import STOP_LEVEL_NAMES, Command, Endpoint
 from robots.spot.fake_spot.certs import TestPKI
+from robots.spot.fake_spot.comms_loss import DEFAULT_COMMS_LOSS_TIMEOUT, CommsLossWatch
 from robots.spot.fake_spot.servicer import Gate, SimulatorBusy, SpotServicer
 from robots.spot.fake_spot.sim_execution import execute_on_sim
 from robots.spot.fake_spot.sim_robot import FakeRobotSim
@@ -101,6 +104,11 @@ FAULTS: dict[str, str] = {
                       "ClearBehaviorFault clears it (stop and safe power off are still accepted)",
     "power_off_stalls": "a safe power off is accepted and never carried out (the robot cannot sit: it goes on "
                         "standing with motor power on, the command's feedback stays 'in progress')",
+    "lease_retains_lost": "the lease owner's RetainLease requests never reach the robot (its keep-alive thread is "
+                          "wedged, or the link loses just those; each call goes unanswered until its deadline), "
+                          "everything else gets through: `comms_loss_timeout` s after the last retain the robot's "
+                          "comms-loss behaviour stops it, sits it and powers it off and marks the lease stale, "
+                          "which any client may then acquire (comms_loss.py)",
 }
 
 _CACHED_FRAMES = 16
@@ -120,12 +128,17 @@ class FakeSpot:
 
     ``username``/``password`` are the only accepted credentials; tokens it issues are recorded in
     ``issued_tokens`` (tests grep logs for them). Inspection attributes for tests: ``powered``,
-    ``estop_level``, ``commands``, ``rpc_log``, ``lease_owner``.
+    ``estop_level``, ``commands``, ``rpc_log``, ``lease_owner``, ``lease_stale``.
+
+    ``comms_loss_timeout``: seconds the lease's owner may go without retaining it before the
+    robot's comms-loss behaviour stops and powers it off and the lease turns stale (3 s; see
+    ``comms_loss.py``, where the numbers come from).
     """
 
     def __init__(self, sim: FakeRobotSim, pki: TestPKI, username: str, password: str, *,
                  clock_skew: float = 7.25, depth_scale: float = 999.0, jpeg_quality: int = 90,
-                 robot_name: str = "helios-fake-spot", max_workers: int = 16, time_scale: float | None = None):
+                 robot_name: str = "helios-fake-spot", max_workers: int = 16, time_scale: float | None = None,
+                 comms_loss_timeout: float = DEFAULT_COMMS_LOSS_TIMEOUT):
         if not username or not password:
             raise ValueError("the fake Spot needs a username and a password to accept")
         if time_scale is not None and not (isinstance(time_scale, (int, float)) and math.isfinite(time_scale)
@@ -162,6 +175,8 @@ class FakeSpot:
         self._lease_seq = 0
         self._newest_used = None        # (lease sequence, the newest sub-lease a command used under it)
         self.lease_owner: str | None = None
+        # the owner's retains, and the robot's comms-loss behaviour when they stop (comms_loss.py)
+        self._comms = CommsLossWatch(comms_loss_timeout, self._lock, self._comms_lost)
         # commands
         self.commands: dict[int, Command] = {}
         self._next_id = 1
@@ -216,6 +231,7 @@ class FakeSpot:
         self.sim.pacer = self._pace
         self._robot_thread = threading.Thread(target=self._run_robot, name="fake-spot-robot", daemon=True)
         self._robot_thread.start()
+        self._comms.start()
         server.start()
         self._server = server
         self._wait_listening(START_TIMEOUT_S)
@@ -277,6 +293,9 @@ class FakeSpot:
                 _LOG.warning("fake Spot: the gRPC server did not shut down within %.1f s", wait)
         self._jobs.put(None)
         stuck: list[str] = []
+        watchdog = self._comms.stop(left(1.0))
+        if watchdog is not None:
+            stuck.append(watchdog.name)
         if self._robot_thread is not None:
             self._robot_thread.join(left(10.0))
             if self._robot_thread.is_alive():
@@ -333,6 +352,7 @@ class FakeSpot:
             elif fault == "lease_revoked":
                 self._lease_seq += 1
                 self.lease_owner = "tablet (fault injection)"
+                self._comms.unwatched()        # the fake plays the tablet, which keeps its lease alive
                 self._end_commands("overridden", "lease taken by another client")
                 self._jobs.put(self._sim_stop)
             elif fault == "time_sync_loss":
@@ -534,6 +554,54 @@ class FakeSpot:
         self.sim.stop()
 
     # ---------------------------------------------------------------- lease
+    @property
+    def lease_stale(self) -> bool:
+        """The owner went silent for longer than ``comms_loss_timeout``: anyone may acquire it."""
+        return self._comms.stale
+
+    def lease_granted(self) -> None:
+        """A client acquired or took the lease (locked by caller): its retains are watched now."""
+        self._comms.heard()
+
+    def lease_retained(self) -> None:
+        """The owner retained its lease (a RetainLease it was told is OK): fresh, clock restarted."""
+        self._comms.heard()
+
+    def lease_used(self) -> None:
+        """A command with the owner's lease was accepted: a stale lease, used, is fresh again
+        (lease.proto); a fresh one is not retained by it (comms_loss.py)."""
+        with self._lock:
+            if self._comms.stale:
+                self._comms.heard()
+
+    def lease_returned(self) -> None:
+        """The owner returned the lease (locked by caller): nobody to watch."""
+        self._comms.unwatched()
+
+    def _comms_lost(self, silent: float) -> None:
+        """The robot's comms-loss behaviour (the watchdog, ``_lock`` held): it ends what it is
+        doing, sits and powers off (one step in the fake), and the lease is stale from now on."""
+        why = (f"comms loss: no RetainLease from {self.lease_owner!r} for {silent:.2f} s (comms-loss timeout "
+               f"{self._comms.timeout:g} s); the lease is stale")
+        _LOG.info("%s%s", why, "; sitting and powering off" if self.powered or self.powering_on() else "")
+        self._end_commands("overridden", why)
+        self._powering_on_until = None
+        self.powered = False
+        self.standing = False
+        self._jobs.put(self._sim_stop)
+
+    def lost_on_the_way(self, method: str) -> bool:
+        """Whether a call of RPC ``method`` is lost before it reaches the robot (``lease_retains_lost``)."""
+        return method == "RetainLease" and self.has_fault("lease_retains_lost")
+
+    def hold_lost_call(self, context) -> None:
+        """A lost call has no answer: hold its handler until the caller's deadline has passed (at
+        most ``RPC_SIM_WAIT_S``), or ``clear``/``stop`` come first."""
+        with self._lock:
+            event = self._fault_event
+        remaining = context.time_remaining()
+        event.wait(RPC_SIM_WAIT_S if remaining is None else max(0.0, min(remaining + 0.05, RPC_SIM_WAIT_S)))
+
     def current_lease(self) -> lease_pb2.Lease:
         return lease_pb2.Lease(resource="body", epoch=self._lease_epoch, sequence=[self._lease_seq],
                                client_names=[self.lease_owner or ""])

@@ -82,7 +82,8 @@ class SimulatorBusy(Exception):
 class Gate(grpc.ServerInterceptor):
     """Every RPC: record it, apply scripted faults, require a valid user token (except for the
     auth and robot-id services, as on the robot), and hold the reply back under the 'slow' fault
-    or a ``delay_calls`` rule."""
+    or a ``delay_calls`` rule. A call the link loses (``lease_retains_lost``) never reaches the
+    robot: not recorded, not acted on, unanswered until the caller's deadline."""
 
     def __init__(self, fake: FakeSpot):
         self._fake = fake
@@ -98,7 +99,11 @@ class Gate(grpc.ServerInterceptor):
         service = method.strip("/").split("/")[0]
 
         def gated(request, context):
-            delay = fake.on_call(method.rsplit("/", 1)[-1], context)
+            name = method.rsplit("/", 1)[-1]
+            if fake.lost_on_the_way(name):
+                fake.hold_lost_call(context)
+                context.abort(grpc.StatusCode.DEADLINE_EXCEEDED, f"{name} lost on the way (fault injection)")
+            delay = fake.on_call(name, context)
             if service not in _UNAUTHENTICATED_SERVICES and not fake.check_token(metadata):
                 context.abort(grpc.StatusCode.UNAUTHENTICATED, "missing or invalid user token")
             try:
@@ -212,6 +217,7 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         f = self.f
         f._lease_seq += 1
         f.lease_owner = request.header.client_name or "unnamed client"
+        f.lease_granted()
         resp.status = resp.STATUS_OK
         resp.lease.CopyFrom(f.current_lease())
         resp.lease_owner.CopyFrom(self._lease_owner_proto())
@@ -222,7 +228,7 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         with f._lock:
             if request.resource != "body":
                 resp.status = resp.STATUS_INVALID_RESOURCE
-            elif f.lease_owner is not None:
+            elif f.lease_owner is not None and not f.lease_stale:    # a stale one may be acquired
                 resp.status = resp.STATUS_RESOURCE_ALREADY_CLAIMED
                 resp.lease_owner.CopyFrom(self._lease_owner_proto())
             else:
@@ -246,14 +252,19 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         with f._lock:
             if result.status == lease_pb2.LeaseUseResult.STATUS_OK:
                 f.lease_owner = None
+                f.lease_returned()
                 resp.status = resp.STATUS_OK
             else:
                 resp.status = resp.STATUS_NOT_ACTIVE_LEASE
         return f.header(resp, request)
 
     def RetainLease(self, request, context):
+        """The owner's keep-alive: an OK retain is what keeps the robot's comms-loss behaviour
+        away and makes a stale lease fresh (comms_loss.py)."""
         resp = lease_pb2.RetainLeaseResponse()
         resp.lease_use_result.CopyFrom(self.f.check_lease(request.lease))
+        if resp.lease_use_result.status == lease_pb2.LeaseUseResult.STATUS_OK:
+            self.f.lease_retained()
         return self.f.header(resp, request)
 
     def ListLeases(self, request, context):
@@ -264,6 +275,7 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
             if f.lease_owner:
                 res.lease.CopyFrom(f.current_lease())
                 res.lease_owner.CopyFrom(self._lease_owner_proto())
+                res.is_stale = f.lease_stale
         return f.header(resp, request)
 
     # ---------------------------------------------------------------- e-stop
@@ -384,7 +396,10 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
         """The robot's verdict on the lease a command carries, put in ``resp``; True when it is
         refused (the response then goes back as it is, as a real robot's does)."""
         resp.lease_use_result.CopyFrom(self.f.check_lease(request.lease, newest=True))
-        return resp.lease_use_result.status != lease_pb2.LeaseUseResult.STATUS_OK
+        if resp.lease_use_result.status != lease_pb2.LeaseUseResult.STATUS_OK:
+            return True
+        self.f.lease_used()
+        return False
 
     def PowerCommand(self, request, context):
         f = self.f
