@@ -291,6 +291,50 @@ def test_e_stop_check_ins_that_stop_reaching_the_robot_stop_it_and_end_the_walk_
     assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
 
 
+def test_lease_retains_that_stop_reaching_the_robot_end_the_walk_in_a_power_error_and_close_leaves_nothing():
+    """Our lease keep-alive's RetainLease requests stop reaching the robot while the rest gets
+    through (the fake's ``lease_retains_lost``; a wedged keep-alive thread looks the same to a
+    robot): after its comms-loss timeout the robot stops, sits and powers off and marks our lease
+    stale. The walk ended in "the robot did not answer" (CommandTimeoutError, not sticky: the
+    diagnosis stopped at its own unanswered retain) while the robot had powered off; now it ends in
+    PowerError naming the comms loss, the base stops, nothing more is sent, and close() returns
+    our (stale, still ours) lease, deregisters the e-stop endpoint and joins every thread."""
+    timeout = 0.8
+    before = python_threads()
+    demo = start_fake(seed=0, time_scale=1.0, comms_loss_timeout=timeout)
+    backend = connect(demo, lease_retain_period=0.2)
+    fake = demo.fake
+    try:
+        start = _base(fake)
+        timer = threading.Timer(0.3, fake.inject, ("lease_retains_lost",))
+        t0 = time.monotonic()
+        timer.start()
+        with pytest.raises(PowerError, match="comms-loss behaviour") as info:
+            backend.navigate_to(SE2Pose(start.x, start.y - 4.0, 0.0))   # ~5.5 s of walking in real time
+        latency = time.monotonic() - t0 - 0.3
+        timer.join()
+        MEASURED.append({"fault": "lease retains lost", "latency": latency})
+        message = str(info.value)
+        assert "RetainLease" in message and "stale" in message and "\n" not in message, message
+        assert latency < timeout + SURFACE_WITHIN, f"the walk ended {latency:.2f} s after the retains stopped"
+        at_error = _base(fake)
+        assert at_error.distance_to(start) < 3.5, "the walk was over before the comms loss: nothing tested"
+        time.sleep(0.3)
+        assert _base(fake).distance_to(at_error) < TRAVEL_AFTER and not fake.powered
+        assert not _active_commands(fake)
+        sent = sum(1 for name in fake.rpc_log if name in ("RobotCommand", "ManipulationApi"))
+        with pytest.raises(PowerError):
+            backend.move_arm_joints(model.ARM_READY)     # sticky: refused here, not sent
+        assert sum(1 for name in fake.rpc_log if name in ("RobotCommand", "ManipulationApi")) == sent
+    finally:
+        t1 = time.monotonic()
+        backend.close()
+        closing = time.monotonic() - t1
+    assert closing < CLOSE_WITHIN, f"close() took {closing:.2f} s"
+    assert backend.close_problem is None and fake.lease_owner is None     # the stale lease was ours: returned
+    _check_after_close(fake, "lease_retains_lost", before, backend)
+
+
 def test_an_e_stop_during_the_shutdowns_stow_is_logged_as_an_e_stop_not_as_silence(caplog):
     """The shutdown log said "the robot stopped answering during shutdown (_Unanswered)" for an
     e-stop or a lost lease during close()'s stow (audit 2026-12-05): the operator reading

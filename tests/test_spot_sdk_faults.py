@@ -996,6 +996,60 @@ def test_the_service_directory_at_bring_up_is_bounded_by_rpc_timeout():
         demo.stop()
 
 
+@pytest.mark.parametrize("then", ["nobody", "another client acquires"])
+def test_a_lease_gone_stale_while_idle_is_named_at_the_next_command_and_close_leaves_nothing(then):
+    """Our RetainLease requests stop reaching the robot while nothing moves: after its comms-loss
+    timeout the robot sits, powers off and marks our lease stale, which another client may take
+    with a plain AcquireLease. The next command is a typed, sticky error saying so: PowerError
+    naming the unconfirmed keep-alive (it said only "motor power is off"), or LeaseLostError once
+    the lease is another's. Nobody took it: once the link recovers, stand() powers on again with
+    our lease (using it makes it fresh) and the session goes on; close() then returns it. Taken:
+    close() leaves it alone and says so in close_problem (the lost-lease path of the shutdown);
+    either way motors off, our e-stop endpoint gone, no thread left."""
+    from spot_fake_fixtures import acquire_lease_as_another_client
+
+    before = python_threads()
+    demo = start_fake(seed=0, comms_loss_timeout=0.5)
+    fake = demo.fake
+    backend = connect(demo, lease_retain_period=0.1, stop_fake_on_close=False)
+    expected = PowerError if then == "nobody" else LeaseLostError
+    try:
+        fake.inject("lease_retains_lost")
+        deadline = time.monotonic() + 3.0
+        while (fake.powered or not fake.lease_stale) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert not fake.powered and fake.lease_stale
+        if then != "nobody":
+            acquire_lease_as_another_client(backend)          # stale: AcquireLease is enough
+        t0 = time.monotonic()
+        with pytest.raises(expected, match="RetainLease") as info:
+            backend.navigate_to(SE2Pose(0.2, 0.0, 0.0))
+        assert time.monotonic() - t0 < SURFACE_WITHIN
+        assert "\n" not in str(info.value) and isinstance(backend.fault, expected)
+        sent = _robot_commands(fake)
+        with pytest.raises(expected):
+            backend.stow_arm()                                 # sticky: refused here, not sent
+        assert _robot_commands(fake) == sent
+        if then == "nobody":
+            fake.clear("lease_retains_lost")                  # the link recovers
+            assert backend.stand().success and fake.powered and not fake.lease_stale
+            assert backend.navigate_to(SE2Pose(0.2, 0.0, 0.0)).success
+    finally:
+        t1 = time.monotonic()
+        backend.close()
+        closing = time.monotonic() - t1
+        demo.stop()
+    assert closing < CLOSE_WITHIN, f"close() took {closing:.2f} s"
+    assert not fake.powered and not fake._endpoints
+    if then == "nobody":
+        assert fake.lease_owner is None and backend.close_problem is None
+    else:
+        assert fake.lease_owner.startswith("tablet-in-a-test")
+        assert backend.close_problem.startswith("the robot was not shut down by us"), backend.close_problem
+    leaked = wait_for_threads_to_end(before)
+    assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
+
+
 def test_a_lease_taken_while_close_stows_the_arm_is_said_and_kept_as_the_fault():
     """(safety fuzz, seeds 263 and 1057) The tablet took the lease while close() stowed the arm:
     the stow ran out its time, the wallet then refused every remaining step, which was retried

@@ -238,6 +238,8 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
         """Why the body lease is no longer ours, once the robot said so (a revoke or take), even
         after another fault came first: close() then neither commands nor returns it and says so."""
         self._lease_returning = False           # our own return was sent: the wallet's refusals are ours
+        self._retain_confirmed_at: float | None = None   # when the robot last confirmed a RetainLease of ours
+        self._retain_failing = False            # retains go unanswered since then (sdk_bringup._note_retain)
         self._close_steps: set[str] = set()     # the shutdown steps the robot confirmed (close())
         self._estop_note: str | None = None      # close(): our e-stop endpoint stays registered, said once
         self._closed = False

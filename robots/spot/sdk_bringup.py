@@ -16,6 +16,7 @@ import os
 import socket
 import ssl
 import threading
+import time
 
 from robots.hal import (
     BackendClosedError,
@@ -41,16 +42,22 @@ _BRING_UP_CUT_SHORT = "the bring-up was cut short: close() was called from anoth
 
 def _lease_keep_alive_class(bd):
     """LeaseKeepAlive whose check-ins use a bounded RPC timeout (the SDK's default is 30 s, which
-    would stall shutdown on a dead link)."""
+    would stall shutdown on a dead link) and report each confirmed one (``on_retained``)."""
 
     class BoundedLeaseKeepAlive(bd.lease.LeaseKeepAlive):
         rpc_timeout = 1.5
+        on_retained = None
 
         def _check_in(self):
             lease = self._lease_wallet.get_lease(self._resource)
             if not lease:
                 return None
             return self._lease_client.retain_lease(lease, timeout=self.rpc_timeout)
+
+        def _ok(self):
+            super()._ok()
+            if self.on_retained is not None:
+                self.on_retained()
 
     return BoundedLeaseKeepAlive
 
@@ -291,6 +298,9 @@ class SdkBringUp:
             raise self._translate(exc, "acquiring the lease") from None
         cls = _lease_keep_alive_class(bd)
         cls.rpc_timeout = cfg.rpc_timeout
+        backend = self
+        cls.on_retained = staticmethod(lambda: backend._note_retain(True))
+        self._note_retain(True)                 # acquiring it is the robot hearing from us
         # must_acquire=False: the lease was just acquired into the wallet above; with True the SDK
         # acquires again, without a deadline (30 s), should the wallet have lost it meanwhile (safety audit)
         self._lease_keepalive = cls(self._lease_client, must_acquire=False, return_at_exit=False,
@@ -299,12 +309,50 @@ class SdkBringUp:
         self._lease_unconfirmed = False
         _LOG.info("body lease acquired")
 
+    def _note_retain(self, confirmed: bool) -> None:
+        """A RetainLease of ours the robot confirmed, or one it did not answer (a slow link, or
+        retains that do not reach it). Retains the robot does not hear are what a Spot's
+        comms-loss behaviour acts on (it stops, sits, powers off and marks the lease stale:
+        ``_comms_loss_fault``): the first unanswered one is said once, and so is the recovery."""
+        now = time.monotonic()
+        if confirmed:
+            if self._retain_failing:
+                _LOG.info("lease keep-alive: the robot confirms our RetainLease again (%.1f s without)",
+                          now - (self._retain_confirmed_at or now))
+            self._retain_confirmed_at, self._retain_failing = now, False
+        elif not self._retain_failing:
+            self._retain_failing = True
+            _LOG.warning("lease keep-alive: a RetainLease went unanswered; a Spot that hears none for its comms-loss "
+                         "timeout stops, sits and powers off and marks our lease stale")
+
+    def _retain_overdue(self) -> float:
+        """Seconds after a confirmed retain by which the next one is overdue: the keep-alive
+        retains every ``lease_retain_period``, and an answer takes milliseconds (0.25 s of slack
+        for a loaded client)."""
+        return self.config.lease_retain_period + 0.25
+
+    def _retain_gap_note(self) -> str | None:
+        """What our keep-alive's record says about the robot's comms-loss behaviour: no retain
+        confirmed for longer than one was due, or None while the keep-alive is in time. It knows
+        before its own unanswered call times out (``rpc_timeout`` may be longer than the robot's
+        comms-loss timeout is past the last retain it heard). A stretch that is over is not kept:
+        a power loss long after it would be blamed on it."""
+        if self._retain_confirmed_at is None:
+            return None
+        silent = time.monotonic() - self._retain_confirmed_at
+        if silent < self._retain_overdue():
+            return None
+        return (f"no lease keep-alive (RetainLease) of ours confirmed for {silent:.1f} s (one is due every "
+                f"{self.config.lease_retain_period:g} s)")
+
     def _on_lease_keepalive_error(self, exc) -> None:
         bd = self._bd
         if self._overtaken(exc):            # a check-in that one of our commands overtook: still ours
             return
         if self._lease_returning:            # our own ReturnLease: the wallet and the robot say it is gone
             return
+        if isinstance(exc, bd.exc.RpcError) and not self._closing:     # unanswered (a timeout) or lost
+            self._note_retain(False)
         if isinstance(exc, bd.exc.LeaseUseError) or (
                 isinstance(exc, (bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease)) and not self._closing):
             # the robot refused our lease: recorded also after another fault and during close(), so

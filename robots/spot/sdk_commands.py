@@ -95,7 +95,7 @@ class SdkCommands:
         if isinstance(exc, (bd.exc.LeaseUseError, bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease,
                             bd.lease.LeaseResponseError)):
             return self._set_fault(LeaseLostError(f"the body lease is no longer ours {what} "
-                                                  f"(revoked or taken by another client)"))
+                                                  f"(revoked or taken by another client){self._stale_lease_hint()}"))
         if isinstance(exc, (bd.rc.NotPoweredOnError, bd.power.EstoppedError, bd.power.KeepaliveMotorsOffError)):
             return self._power_fault(what)
         if isinstance(exc, bd.rc.BehaviorFaultError):
@@ -122,7 +122,8 @@ class SdkCommands:
         return CommandRejectedError(f"the robot rejected a command {what}: {type(exc).__name__}: {msg}")
 
     def _power_fault(self, what: str) -> RobotFault:
-        """Motors are off: because of an e-stop (EstopError) or otherwise (PowerError)."""
+        """Motors are off: because of an e-stop (EstopError), the robot's comms-loss behaviour
+        (:meth:`_comms_loss_fault`), or otherwise (PowerError)."""
         bd = self._bd
         try:
             status = self._estop_client.get_status(timeout=self.config.rpc_timeout)
@@ -133,7 +134,48 @@ class SdkCommands:
                                                   f"and commands are refused"))
         except bd.exc.Error:
             pass
-        return self._set_fault(PowerError(f"motor power is off {what}"))
+        return self._comms_loss_fault(what) or self._set_fault(PowerError(f"motor power is off {what}"))
+
+    def _comms_loss_fault(self, what: str) -> RobotFault | None:
+        """Motors off, no e-stop: did the robot stop hearing our lease keep-alive? A Spot that gets
+        no RetainLease from the lease's owner for its comms-loss timeout stops, sits and powers
+        off, and marks the lease stale: any client may then acquire it
+        (``robots/spot/fake_spot/comms_loss.py`` has the sources). Two witnesses: our keep-alive's
+        record (no retain confirmed for longer than one was due: ``_retain_gap_note``) and the
+        robot's lease list (``is_stale``: certain, but using a stale lease of ours, even in a
+        command the robot then refuses for the power, makes it fresh again, so it is often gone
+        by the time we ask). Either makes a PowerError saying why (``stand()`` may power on
+        again); the lease held by another client is a LeaseLostError (close() then neither
+        commands nor returns it; the owner told apart by the client name in our request headers,
+        as at shutdown: ``_client_name_in_headers``). None when neither says so."""
+        bd = self._bd
+        reasons = [note] if (note := self._retain_gap_note()) else []
+        try:
+            resources = self._lease_client.list_leases(timeout=self.config.rpc_timeout)
+        except bd.exc.Error:
+            resources = ()
+        body = next((r for r in resources if r.resource == "body" and r.lease_owner.client_name), None)
+        stale = False
+        if body is not None:
+            ours = self._client_name_in_headers()
+            if ours is not None and body.lease_owner.client_name != ours:
+                return self._set_fault(LeaseLostError(f"the body lease is held by another client {what} and the "
+                                                      f"robot is powered off{self._stale_lease_hint()}"))
+            stale = body.is_stale
+            if stale:
+                reasons.append("the robot marked our lease stale (another client may acquire it)")
+        if not reasons:
+            return None
+        return self._set_fault(PowerError(
+            f"motor power is off {what}: the robot's comms-loss behaviour{'' if stale else ', it seems'} (a Spot "
+            f"that stops hearing the lease keep-alive stops, sits and powers off): {'; '.join(reasons)}"))
+
+    def _stale_lease_hint(self) -> str:
+        """Said with a lost lease when our retains went unconfirmed long enough: a Spot marks the
+        lease of an owner it stops hearing stale, and any client may then acquire it."""
+        note = self._retain_gap_note()
+        return (f"; {note}: the robot's comms-loss behaviour marks the lease of a silent owner stale, which "
+                f"any client may acquire") if note else ""
 
     def _behavior_fault(self, what: str, state=None) -> RobotFault:
         """The robot refuses motion because of a behavior fault (it fell, a hardware fault): the
@@ -154,38 +196,47 @@ class SdkCommands:
         return self._set_fault(BehaviorFaultError(f"the robot has a behavior fault {what}: {named}; it stopped and "
                                                   f"refuses motion until the fault is cleared (the tablet)"))
 
-    def _diagnose(self, what: str) -> RobotFault | None:
+    def _diagnose(self, during: str) -> RobotFault | None:
         """After a command ended abnormally: the fault that explains it, if there is one. Ended by
         close() from another thread: BackendClosedError, without asking the robot anything."""
         if self._closed_to_this_thread():
-            raise BackendClosedError(f"the backend was closed (close() from another thread; {what})")
+            raise BackendClosedError(f"the backend was closed (close() from another thread; {during})")
         if self._fault is not None:
             return self._fault
         bd = self._bd
+        what = f"while {during}"
         try:
             lease = self._lease_client.lease_wallet.get_lease()
         except (bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease):
             return self._set_fault(LeaseLostError(f"the body lease was taken by another client {what}"))
+        unanswered = None
         try:   # the robot's word on our lease (the keep-alive may not have checked in since it was taken)
             self._lease_client.retain_lease(lease, timeout=self.config.rpc_timeout)
+            self._note_retain(True)
         except (bd.exc.LeaseUseError, bd.lease.Error) as exc:
             if not self._overtaken(exc):        # (a check-in overtaken by a command of ours: still ours)
                 return self._set_fault(LeaseLostError(f"the body lease was revoked or taken by another client "
                                                       f"{what} ({type(exc).__name__})"))
         except bd.exc.Error as exc:
-            fault = self._translate(exc, what)
-            return fault if isinstance(fault, RobotFault) else None
+            fault = self._translate(exc, during)
+            if not isinstance(fault, CommandTimeoutError):
+                return fault if isinstance(fault, RobotFault) else None
+            # unanswered: a slow link, or retains that do not reach the robot (a wedged keep-alive),
+            # after which the robot's comms-loss behaviour powers it off: its state says which
+            # (the walk ended as "the robot did not answer" while the robot had powered off)
+            self._note_retain(False)
+            unanswered = fault
         try:
             state = self._state_client.get_robot_state(timeout=self.config.rpc_timeout)
         except bd.exc.Error as exc:
-            fault = self._translate(exc, what)
+            fault = self._translate(exc, during)
             return fault if isinstance(fault, RobotFault) else None
         on = state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_ON
         if not on and self._power_wanted:
             return self._power_fault(what)
         if state.behavior_fault_state.faults:
             return self._behavior_fault(what, state)
-        return None
+        return unanswered
 
     def _stop_quietly(self, wait: float = 0.3) -> None:
         """Best-effort full-body stop after a failure: sent at once (a robot on a slow link acts on
