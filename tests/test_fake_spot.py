@@ -460,6 +460,9 @@ def test_a_silent_lease_owner_goes_stale_the_robot_powers_off_and_anyone_may_acq
     existed and nothing happened when the retains stopped (``lease_retains_lost`` drops them)."""
     from bosdyn.client.lease import ResourceAlreadyClaimedError
 
+    for bad in (0, -1.0, float("nan"), 601.0):
+        with pytest.raises(ValueError, match="comms_loss_timeout"):
+            start_fake(seed=0, comms_loss_timeout=bad)
     timeout = 0.5
     demo = start_fake(seed=0, comms_loss_timeout=timeout)
     fake = demo.fake

@@ -85,7 +85,9 @@ class SdkBackendConfig:
     #                                        before it is stopped as stalled (CommandTimeoutError)
     allow_grpc_tracing: bool = False       # connect although GRPC_TRACE / GRPC_VERBOSITY=debug would print
     #                                        the session token to the terminal (a warning instead of an error)
-    lease_retain_period: float = 2.0       # s between lease keep-alive check-ins
+    lease_retain_period: float = 2.0       # s between lease keep-alive check-ins (the SDK's default); keep it
+    #                                        well under the robot's comms-loss timeout over the lease (not
+    #                                        published; Spot sits 3 s after a signal loss, and so does the fake)
     stand_on_connect: bool = True          # power on and stand during bring-up
     power_off_on_close: bool = True        # sit and power off in close()
     image_format: Literal["jpeg", "raw"] = "jpeg"
