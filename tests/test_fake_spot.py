@@ -508,3 +508,28 @@ def test_a_silent_lease_owner_goes_stale_the_robot_powers_off_and_anyone_may_acq
         _teardown(tablet_sdk, tablet)
         _teardown(owner_sdk, owner)
         demo.stop()
+
+
+def test_the_comms_loss_watchdog_does_not_count_the_fakes_own_pause():
+    """In tests and ``tools spot --fake`` the fake shares a process, the GIL and two busy CPUs with
+    its client: a pause of the fake itself (here its bookkeeping lock held for 1 s) stalls its
+    watchdog and its RPC handlers alike, and must not read as the lease owner's silence (a robot's
+    watchdog runs on its own computer). The owner's real silence is still acted on."""
+    from robots.spot.fake_spot.comms_loss import CommsLossWatch
+
+    lock, fired = threading.RLock(), []
+    watch = CommsLossWatch(0.5, lock, lambda silent: fired.append((time.monotonic(), silent)))
+    watch.start()
+    try:
+        watch.heard()
+        with lock:                                   # the fake is paused for twice the timeout
+            time.sleep(1.0)
+        resumed = time.monotonic()
+        time.sleep(0.2)
+        assert not fired and not watch.stale
+        assert _wait_for(lambda: bool(fired), 2.0)   # then the owner stays silent
+        at, silent = fired[0]
+        assert 0.4 <= at - resumed < 0.9 and 0.5 <= silent < 0.9, (at - resumed, silent)   # a tick of slack
+        assert watch.stale
+    finally:
+        assert watch.stop(2.0) is None               # the thread ended

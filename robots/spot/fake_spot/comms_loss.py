@@ -37,7 +37,9 @@ robot ends what it is doing, sits and powers off in one step (a Spot's motors go
 sits; the fake's safe power off is instantaneous too) and the lease turns stale: AcquireLease
 then succeeds for anyone, the owner's own retain or command makes it fresh (the robot stays
 powered off), ``ListLeases`` reports ``is_stale``. An owner the fake plays itself (the tablet of
-``inject("lease_revoked")``) is not watched: that client is alive by assumption.
+``inject("lease_revoked")``) is not watched: that client is alive by assumption. A pause of the
+fake itself (its watchdog ticks late: a loaded machine, the GIL shared with an in-process client)
+is not counted as the owner's silence.
 """
 
 from __future__ import annotations
@@ -100,12 +102,21 @@ class CommsLossWatch:
         return self._thread if self._thread.is_alive() else None
 
     def _run(self) -> None:
+        """Every ``period``: has the owner been silent too long? A tick that comes late means the
+        fake itself was paused (in tests and ``tools spot --fake`` it shares a process, the GIL
+        and two CPUs with its client): the pause is not counted as the owner's silence, for a
+        robot's watchdog runs on the robot's own computer while the client stalls or not."""
         period = min(0.05, self.timeout / 10.0)
+        last_tick = time.monotonic()
         while not self._halt.wait(period):
             with self._lock:
+                now = time.monotonic()
+                late, last_tick = now - last_tick - period, now
                 if self._heard is None or self.stale:
                     continue
-                silent = time.monotonic() - self._heard
+                if late > period:
+                    self._heard += late
+                silent = now - self._heard
                 if silent <= self.timeout:
                     continue
                 self.stale = True
