@@ -240,6 +240,7 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
         self._lease_returning = False           # our own return was sent: the wallet's refusals are ours
         self._retain_confirmed_at: float | None = None   # when the robot last confirmed a RetainLease of ours
         self._retain_failing = False            # retains go unanswered since then (sdk_bringup._note_retain)
+        self._comms_loss_seen = False           # a fault was put down to the robot's comms-loss behaviour
         self._close_steps: set[str] = set()     # the shutdown steps the robot confirmed (close())
         self._estop_note: str | None = None      # close(): our e-stop endpoint stays registered, said once
         self._closed = False

@@ -149,18 +149,68 @@ class SdkShutdown:
             # a ReturnLease that failed took the lease out of the wallet first (the SDK's
             # return_lease): it is still ours to return unless the robot said otherwise (safety audit)
             lease = None if self._lease_gone() else (self._our_lease() or lease)
-        self._say_if_lease_lost()
-        self._shutdown_in_flight(lease, max(t0 + cfg.close_budget, time.monotonic() + 0.5))
-        self._say_if_lease_lost()           # a refusal during it
+        deadline = max(t0 + cfg.close_budget, time.monotonic() + 0.5)
+        asks = self._ask_what_is_left(deadline) if self._lease_gone() is not None else []
+        self._shutdown_in_flight(lease, deadline)
+        self._say_if_lease_lost(self._what_is_left(asks, deadline))     # also a refusal during it
 
-    def _say_if_lease_lost(self) -> None:
+    def _ask_what_is_left(self, deadline: float) -> list:
+        """The lease is not ours: nothing of ours may move the robot, so close() cannot know it
+        sat and powered off unless the robot says so. Its state (motor power) and the lease's
+        holder (ListLeases) are asked at once, with the rest of the shutdown in flight, for
+        ``close_problem`` (neither needs the lease). (QA 2026-12-05: after the robot's comms-loss
+        behaviour had powered it off and another client acquired the stale lease, close_problem
+        said "possibly standing with motor power on".)"""
+        asks = []
+        left = max(0.05, deadline - time.monotonic())
+        for what, ask in (("power", lambda: self._state_client.get_robot_state_async(timeout=left)),
+                          ("holder", lambda: self._lease_client.list_leases_async(timeout=left))):
+            try:
+                asks.append((what, ask()))
+            except Exception as exc:  # noqa: BLE001 - e.g. the channel is gone: not known, said so
+                _LOG.debug("shutdown: could not ask the robot about %s: %s", what, type(exc).__name__)
+        return asks
+
+    def _what_is_left(self, asks: list, deadline: float) -> dict:
+        """The answers to :meth:`_ask_what_is_left` that came by ``deadline``: ``motors_off``
+        (bool) and ``holder`` (the body lease's owner's client name when it is not us)."""
+        known: dict = {}
+        for what, fut in asks:
+            try:
+                answer = future_result(fut, max(0.0, deadline - time.monotonic()))
+            except Exception as exc:  # noqa: BLE001 - unanswered: not known
+                cancel_future(fut)
+                _LOG.debug("shutdown: the robot did not say %s: %s", what, type(exc).__name__)
+                continue
+            if what == "power":
+                PS = answer.power_state
+                known["motors_off"] = PS.motor_power_state == PS.MOTOR_POWER_STATE_OFF
+            else:
+                ours = self._client_name_in_headers()
+                body = next((r for r in answer if r.resource == "body" and r.lease_owner.client_name), None)
+                if body is not None and ours is not None and body.lease_owner.client_name != ours:
+                    known["holder"] = body.lease_owner.client_name
+        return known
+
+    def _say_if_lease_lost(self, known: dict | None = None) -> None:
         """The lease was taken or revoked (before or during the shutdown, also after another fault):
-        the robot was not shut down by us, and ``close_problem`` says so."""
+        the robot was not shut down by us, and ``close_problem`` says so, with what the robot said
+        of itself (``known``: :meth:`_what_is_left`); "possibly standing with motor power on" only
+        when it did not say."""
         gone = self._lease_gone()
         if gone is None or (self.close_problem or "").startswith("the robot was not shut down by us"):
             return
-        note = (f"the robot was not shut down by us: {gone}; it is left to the client holding the lease (the "
-                f"tablet?), possibly standing with motor power on")
+        known = known or {}
+        holder = (f"the body lease is held by another client ({known['holder']}), which the robot is left to"
+                  if "holder" in known else "it is left to the client holding the lease (the tablet?)")
+        if known.get("motors_off") and self._comms_loss_seen:
+            power = ("its comms-loss behaviour (our lease keep-alive went unheard) had already sat it down and "
+                     "powered it off: the robot reports motor power off")
+        elif known.get("motors_off"):
+            power = "the robot reports motor power off"
+        else:
+            power = "possibly standing with motor power on" + (" (the robot reports it on)" if "motors_off" in known else "")
+        note = f"the robot was not shut down by us: {gone}; {power}; {holder}"
         _LOG.warning(note)
         if self._fault is None:                             # the session's fault, as the README says
             self._fault = LeaseLostError(gone)
