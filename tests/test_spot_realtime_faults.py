@@ -291,18 +291,22 @@ def test_e_stop_check_ins_that_stop_reaching_the_robot_stop_it_and_end_the_walk_
     assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
 
 
-def test_lease_retains_that_stop_reaching_the_robot_end_the_walk_in_a_power_error_and_close_leaves_nothing():
+@pytest.mark.parametrize("rpc_timeout", [1.0, 3.0])
+def test_lease_retains_that_stop_reaching_the_robot_end_the_walk_in_a_power_error_and_close_leaves_nothing(
+        rpc_timeout):
     """Our lease keep-alive's RetainLease requests stop reaching the robot while the rest gets
     through (the fake's ``lease_retains_lost``; a wedged keep-alive thread looks the same to a
     robot): after its comms-loss timeout the robot stops, sits and powers off and marks our lease
     stale. The walk ended in "the robot did not answer" (CommandTimeoutError, not sticky: the
     diagnosis stopped at its own unanswered retain) while the robot had powered off; now it ends in
     PowerError naming the comms loss, the base stops, nothing more is sent, and close() returns
-    our (stale, still ours) lease, deregisters the e-stop endpoint and joins every thread."""
+    our (stale, still ours) lease, deregisters the e-stop endpoint and joins every thread. The
+    diagnosis does not wait out its own unanswered retain before it reads the robot's state
+    (1.71-1.75 s at rpc_timeout 1.0 s; with 3.0 s it would be ~3.7 s, over the bound below)."""
     timeout = 0.8
     before = python_threads()
     demo = start_fake(seed=0, time_scale=1.0, comms_loss_timeout=timeout)
-    backend = connect(demo, lease_retain_period=0.2)
+    backend = connect(demo, lease_retain_period=0.2, rpc_timeout=rpc_timeout)
     fake = demo.fake
     try:
         start = _base(fake)
@@ -313,7 +317,7 @@ def test_lease_retains_that_stop_reaching_the_robot_end_the_walk_in_a_power_erro
             backend.navigate_to(SE2Pose(start.x, start.y - 4.0, 0.0))   # ~5.5 s of walking in real time
         latency = time.monotonic() - t0 - 0.3
         timer.join()
-        MEASURED.append({"fault": "lease retains lost", "latency": latency})
+        MEASURED.append({"fault": "lease retains lost", "rpc_timeout": rpc_timeout, "latency": latency})
         message = str(info.value)
         assert "RetainLease" in message and "stale" in message and "\n" not in message, message
         assert latency < timeout + SURFACE_WITHIN, f"the walk ended {latency:.2f} s after the retains stopped"

@@ -33,7 +33,7 @@ from robots.hal import (
 )
 from robots.spot import model
 from robots.spot.sdk_config import CommandRejectedError, NotConnectedError
-from robots.spot.sdk_futures import future_result
+from robots.spot.sdk_futures import cancel_future, future_result
 from robots.spot.stall_watch import StallWatch
 
 _LOG = logging.getLogger("helios.spot")
@@ -41,6 +41,22 @@ _LOG = logging.getLogger("helios.spot")
 _FATAL = (LeaseLostError, ConnectionLostError, TimeSyncLostError)   # no command can reach the robot
 
 _TIME_SYNC_PROBE = 0.25     # s between our own time-sync updates while a command runs
+
+# s a diagnosis waits for its RetainLease once the robot state, asked with it, says the motors went
+# off (SdkCommands._diagnose): the robot answers both at once; 0.25 s is slack for a loaded client's
+# gRPC and GIL, well under the rpc_timeout (1.5 s by default) that was waited out before
+_RETAIN_GRACE = 0.25
+
+
+def _answer(fut, wait: float):
+    """(result, None) or (None, exception) of a bosdyn future, or (None, None) when it has not
+    completed within ``wait`` s (left running: the caller cancels it or not)."""
+    try:
+        return future_result(fut, wait), None
+    except Exception as exc:  # noqa: BLE001 - sorted by the caller
+        if not getattr(fut, "original_future", fut).done():
+            return None, None
+        return None, exc
 
 
 class SdkCommands:
@@ -166,6 +182,7 @@ class SdkCommands:
                 reasons.append("the robot marked our lease stale (another client may acquire it)")
         if not reasons:
             return None
+        self._comms_loss_seen = True
         return self._set_fault(PowerError(
             f"motor power is off {what}: the robot's comms-loss behaviour{'' if stale else ', it seems'} (a Spot "
             f"that stops hearing the lease keep-alive stops, sits and powers off): {'; '.join(reasons)}"))
@@ -174,8 +191,11 @@ class SdkCommands:
         """Said with a lost lease when our retains went unconfirmed long enough: a Spot marks the
         lease of an owner it stops hearing stale, and any client may then acquire it."""
         note = self._retain_gap_note()
+        if not note:
+            return ""
+        self._comms_loss_seen = True            # close() says what the comms-loss behaviour left
         return (f"; {note}: the robot's comms-loss behaviour marks the lease of a silent owner stale, which "
-                f"any client may acquire") if note else ""
+                f"any client may acquire")
 
     def _behavior_fault(self, what: str, state=None) -> RobotFault:
         """The robot refuses motion because of a behavior fault (it fell, a hardware fault): the
@@ -198,41 +218,70 @@ class SdkCommands:
 
     def _diagnose(self, during: str) -> RobotFault | None:
         """After a command ended abnormally: the fault that explains it, if there is one. Ended by
-        close() from another thread: BackendClosedError, without asking the robot anything."""
+        close() from another thread: BackendClosedError, without asking the robot anything.
+
+        The robot is asked two things at once: a RetainLease (its word on our lease: the
+        keep-alive may not have checked in since another client took it) and its state (motor
+        power, behavior faults). The lease's answer comes first, as before: refused, the lease
+        is lost whatever the state says. The state is no longer read only after the retain's
+        answer: a retain that does not reach the robot (a wedged keep-alive, which the robot's
+        comms-loss behaviour acts on by powering off) was waited out for ``rpc_timeout`` before
+        the state was even asked (measured: the PowerError 1.71-1.75 s after the retains stopped
+        at a comms-loss timeout of 0.8 s, of which 1.0 s was our own retain's deadline). When the
+        state says the motors went off under us and the retain, sent with it, is still
+        unanswered :data:`_RETAIN_GRACE` s (or the state's own round trip, if longer) after the
+        state's answer, the retain is not reaching the robot, and the power fault is diagnosed
+        at once. That loses no diagnosis: the lost lease it could have named is found by
+        :meth:`_power_fault` too (ListLeases names another holder: LeaseLostError), as is the
+        comms loss (our keep-alive's record, the stale lease). Otherwise the retain is awaited for
+        its full deadline, as before."""
         if self._closed_to_this_thread():
             raise BackendClosedError(f"the backend was closed (close() from another thread; {during})")
         if self._fault is not None:
             return self._fault
-        bd = self._bd
+        bd, cfg = self._bd, self.config
         what = f"while {during}"
         try:
             lease = self._lease_client.lease_wallet.get_lease()
         except (bd.lease.LeaseNotOwnedByWallet, bd.lease.NoSuchLease):
             return self._set_fault(LeaseLostError(f"the body lease was taken by another client {what}"))
-        unanswered = None
-        try:   # the robot's word on our lease (the keep-alive may not have checked in since it was taken)
-            self._lease_client.retain_lease(lease, timeout=self.config.rpc_timeout)
-            self._note_retain(True)
-        except (bd.exc.LeaseUseError, bd.lease.Error) as exc:
-            if not self._overtaken(exc):        # (a check-in overtaken by a command of ours: still ours)
-                return self._set_fault(LeaseLostError(f"the body lease was revoked or taken by another client "
-                                                      f"{what} ({type(exc).__name__})"))
-        except bd.exc.Error as exc:
-            fault = self._translate(exc, during)
-            if not isinstance(fault, CommandTimeoutError):
-                return fault if isinstance(fault, RobotFault) else None
-            # unanswered: a slow link, or retains that do not reach the robot (a wedged keep-alive),
-            # after which the robot's comms-loss behaviour powers it off: its state says which
-            # (the walk ended as "the robot did not answer" while the robot had powered off)
-            self._note_retain(False)
-            unanswered = fault
+        t0 = time.monotonic()
         try:
-            state = self._state_client.get_robot_state(timeout=self.config.rpc_timeout)
-        except bd.exc.Error as exc:
+            retain = self._lease_client.retain_lease_async(lease, timeout=cfg.rpc_timeout)
+            asked = self._state_client.get_robot_state_async(timeout=cfg.rpc_timeout)
+        except bd.exc.Error as exc:             # not sent (e.g. the channel is gone)
             fault = self._translate(exc, during)
             return fault if isinstance(fault, RobotFault) else None
-        on = state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_ON
-        if not on and self._power_wanted:
+        state, state_exc = _answer(asked, cfg.rpc_timeout + 0.5)       # bounded by its deadline
+        round_trip = time.monotonic() - t0
+        power_lost = state is not None and self._power_wanted and \
+            state.power_state.motor_power_state != state.power_state.MOTOR_POWER_STATE_ON
+        wait = max(_RETAIN_GRACE, round_trip) if power_lost else max(0.0, t0 + cfg.rpc_timeout + 0.5 - time.monotonic())
+        answered, retain_exc = _answer(retain, wait)
+        unanswered = None
+        if answered is not None:
+            self._note_retain(True)
+        elif isinstance(retain_exc, (bd.exc.LeaseUseError, bd.lease.Error)):
+            if not self._overtaken(retain_exc):  # (a check-in overtaken by a command of ours: still ours)
+                return self._set_fault(LeaseLostError(f"the body lease was revoked or taken by another client "
+                                                      f"{what} ({type(retain_exc).__name__})"))
+        elif isinstance(retain_exc, bd.exc.Error) and not isinstance(retain_exc, bd.exc.TimedOutError):
+            fault = self._translate(retain_exc, during)
+            return fault if isinstance(fault, RobotFault) else None
+        else:
+            # unanswered (its deadline, or the grace once the state is in): a slow link, or retains
+            # that do not reach the robot (a wedged keep-alive), after which the robot's comms-loss
+            # behaviour powers it off: its state says which (the walk ended as "the robot did not
+            # answer" while the robot had powered off)
+            cancel_future(retain)
+            self._note_retain(False)
+            unanswered = CommandTimeoutError(f"the robot did not answer within {cfg.rpc_timeout:g} s {what}")
+        if state is None:
+            if isinstance(state_exc, bd.exc.Error):
+                fault = self._translate(state_exc, during)
+                return fault if isinstance(fault, RobotFault) else None
+            return None                           # no answer within its deadline: nothing known
+        if power_lost:
             return self._power_fault(what)
         if state.behavior_fault_state.faults:
             return self._behavior_fault(what, state)
