@@ -1050,8 +1050,8 @@ def test_a_lease_gone_stale_while_idle_is_named_at_the_next_command_and_close_le
         # what is known, not the generic guess (QA 2026-12-05): powered off by its comms-loss
         # behaviour, the lease another client's
         assert "possibly standing" not in problem, problem
-        assert "its comms-loss behaviour (our lease keep-alive went unheard) had already sat it down and powered it off" \
-            in problem and "motor power off" in problem, problem
+        assert "its comms-loss behaviour (our lease keep-alive went unheard) had already sat it down and " \
+               "powered it off" in problem and "motor power off" in problem, problem
         assert f"held by another client ({fake.lease_owner})" in problem, problem
     leaked = wait_for_threads_to_end(before)
     assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"

@@ -49,14 +49,12 @@ _RETAIN_GRACE = 0.25
 
 
 def _answer(fut, wait: float):
-    """(result, None) or (None, exception) of a bosdyn future, or (None, None) when it has not
-    completed within ``wait`` s (left running: the caller cancels it or not)."""
+    """(done, result, exception) of a bosdyn future after waiting at most ``wait`` s: done False
+    when it has not completed by then (left running: the caller cancels it or not)."""
     try:
-        return future_result(fut, wait), None
+        return True, future_result(fut, wait), None
     except Exception as exc:  # noqa: BLE001 - sorted by the caller
-        if not getattr(fut, "original_future", fut).done():
-            return None, None
-        return None, exc
+        return getattr(fut, "original_future", fut).done(), None, exc
 
 
 class SdkCommands:
@@ -252,20 +250,20 @@ class SdkCommands:
         except bd.exc.Error as exc:             # not sent (e.g. the channel is gone)
             fault = self._translate(exc, during)
             return fault if isinstance(fault, RobotFault) else None
-        state, state_exc = _answer(asked, cfg.rpc_timeout + 0.5)       # bounded by its deadline
+        _, state, state_exc = _answer(asked, cfg.rpc_timeout + 0.5)    # bounded by its deadline
         round_trip = time.monotonic() - t0
         power_lost = state is not None and self._power_wanted and \
             state.power_state.motor_power_state != state.power_state.MOTOR_POWER_STATE_ON
         wait = max(_RETAIN_GRACE, round_trip) if power_lost else max(0.0, t0 + cfg.rpc_timeout + 0.5 - time.monotonic())
-        answered, retain_exc = _answer(retain, wait)
+        answered, _, retain_exc = _answer(retain, wait)
         unanswered = None
-        if answered is not None:
+        if answered and retain_exc is None:
             self._note_retain(True)
-        elif isinstance(retain_exc, (bd.exc.LeaseUseError, bd.lease.Error)):
+        elif answered and isinstance(retain_exc, (bd.exc.LeaseUseError, bd.lease.Error)):
             if not self._overtaken(retain_exc):  # (a check-in overtaken by a command of ours: still ours)
                 return self._set_fault(LeaseLostError(f"the body lease was revoked or taken by another client "
                                                       f"{what} ({type(retain_exc).__name__})"))
-        elif isinstance(retain_exc, bd.exc.Error) and not isinstance(retain_exc, bd.exc.TimedOutError):
+        elif answered and isinstance(retain_exc, bd.exc.Error) and not isinstance(retain_exc, bd.exc.TimedOutError):
             fault = self._translate(retain_exc, during)
             return fault if isinstance(fault, RobotFault) else None
         else:

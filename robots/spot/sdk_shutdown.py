@@ -209,7 +209,8 @@ class SdkShutdown:
         elif known.get("motors_off"):
             power = "the robot reports motor power off"
         else:
-            power = "possibly standing with motor power on" + (" (the robot reports it on)" if "motors_off" in known else "")
+            said = " (the robot reports it on)" if "motors_off" in known else ""
+            power = f"possibly standing with motor power on{said}"
         note = f"the robot was not shut down by us: {gone}; {power}; {holder}"
         _LOG.warning(note)
         if self._fault is None:                             # the session's fault, as the README says
