@@ -249,16 +249,16 @@ class HeliosAgent:
     # ------------------------------------------------------------------ candidates
     def _judge_targets(self, cls: str) -> tuple[Target | None, Verdict, GazePoint | None]:
         """The paper's rule over the candidates: act on the best confident one, else the first
-        one worth another view, else nothing."""
+        one worth another view, else nothing; the trusting baseline acts on its first target."""
         targets = candidate_targets(self.observer, cls, self.config, self.method, self.failures)
+        if not self.config.flags.object_map:    # Psi 1 reaches any tau: it reads no decision setting
+            return (targets[0], Verdict.ACT, None) if targets else (None, Verdict.IGNORE, None)
         decision = self.method.decision
         tau = decision.tau_object if cls == self.object_class else decision.tau_goal_receptacle
         for t in targets:
             if t.psi >= tau:
                 return t, Verdict.ACT, None
-        for t in targets:
-            if t.instance_id is None or len(self.viewed[t.key]) >= self.config.max_looks_per_candidate:
-                continue
+        for t in (t for t in targets if len(self.viewed[t.key]) < self.config.max_looks_per_candidate):
             view, predicted = self._best_view(t, cls)
             if decide(t.psi, predicted, tau, decision.tau_increase) is Verdict.LOOK:
                 return t, Verdict.LOOK, view
