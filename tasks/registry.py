@@ -266,12 +266,46 @@ def reads_section(name: str, section: str) -> bool:
     return replaced_settings(name).get(section) is not IGNORED
 
 
+OBJECT_MAP_ONLY = (
+    # candidates and their support (helios.agents.candidates), the Psi decision rule and its extra
+    # views (HeliosAgent._judge_targets, _best_view)
+    *(f"helios.decision.{name}" for name in ("tau_object", "tau_goal_receptacle", "tau_increase", "cs_object",
+                                             "cs_goal_receptacle", "candidate_class", "view_prediction",
+                                             "view_prediction_poses")),
+    "agent_config.max_looks_per_candidate", "agent_config.fresh_view_distance", "agent_config.require_start_support",
+    "agent_config.support_radius",
+    # gaze points, the cameras they predict, local search (HeliosAgent._gaze_points_of, Body.view_from)
+    *(f"agent_config.gaze.{name}" for name in ("standoffs", "outer_rings", "spacing", "min_points", "los_margin",
+                                               "own_margin", "min_look_height", "arm_room")),
+    "agent_config.view.camera_in_body", "agent_config.gaze_hop", "agent_config.local_search_views",
+    "agent_config.local_search_min_gain", "agent_config.end_local_search_on_doubt",
+    # the global objective's candidates: with none (GlobalObjective's frontiers_only mode) it never
+    # scores or calibrates against them
+    "helios.search.cs_start_receptacle", "helios.search.information_gain", "helios.search.candidate_gain",
+    "helios.search.initial_frontier_calibration", "helios.search.frontier_calibration",
+    "helios.search.min_frontier_value",
+)
+"""Settings only an agent with the object map (``VariantFlags.object_map``) reads: the trusting
+variant never reaches them (it keeps 2D maps and acts on the first detection it trusts), so a
+trusting run refuses them. The Gaussian layer's own settings (``helios.gaussians``, ``instances``,
+``scoring``) are not here: the trusting agent updates that layer too, empty (with
+``gaussians.full_scene`` it fills it). Checked against what runs read by tests/test_config_reads.py;
+traced over the 20 smoke and first 40 val episodes of trusting and of trusting-gt when the list
+was made, none was read."""
+
+HIGHEST_VALUE_UNREAD = ("helios.search.alpha_d", "helios.search.initial_frontier_ratio")
+"""The objective's frontier term: an agent with no candidates to weigh (the trusting variant)
+computes it only with ``helios.search.frontier_choice=value_minus_distance``."""
+
+
 def unread_settings(config) -> dict[str, str]:
     """Settings (dotted keys) that ``config``'s agent would not read in the mode the config puts it
     in -> why: the simulated detector's noise with ground-truth semantics, the exact detector's
-    smallest mask without ground-truth roles, the radius arm model's sizes with the measured one."""
+    smallest mask without ground-truth roles, the radius arm model's sizes with the measured one,
+    and the object map's settings with the trusting variant (:data:`OBJECT_MAP_ONLY`)."""
     import dataclasses
 
+    from helios.agents.config import VariantFlags
     from sim.perception.config import GT_MODE_READS, NOISY_ONLY_WITH_ROLES, SimPerceptionConfig
 
     out: dict[str, str] = {}
@@ -288,6 +322,15 @@ def unread_settings(config) -> dict[str, str]:
         out.update({f"agent_config.view.{name}": "the measured arm model (agent_config.view.arm_model, the "
                                                  "default) does not read it; the radius model does"
                     for name in ("arm_swing_radius", "arm_swing_height")})
+    variant = replaced_settings(config.agent).get("agent_config.variant", config.agent_config.variant)
+    if not VariantFlags.of(variant).object_map:
+        variant = f"the {variant} variant (agent_config.variant={variant})"
+        out.update({key: f"{variant} keeps no object map; it acts on the first detection it trusts, with no "
+                         f"candidates, Psi decisions, gaze points or local search" for key in OBJECT_MAP_ONLY})
+        if config.helios.search.frontier_choice == "highest_value":
+            out.update({key: f"{variant} has no candidates to weigh frontiers against and goes to the "
+                             f"highest-value frontier (helios.search.frontier_choice=highest_value)"
+                        for key in HIGHEST_VALUE_UNREAD})
     return out
 
 

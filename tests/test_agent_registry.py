@@ -175,3 +175,60 @@ def test_settings_the_agents_mode_never_reads_are_refused():
     check("helios", "agent_config.view.arm_model=radius", "agent_config.view.arm_swing_height=0.9")
     with pytest.raises(ConfigError, match="would change nothing"):
         check("helios-gt", "perception.p_detect_object=0.95")   # even at its default: it was asked for
+
+
+def test_the_trusting_variant_is_refused_the_object_maps_settings():
+    """Session of 2026-12-06: `trusting helios.decision.tau_object=0.7` ran and recorded the
+    setting, which it never reads (no object map: it acts on the first detection it trusts).
+    What it never reaches is refused; what it reads is not (tests/test_config_reads.py runs it)."""
+    from helios.schema import ConfigError, with_overrides
+    from tasks.registry import HIGHEST_VALUE_UNREAD, OBJECT_MAP_ONLY, check_agent_settings, unread_settings
+
+    def check(agent, *overrides, explicit=True):
+        cfg = with_overrides(TrialConfig(agent=agent), list(overrides))
+        check_agent_settings(cfg, [o.partition("=")[0] for o in overrides] if explicit else ())
+
+    for agent, setting in (("trusting", "helios.decision.tau_object=0.7"),
+                           ("trusting-gt", "agent_config.gaze.spacing=0.4"),
+                           ("trusting", "helios.search.information_gain=fifty_fifty"),
+                           ("helios", "agent_config.variant=trusting agent_config.max_looks_per_candidate=2")):
+        with pytest.raises(ConfigError, match=rf"^{setting.split()[-1].partition('=')[0]} would change nothing with "
+                                              rf"agent '{agent}': the trusting variant \(agent_config.variant=trusting\)"
+                                              r" keeps no object map; .*; leave it out$"):
+            check(agent, *setting.split())
+    with pytest.raises(ConfigError, match=r"local_search_views \(set in the scenario file\) would change nothing"):
+        check("trusting", "agent_config.local_search_views=informative", explicit=False)
+    with pytest.raises(ConfigError, match=r"alpha_d would change nothing .* goes to the highest-value frontier"):
+        check("trusting", "helios.search.alpha_d=0.01")
+    check("trusting", "helios.search.frontier_choice=value_minus_distance", "helios.search.alpha_d=0.01",
+          "helios.search.initial_frontier_ratio=2")                   # then its frontier term reads them
+    # what the trusting agent reads, and what the object map's agents read, stays allowed
+    check("trusting", "agent_config.max_failures_per_candidate=3", "agent_config.place.drop_height=0.2",
+          "helios.detection.od_object=0.4", "helios.gaussians.full_scene=true", "agent_config.gaze_goal_radius=0.2",
+          "agent_config.view.elbow_radius=0.5", "helios.search.distance_unit=metres")
+    check("helios", "helios.decision.tau_object=0.7", "agent_config.gaze.spacing=0.4", "helios.search.alpha_d=0.01")
+    check("helios-no-global-gt", "helios.search.min_frontier_value=0.01", "agent_config.fresh_view_distance=0.3")
+    assert set(OBJECT_MAP_ONLY) | set(HIGHEST_VALUE_UNREAD) <= set(unread_settings(TrialConfig(agent="trusting")))
+    assert not set(OBJECT_MAP_ONLY) & set(unread_settings(TrialConfig(agent="helios-gt")))
+
+
+def test_every_setting_a_run_may_refuse_as_unread_names_a_setting():
+    """A refusal of a renamed or misspelt key would refuse nothing and let the setting through."""
+    from tasks.registry import unread_settings
+
+    def exists(key):
+        cfg = TrialConfig()
+        for part in key.split("."):
+            if not hasattr(cfg, part):
+                return False
+            cfg = getattr(cfg, part)
+        return True
+
+    from helios.schema import with_overrides
+
+    modes = ([], ["perception.gt_roles=[object]"], ["agent_config.view.arm_model=radius"])
+    keys = {key for agent in agent_names() for mode in modes if not (mode and agent.endswith("-gt"))
+            for key in unread_settings(with_overrides(TrialConfig(agent=agent), mode))}
+    assert {"helios.decision.tau_object", "perception.p_detect_object", "agent_config.view.arm_swing_radius",
+            "perception.gt_min_pixels"} <= keys
+    assert [key for key in sorted(keys) if not exists(key)] == []

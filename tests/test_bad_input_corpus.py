@@ -135,6 +135,7 @@ def ws(tmp_path_factory):
         "empty.yaml": b"",
         "comments.yaml": b"# all defaults, I hope\n\n",
         "oracle_helios.yaml": b"agent: oracle\nhelios:\n  search:\n    cs_start_receptacle: 0.4\n",
+        "trusting_local.yaml": b"agent: trusting\nagent_config:\n  local_search_views: informative\n",
     }
     for name, data in configs.items():
         (cfg / name).write_bytes(data)
@@ -739,6 +740,22 @@ CASES: list[tuple[str, list[str], str]] = [
      "applies only with perception.gt_roles"),
     ("trials-arm-swing-measured", [*T, "--agent", "helios", "agent_config.view.arm_swing_radius=0.6"],
      "the measured arm model"),
+    # the read tracer's session (tests/test_config_reads.py): what the trusting variant never reaches
+    ("trusting-decision-tau", [*T, "--agent", "trusting", "helios.decision.tau_object=0.7"],
+     "helios.decision.tau_object would change nothing with agent 'trusting': the trusting variant "
+     "(agent_config.variant=trusting) keeps no object map"),
+    ("trusting-gt-gaze-spacing", [*T, "--agent", "trusting-gt", "agent_config.gaze.spacing=0.4"],
+     "agent_config.gaze.spacing would change nothing with agent 'trusting-gt': the trusting variant"),
+    ("helios-as-trusting-support", [*T, "--agent", "helios", "agent_config.variant=trusting",
+                                    "agent_config.support_radius=0.5"],
+     "agent_config.support_radius would change nothing with agent 'helios': the trusting variant"),
+    ("trusting-alpha-d", [*T, "--agent", "trusting", "helios.search.alpha_d=0.01"],
+     "goes to the highest-value frontier (helios.search.frontier_choice=highest_value)"),
+    ("trusting-cfg-local-search", ["trials", "--config", C + "trusting_local.yaml", "--out", "{ws}/new_run"],
+     "agent_config.local_search_views (set in the scenario file) would change nothing with agent 'trusting'"),
+    ("bench-agent-trusting-set", ["bench", "agent", "--agent-name", "trusting", "--agent-set",
+                                  "helios.decision.cs_object=0.4"],
+     "helios.decision.cs_object would change nothing with agent 'trusting'"),
     ("ep-robot-start-overflows", ["episodes", "check", E + "start_overflow.jsonl"],
      "robot_start must be 3 finite numbers"),
     ("ep-robot-start-bool", [*T, "--episodes-file", E + "start_bool.jsonl"], "robot_start must be 3 finite numbers"),

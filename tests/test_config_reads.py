@@ -27,6 +27,7 @@ from tools.config_reads import ReadTracer, config_classes, refused_as_unread, tr
 
 RADIUS = "agent_config.view.arm_model=radius"
 ROLES = "perception.gt_roles=[object,goal_receptacle]"
+FRONTIER_TERM = "helios.search.frontier_choice=value_minus_distance"
 
 
 def _read_view_distance(view: ViewConfig) -> float:
@@ -77,9 +78,10 @@ def _modes(agent: str) -> list[str]:
     agent's name), with and without ground-truth roles, the measured and the radius arm model."""
     if agent == "oracle":
         return [""]
+    extra = [FRONTIER_TERM] if agent.startswith("trusting") else []     # its frontier term: HIGHEST_VALUE_UNREAD
     if agent.endswith("-gt"):
-        return ["", RADIUS]
-    return ["", ROLES, RADIUS, f"{ROLES} {RADIUS}"]
+        return ["", RADIUS, *extra]
+    return ["", ROLES, RADIUS, f"{ROLES} {RADIUS}", *extra]
 
 
 FAST = {"oracle": "", "helios": "", "helios-gt": RADIUS, "helios-no-global": f"{ROLES} {RADIUS}",
@@ -118,6 +120,8 @@ def check_reads(agent: str, mode: str, episodes, max_commands: int) -> ReadTrace
         assert tracer.read("agent_config.view.arm_swing_radius")    # refused with the measured model
     if ROLES in mode:
         assert tracer.read("perception.gt_min_pixels")              # refused without gt roles
+    if FRONTIER_TERM in mode:
+        assert tracer.read("helios.search.alpha_d")                 # refused a trusting run with highest_value
     return tracer
 
 
@@ -136,7 +140,7 @@ def test_the_fast_guard_runs_every_agent_and_every_mode():
         assert mode in _modes(agent), (agent, mode)
     for noisy in (True, False):
         modes = {mode for agent, mode in FAST.items() if agent != "oracle" and agent.endswith("-gt") != noisy}
-        assert modes == set(_modes("helios" if noisy else "helios-gt")), noisy
+        assert modes == set(_modes("helios" if noisy else "helios-gt")), noisy     # FRONTIER_TERM: slow only
     for trusting in (True, False):      # with and without the object map, both semantics
         gt = {a.endswith("-gt") for a in FAST if a.startswith("trusting") == trusting and a != "oracle"}
         assert gt == {True, False}, trusting
