@@ -297,12 +297,18 @@ HIGHEST_VALUE_UNREAD = ("helios.search.alpha_d", "helios.search.initial_frontier
 """The objective's frontier term: an agent with no candidates to weigh (the trusting variant)
 computes it only with ``helios.search.frontier_choice=value_minus_distance``."""
 
+NO_AGENT_READS = ("perception.scorer_saturation_object",)
+"""Settings no HELIOS agent reads in a task episode: the agents ask the image-text scorer only
+about their value maps' classes, the start and goal receptacles (``tasks.spec`` requires
+receptacle categories there), and this one sets its evidence for small objects."""
+
 
 def unread_settings(config) -> dict[str, str]:
     """Settings (dotted keys) that ``config``'s agent would not read in the mode the config puts it
     in -> why: the simulated detector's noise with ground-truth semantics, the exact detector's
     smallest mask without ground-truth roles, the radius arm model's sizes with the measured one,
-    and the object map's settings with the trusting variant (:data:`OBJECT_MAP_ONLY`)."""
+    the object map's settings with the trusting variant (:data:`OBJECT_MAP_ONLY`), and the
+    scorer's evidence for objects, which no agent asks for (:data:`NO_AGENT_READS`)."""
     import dataclasses
 
     from helios.agents.config import VariantFlags
@@ -312,12 +318,15 @@ def unread_settings(config) -> dict[str, str]:
     if not reads_section(config.agent, "perception"):
         return out                                    # replaced_settings refuses the whole section
     perception = [f.name for f in dataclasses.fields(SimPerceptionConfig)]
+    never = {key.removeprefix("perception.") for key in NO_AGENT_READS}
     if config.agent.endswith("-gt") or config.perception.mode == "gt":
-        why = "ground-truth semantics (perception.mode=gt) read only " + ", ".join(sorted(GT_MODE_READS))
+        why = "ground-truth semantics (perception.mode=gt) read only " + ", ".join(sorted(GT_MODE_READS - never))
         out.update({f"perception.{name}": why for name in perception if name not in GT_MODE_READS})
     elif not config.perception.gt_roles:
         out.update({f"perception.{name}": "it applies only with perception.gt_roles (the exact detector of "
                                           "those roles)" for name in NOISY_ONLY_WITH_ROLES})
+    out.update({key: "the agents ask the image-text scorer only about receptacles (their value maps' start and "
+                     "goal receptacles), and this sets its evidence for small objects" for key in NO_AGENT_READS})
     if config.agent_config.view.arm_model == "measured":
         out.update({f"agent_config.view.{name}": "the measured arm model (agent_config.view.arm_model, the "
                                                  "default) does not read it; the radius model does"

@@ -212,6 +212,23 @@ def test_the_trusting_variant_is_refused_the_object_maps_settings():
     assert not set(OBJECT_MAP_ONLY) & set(unread_settings(TrialConfig(agent="helios-gt")))
 
 
+def test_no_agent_is_asked_for_the_scorers_object_evidence():
+    """The value maps' prompts name the start and goal receptacles only (tasks.spec requires
+    receptacle categories there), so `perception.scorer_saturation_object` changes nothing in any
+    mode; the ground-truth refusal no longer names it among what that mode reads."""
+    from helios.schema import ConfigError, with_overrides
+    from tasks.registry import check_agent_settings
+
+    for agent in ("helios", "helios-gt", "trusting", "helios-place-gt"):
+        cfg = with_overrides(TrialConfig(agent=agent), ["perception.scorer_saturation_object=0.01"])
+        with pytest.raises(ConfigError, match=r"^perception.scorer_saturation_object would change nothing with agent "
+                                              r".*: the agents ask the image-text scorer only about receptacles"):
+            check_agent_settings(cfg, ["perception.scorer_saturation_object"])
+    cfg = with_overrides(TrialConfig(agent="helios-gt"), ["perception.p_detect_object=0.5"])
+    with pytest.raises(ConfigError, match=r"read only gt_min_pixels, mode, scorer_saturation_receptacle; leave it out$"):
+        check_agent_settings(cfg, ["perception.p_detect_object"])
+
+
 def test_every_setting_a_run_may_refuse_as_unread_names_a_setting():
     """A refusal of a renamed or misspelt key would refuse nothing and let the setting through."""
     from tasks.registry import unread_settings
@@ -230,5 +247,5 @@ def test_every_setting_a_run_may_refuse_as_unread_names_a_setting():
     keys = {key for agent in agent_names() for mode in modes if not (mode and agent.endswith("-gt"))
             for key in unread_settings(with_overrides(TrialConfig(agent=agent), mode))}
     assert {"helios.decision.tau_object", "perception.p_detect_object", "agent_config.view.arm_swing_radius",
-            "perception.gt_min_pixels"} <= keys
+            "perception.gt_min_pixels", "perception.scorer_saturation_object"} <= keys
     assert [key for key in sorted(keys) if not exists(key)] == []

@@ -756,6 +756,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("bench-agent-trusting-set", ["bench", "agent", "--agent-name", "trusting", "--agent-set",
                                   "helios.decision.cs_object=0.4"],
      "helios.decision.cs_object would change nothing with agent 'trusting'"),
+    ("gt-scorer-object-saturation", [*T, "--agent", "helios-gt", "perception.scorer_saturation_object=0.01"],
+     "the agents ask the image-text scorer only about receptacles"),
     ("ep-robot-start-overflows", ["episodes", "check", E + "start_overflow.jsonl"],
      "robot_start must be 3 finite numbers"),
     ("ep-robot-start-bool", [*T, "--episodes-file", E + "start_bool.jsonl"], "robot_start must be 3 finite numbers"),

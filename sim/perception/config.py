@@ -49,10 +49,14 @@ GT_MODE_READS = frozenset({"mode", "gt_min_pixels", "scorer_saturation_object", 
 """The settings ground-truth semantics (``mode: gt``) reads: its detector's smallest mask and its
 scorer's saturation; every other setting here shapes the noisy detector and scorer only, so a
 ``-gt`` run is refused one (``tasks.registry.check_agent_settings``; checked against what the gt
-detector and scorer read by ``tests/test_perception_sim.py``)."""
+detector and scorer read by ``tests/test_perception_sim.py``). A task episode reads no
+``scorer_saturation_object`` in any mode: the agents ask the scorer about receptacles only
+(``tasks.registry.NO_AGENT_READS``)."""
 
 NOISY_ONLY_WITH_ROLES = frozenset({"gt_min_pixels"})
-"""Settings the noisy mode reads only with ``gt_roles`` (the exact detector of those roles)."""
+"""Settings the noisy mode reads only with ``gt_roles`` (the exact detector of those roles); a
+run without them refuses them (both lists are checked against what task episodes read by
+``tests/test_config_reads.py``)."""
 
 
 def _default_category_difficulty() -> dict[str, float]:
