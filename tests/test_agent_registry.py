@@ -192,9 +192,10 @@ def test_the_trusting_variant_is_refused_the_object_maps_settings():
                            ("trusting-gt", "agent_config.gaze.spacing=0.4"),
                            ("trusting", "helios.search.information_gain=fifty_fifty"),
                            ("helios", "agent_config.variant=trusting agent_config.max_looks_per_candidate=2")):
-        with pytest.raises(ConfigError, match=rf"^{setting.split()[-1].partition('=')[0]} would change nothing with "
-                                              rf"agent '{agent}': the trusting variant \(agent_config.variant=trusting\)"
-                                              r" keeps no object map; .*; leave it out$"):
+        key = setting.split()[-1].partition("=")[0]
+        with pytest.raises(ConfigError, match=rf"^{key} would change nothing with agent '{agent}': the trusting "
+                                              r"variant \(agent_config.variant=trusting\) keeps no object map; "
+                                              r".*; leave it out$"):
             check(agent, *setting.split())
     with pytest.raises(ConfigError, match=r"local_search_views \(set in the scenario file\) would change nothing"):
         check("trusting", "agent_config.local_search_views=informative", explicit=False)
@@ -225,7 +226,8 @@ def test_no_agent_is_asked_for_the_scorers_object_evidence():
                                               r".*: the agents ask the image-text scorer only about receptacles"):
             check_agent_settings(cfg, ["perception.scorer_saturation_object"])
     cfg = with_overrides(TrialConfig(agent="helios-gt"), ["perception.p_detect_object=0.5"])
-    with pytest.raises(ConfigError, match=r"read only gt_min_pixels, mode, scorer_saturation_receptacle; leave it out$"):
+    with pytest.raises(ConfigError, match=r"read only gt_min_pixels, mode, scorer_saturation_receptacle; "
+                                          r"leave it out$"):
         check_agent_settings(cfg, ["perception.p_detect_object"])
 
 

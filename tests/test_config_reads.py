@@ -160,7 +160,7 @@ def test_every_run_of_the_guard_has_refusals_to_check():
 def test_slow_no_setting_refused_as_unread_is_read_in_any_mode(agent):
     """Every agent in every mode, longer: the trusting agents to the end of four smoke episodes
     (their pick and place failures included), the others for 80 HAL commands of one (about
-    3 min of CPU for all of them on the 2-core machine)."""
+    4 min of CPU for all of them, 2.5 min on two workers, on the 2-core machine)."""
     smoke = load_split("smoke")
     for mode in _modes(agent):
         if agent.startswith("trusting"):
