@@ -14,9 +14,11 @@ block. The hook works per class, not per object: the agent derives configs with
 ``dataclasses.replace`` (the body's grown footprint, the coarser render config), and a read of
 such a copy is a read of the setting it came from. Each class sits at one place in the trees
 (checked by :func:`config_classes`). Reads that are not the agent's use are left out: a config
-checking its own values (``__post_init__``, ``helios.schema``'s range checks) and copying it
-(``dataclasses``). A config's generated ``__eq__`` or ``__hash__`` (the config as a cache key)
-reads every field and counts as reading them all: the value then can change what the agent does.
+checking its own values (``__post_init__``, ``helios.schema``'s range checks), copying it
+(``dataclasses``) or printing it (``__repr__``). A config's generated ``__eq__`` or ``__hash__``
+(the config as a cache key) reads every field and counts as reading them all: the value then can
+change what the agent does. Only this process is traced, so :func:`traced_run` runs its episodes
+here (``tools trials --workers`` would run them in other processes).
 """
 
 from __future__ import annotations
