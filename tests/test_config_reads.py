@@ -159,8 +159,8 @@ def test_every_run_of_the_guard_has_refusals_to_check():
 @pytest.mark.parametrize("agent", agent_names())
 def test_slow_no_setting_refused_as_unread_is_read_in_any_mode(agent):
     """Every agent in every mode, longer: the trusting agents to the end of three smoke episodes
-    (picks, places and a failed place among them), the others for 60 HAL commands of one (under 2 min
-    of CPU for all of them, about 1 min on two workers, on the 2-core machine)."""
+    (picks, places and a failed place among them), the others for 60 HAL commands of one
+    (about 2.5 min of CPU for all of them, under 1.5 min on two workers, on the 2-core machine)."""
     smoke = load_split("smoke")
     for mode in _modes(agent):
         if agent.startswith("trusting"):
