@@ -161,23 +161,20 @@ class SdkCommands:
         by the time we ask). Either makes a PowerError saying why (``stand()`` may power on
         again); the lease held by another client is a LeaseLostError (close() then neither
         commands nor returns it; the owner told apart by the client name in our request headers,
-        as at shutdown: ``_client_name_in_headers``). None when neither says so."""
+        as at shutdown: ``_body_lease_holder``). None when neither says so."""
         bd = self._bd
         reasons = [note] if (note := self._retain_gap_note()) else []
         try:
             resources = self._lease_client.list_leases(timeout=self.config.rpc_timeout)
         except bd.exc.Error:
             resources = ()
-        body = next((r for r in resources if r.resource == "body" and r.lease_owner.client_name), None)
-        stale = False
-        if body is not None:
-            ours = self._client_name_in_headers()
-            if ours is not None and body.lease_owner.client_name != ours:
-                return self._set_fault(LeaseLostError(f"the body lease is held by another client {what} and the "
-                                                      f"robot is powered off{self._stale_lease_hint()}"))
-            stale = body.is_stale
-            if stale:
-                reasons.append("the robot marked our lease stale (another client may acquire it)")
+        body, other = self._body_lease_holder(resources)
+        if other is not None:
+            return self._set_fault(LeaseLostError(f"the body lease is held by another client {what} and the "
+                                                  f"robot is powered off{self._stale_lease_hint()}"))
+        stale = body is not None and body.is_stale
+        if stale:
+            reasons.append("the robot marked our lease stale (another client may acquire it)")
         if not reasons:
             return None
         self._comms_loss_seen = True

@@ -185,11 +185,8 @@ class SdkShutdown:
             if what == "power":
                 PS = answer.power_state
                 known["motors_off"] = PS.motor_power_state == PS.MOTOR_POWER_STATE_OFF
-            else:
-                ours = self._client_name_in_headers()
-                body = next((r for r in answer if r.resource == "body" and r.lease_owner.client_name), None)
-                if body is not None and ours is not None and body.lease_owner.client_name != ours:
-                    known["holder"] = body.lease_owner.client_name
+            elif (holder := self._body_lease_holder(answer)[1]) is not None:
+                known["holder"] = holder
         return known
 
     def _say_if_lease_lost(self, known: dict | None = None) -> None:
@@ -585,6 +582,14 @@ class SdkShutdown:
                 if name:
                     return str(name)
         return None
+
+    def _body_lease_holder(self, resources):
+        """The body's entry in a ListLeases answer (None when nobody holds it) and its holder's
+        client name when that holder is not us (None when it is us or cannot be told)."""
+        body = next((r for r in resources if r.resource == "body" and r.lease_owner.client_name), None)
+        ours = self._client_name_in_headers() if body is not None else None
+        other = body.lease_owner.client_name if ours is not None and body.lease_owner.client_name != ours else None
+        return body, other
 
     def _lease_left_with_us(self, resources):
         """The body lease from a ListLeases answer when this client holds it, else None."""
