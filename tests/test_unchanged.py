@@ -33,9 +33,19 @@ def head_tree(tmp_path_factory) -> Path:
     return extract_commit(_head(), tmp_path_factory.mktemp("head") / "tree", "HEAD")
 
 
+def _cut(tree: Path, to: Path, seconds: int) -> Path:
+    """A copy of ``tree`` whose trusting scenario stops at ``seconds`` of simulated time: the
+    check's machinery is the same on a short episode, at a fraction of a whole one's time."""
+    shutil.copytree(tree, to)
+    scenario = to / "configs" / "val_trusting.yaml"
+    scenario.write_text((tree / "configs" / "val_trusting.yaml").read_text() + f"\nrunner:\n  max_sim_time: {seconds}\n")
+    return to
+
+
 def test_the_same_code_gives_identical_records_and_a_changed_scenario_is_a_change(head_tree, tmp_path, capsys):
+    short = _cut(head_tree, tmp_path / "short", 60)
     out = tmp_path / "check"
-    same = compare(out, ["trusting"], 1, 1, frozenset(), base=(head_tree, "HEAD"), now=(head_tree, "HEAD again"))
+    same = compare(out, ["trusting"], 1, 1, frozenset(), base=(short, "HEAD"), now=(short, "HEAD again"))
     text = capsys.readouterr().out
     assert same, text
     assert "trusting: 1 of 1 records identical" in text and "unchanged: every record is the same" in text
@@ -45,12 +55,9 @@ def test_the_same_code_gives_identical_records_and_a_changed_scenario_is_a_chang
     assert f"git_commit: {_head()}" in (out / "trusting" / "base" / "config.yaml").read_text()
 
     # The base side's scenario cut to 20 s: the same episode ends differently, and that is a change.
-    changed = tmp_path / "changed"
-    shutil.copytree(head_tree, changed)
-    scenario = changed / "configs" / "val_trusting.yaml"
-    scenario.write_text(scenario.read_text() + "\nrunner:\n  max_sim_time: 20\n")
+    changed = _cut(head_tree, tmp_path / "changed", 20)
     same = compare(tmp_path / "check2", ["trusting"], 1, 1, frozenset(), base=(changed, "cut"),
-                   now=(head_tree, "HEAD"))
+                   now=(short, "HEAD"))
     text = capsys.readouterr().out
     assert not same
     assert "val-00000" in text and "sim_time" in text and "CHANGED" in text
