@@ -210,7 +210,7 @@ def test_the_fake_refuses_what_a_robot_refuses(demo):
 def test_fault_switchboard_names():
     assert set(FAULTS) == {"estop", "lease_revoked", "connection_drop", "command_timeout", "grasp_failure",
                            "time_sync_loss", "slow", "power_off_stalls", "power_loss", "behavior_fault",
-                           "lease_retains_lost"}
+                           "lease_retains_lost", "battery_critical"}
 
 
 def test_a_behavior_fault_is_in_the_robot_state_refuses_motion_and_clears_only_when_clearable(demo):
@@ -245,6 +245,48 @@ def test_a_behavior_fault_is_in_the_robot_state_refuses_motion_and_clears_only_w
         assert command.clear_behavior_fault(fault.behavior_fault_id)
         assert not states.get_robot_state().behavior_fault_state.faults
         command.robot_command(RobotCommandBuilder.arm_stow_command())   # accepted again
+
+
+def test_a_critical_battery_is_a_critical_system_fault_that_cuts_power_and_refuses_power_on(demo):
+    """What the SDK backend reads, through the unmodified SDK: the battery's charge in the robot
+    state (BatteryState, PowerState.locomotion_charge_percentage); at a critical charge a
+    SEVERITY_CRITICAL system fault with the 'battery' attribute (also in the aggregated map), the
+    motors cut by the robot itself, a running command ended as ROBOT_FROZEN, and power-on refused
+    with the SDK's FaultedError until the battery is swapped."""
+    from bosdyn.api import robot_state_pb2
+    from bosdyn.client.power import FaultedError
+
+    SF = robot_state_pb2.SystemFault
+    fake = demo.fake
+    with pytest.raises(ValueError, match="charge must be a percentage"):
+        fake.inject("battery_critical", charge=150)
+    with _powered(demo) as robot:
+        command = robot.ensure_client(RobotCommandClient.default_service_name)
+        states = robot.ensure_client(RobotStateClient.default_service_name)
+        state = states.get_robot_state()
+        assert state.battery_states[0].charge_percentage.value == state.power_state.locomotion_charge_percentage.value
+        assert state.battery_states[0].charge_percentage.value > 50 and not state.system_fault_state.faults
+        fake.inject("command_timeout")                   # a command that stays in progress ...
+        cmd_id = command.robot_command(RobotCommandBuilder.arm_ready_command())
+        fake.clear("command_timeout")
+        fake.inject("battery_critical", charge=4)        # ... when the battery gives out
+        assert not fake.powered
+        state = states.get_robot_state()
+        (fault,) = state.system_fault_state.faults
+        assert fault.severity == SF.SEVERITY_CRITICAL and "battery" in fault.attributes
+        assert state.system_fault_state.aggregated["battery"] == SF.SEVERITY_CRITICAL
+        assert state.battery_states[0].charge_percentage.value == 4
+        assert state.power_state.motor_power_state == state.power_state.MOTOR_POWER_STATE_OFF
+        fb = command.robot_command_feedback(cmd_id).feedback.synchronized_feedback.arm_command_feedback
+        assert fb.status == basic_command_pb2.RobotCommandFeedbackStatus.STATUS_ROBOT_FROZEN
+        with pytest.raises(FaultedError):
+            robot.power_on(timeout_sec=2, update_frequency=50)
+        assert not fake.powered
+        fake.clear("battery_critical")                   # a fresh battery
+        state = states.get_robot_state()
+        assert not state.system_fault_state.faults and state.battery_states[0].charge_percentage.value > 50
+        robot.power_on(timeout_sec=2, update_frequency=50)
+        assert fake.powered
 
 
 def test_unknown_fault_is_a_clear_error(demo):

@@ -73,12 +73,15 @@ FAULTS = {
     "estop": ({}, EstopError),
     "lease_revoked": ({}, LeaseLostError),
     "power_loss": ({}, PowerError),       # motors off without an e-stop (audit 2026-12-05: safe, untested)
+    "battery_critical": ({}, PowerError),   # the robot cuts its motors on a critical battery fault
     "behavior_fault": ({}, BehaviorFaultError),   # the robot falls mid-motion (the fake could not model it)
     "connection_drop": ({}, ConnectionLostError),
     "command_timeout": ({}, CommandTimeoutError),
     "time_sync_loss": ({}, TimeSyncLostError),
     "slow": ({"delay": 1.5}, (CommandTimeoutError, TimeSyncLostError)),   # replies later than the 1 s RPC timeout
 }
+# fault -> what its error must name (a bare "motor power is off" sent operators looking for an e-stop)
+NAMED = {"battery_critical": "critical system fault, battery_critical [battery, robot] (battery at 3 %)"}
 MEASURED: list[dict] = []   # filled by the tests; printed with -s (numbers for the README)
 
 
@@ -152,6 +155,7 @@ def _run_mid_motion(fault: str, motion: str, seed: int) -> dict:
         out["latency"] = t_err - (t_start + at)
         message = str(info.value)
         assert message and "\n" not in message and "Traceback" not in message
+        assert NAMED.get(fault, "") in message, message
         assert out["latency"] < SURFACE_WITHIN, f"{fault}: the error came {out['latency']:.2f} s after the fault"
         pose_at_error = _base(fake)
         q_at_error = _arm_q(fake)
@@ -401,6 +405,48 @@ def test_grasp_failure_mid_grasp_is_a_failed_grasp_result_and_mid_walk_leaves_th
         took = time.monotonic() - t0
     _check_after_close(fake, "grasp_failure", before)
     assert took < CLOSE_WITHIN
+
+
+def test_a_battery_gone_critical_mid_grasp_is_a_named_power_error_and_stand_is_refused_naming_it():
+    """A flat battery is what a researcher's Spot meets most often mid-run: the robot reports a
+    critical 'battery' system fault and cuts its motors (robot_state.proto). Mid-pick (the
+    manipulation loop, apart from the robot-command loop of the walk and arm matrices) it must
+    end in a PowerError that names the fault and the charge within 2 s, nothing moving after;
+    ``stand()``, which retries power after a PowerError, must be refused naming it too, without
+    powering on; close() is bounded and leaves the robot off, the lease returned, no threads."""
+    before = python_threads()
+    demo = start_fake(seed=0, time_scale=1.0)      # the pick takes ~1.7 s of wall time
+    backend = connect(demo)
+    fake = demo.fake
+    try:
+        obs, pixel = _grasp_setup(demo, backend)
+        at = random.Random(11).uniform(0.2, 0.8)
+        fake.inject_at(at, "battery_critical")
+        t0 = time.monotonic()
+        with pytest.raises(PowerError) as info:
+            backend.grasp(obs, pixel)
+        latency = time.monotonic() - t0 - at
+        assert NAMED["battery_critical"] in str(info.value) and "charge or swap the battery" in str(info.value)
+        assert latency < SURFACE_WITHIN, latency
+        pose, q = _base(fake), _arm_q(fake)
+        time.sleep(0.5)
+        assert _base(fake).distance_to(pose) < 0.01 and np.max(np.abs(_arm_q(fake) - q)) < 0.01
+        assert not _active_commands(fake) and not fake.powered
+        with fake.sim_lock:
+            assert not fake.sim.holding
+        t1 = time.monotonic()
+        with pytest.raises(PowerError) as refused:
+            backend.stand()
+        assert time.monotonic() - t1 < SURFACE_WITHIN
+        assert "refuses motor power" in str(refused.value) and NAMED["battery_critical"] in str(refused.value)
+        assert not fake.powered
+        MEASURED.append({"fault": "battery_critical", "motion": "grasp", "latency": latency})
+    finally:
+        t2 = time.monotonic()
+        backend.close()
+        took = time.monotonic() - t2
+    assert took < CLOSE_WITHIN, took
+    _check_after_close(fake, "battery_critical", before, backend)
 
 
 def test_a_grasp_ended_by_a_slow_link_stops_the_pick():

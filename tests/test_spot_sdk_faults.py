@@ -37,6 +37,7 @@ FAULTS = {
     "estop": ({}, EstopError, True),
     "lease_revoked": ({}, LeaseLostError, True),
     "power_loss": ({}, PowerError, True),       # motors off without an e-stop
+    "battery_critical": ({}, PowerError, True),   # the robot cuts its motors on a critical battery fault
     "behavior_fault": ({}, BehaviorFaultError, True),   # the robot fell: motion refused, motors on
     "connection_drop": ({}, ConnectionLostError, True),
     "command_timeout": ({}, CommandTimeoutError, False),
@@ -85,8 +86,10 @@ def test_fault_ends_in_a_typed_error_and_leaves_the_robot_safe(fault):
         with fake.sim_lock:
             assert fake.sim.spot.base_pose().distance_to(pose_before) < 0.06
         assert not _active(fake), _active(fake)
-        if fault in ("estop", "power_loss"):
+        if fault in ("estop", "power_loss", "battery_critical"):
             assert not fake.powered
+        if fault == "battery_critical":          # named, with the charge: not a bare "motor power is off"
+            assert "critical system fault, battery_critical [battery, robot] (battery at 3 %)" in message
         if fault == "connection_drop":
             assert not fake.powered          # the robot's comms-loss behaviour
         if fault == "command_timeout":
@@ -110,7 +113,7 @@ def test_fault_ends_in_a_typed_error_and_leaves_the_robot_safe(fault):
                 backend.place([1.0, 0.0, 0.5])
             with pytest.raises(expected):
                 backend.move_hand(model_hand_pose())
-            if fault in ("estop", "lease_revoked", "power_loss", "behavior_fault"):
+            if fault in ("estop", "lease_revoked", "power_loss", "behavior_fault", "battery_critical"):
                 backend.observe()            # sensing needs neither motor power nor the lease
             else:
                 with pytest.raises(expected):

@@ -4,9 +4,9 @@ A mixin of :class:`robots.spot.sdk_backend.SdkSpotBackend` (the state it reads i
 class's ``__init__``): the sticky fault and the guard every command passes; the translation of
 bosdyn exceptions into typed HAL errors (:meth:`SdkCommands._translate`) and, after a command
 ended abnormally, the robot asked why (:meth:`SdkCommands._diagnose`: lease, power, e-stop,
-behavior fault); time sync checked and probed while a command runs; and the send-then-poll loop
-every motion goes through (:meth:`SdkCommands._run_command`), which sends a stop first whatever
-error ends it. Kept apart from the commands themselves so the safety plumbing reads in one place.
+critical system faults such as a flat battery, behavior fault); time sync checked and probed
+while a command runs; and the send-then-poll loop every motion goes through
+(:meth:`SdkCommands._run_command`), which sends a stop first whatever error ends it. Kept apart from the commands themselves so the safety plumbing reads in one place.
 """
 
 from __future__ import annotations
@@ -112,6 +112,10 @@ class SdkCommands:
                                                   f"(revoked or taken by another client){self._stale_lease_hint()}"))
         if isinstance(exc, (bd.rc.NotPoweredOnError, bd.power.EstoppedError, bd.power.KeepaliveMotorsOffError)):
             return self._power_fault(what)
+        if isinstance(exc, bd.power.FaultedError):
+            # "Cannot power on due to a fault; inspect FaultState for more info" (bosdyn.client.power)
+            return self._set_fault(PowerError(f"the robot refuses motor power {what}: "
+                                              f"{self._critical_fault_note() or 'it reports a fault (see the tablet)'}"))
         if isinstance(exc, bd.rc.BehaviorFaultError):
             return self._behavior_fault(what)
         if isinstance(exc, (bd.rc.NoTimeSyncError, bd.ts.TimeSyncError, bd.exc.TimeSyncRequired)):
@@ -135,9 +139,11 @@ class SdkCommands:
         msg = getattr(exc, "error_message", None) or str(exc).split("\n")[0]
         return CommandRejectedError(f"the robot rejected a command {what}: {type(exc).__name__}: {msg}")
 
-    def _power_fault(self, what: str) -> RobotFault:
-        """Motors are off: because of an e-stop (EstopError), the robot's comms-loss behaviour
-        (:meth:`_comms_loss_fault`), or otherwise (PowerError)."""
+    def _power_fault(self, what: str, state=None) -> RobotFault:
+        """Motors are off: because of an e-stop (EstopError), a critical system fault such as a
+        flat battery (:meth:`_critical_fault_note`; PowerError naming it), the robot's comms-loss
+        behaviour (:meth:`_comms_loss_fault`), or otherwise (PowerError). ``state``: the robot
+        state already in hand (asked for when None)."""
         bd = self._bd
         try:
             status = self._estop_client.get_status(timeout=self.config.rpc_timeout)
@@ -148,7 +154,42 @@ class SdkCommands:
                                                   f"and commands are refused"))
         except bd.exc.Error:
             pass
+        critical = self._critical_fault_note(state)
+        if critical:
+            return self._set_fault(PowerError(f"motor power is off {what}: the robot shut its motors down on {critical}"))
         return self._comms_loss_fault(what) or self._set_fault(PowerError(f"motor power is off {what}"))
+
+    def _critical_fault_note(self, state=None) -> str | None:
+        """The robot's active SEVERITY_CRITICAL system faults in one line, or None (also when the
+        state cannot be read). Such a fault is why a Spot cuts its motors by itself and then
+        refuses power-on (STATUS_FAULTED): robot_state.proto says a "battery" fault of that
+        severity "likely means the robot is going to shutdown immediately". It was reported as a
+        bare "motor power is off", which sent an operator looking for an e-stop or a link problem
+        and had ``stand()`` power on again into the same refusal; the battery's charge is named
+        with a battery fault (BatteryState.charge_percentage)."""
+        bd = self._bd
+        try:
+            if state is None:
+                state = self._state_client.get_robot_state(timeout=self.config.rpc_timeout)
+        except bd.exc.Error:
+            return None
+        critical = [f for f in state.system_fault_state.faults if f.severity == f.SEVERITY_CRITICAL]
+        if not critical:
+            return None
+        charges = [b.charge_percentage.value for b in state.battery_states if b.HasField("charge_percentage")]
+        named = []
+        for f in critical:
+            attrs = f" [{', '.join(f.attributes)}]" if f.attributes else ""
+            charge = f" (battery at {min(charges):.0f} %)" if "battery" in f.attributes and charges else ""
+            text = " ".join(f.error_message.split())          # the robot's words, on one line
+            message = f': "{text}"' if text else ""
+            named.append(f"{f.name or 'an unnamed fault'}{attrs}{charge}{message}")
+        note = f"a critical system fault, {'; '.join(named)}"
+        if any("battery" in f.attributes for f in critical):
+            note += "; charge or swap the battery before powering on again"
+        else:
+            note += "; it refuses motor power until the fault is gone (the tablet shows it)"
+        return note
 
     def _comms_loss_fault(self, what: str) -> RobotFault | None:
         """Motors off, no e-stop: did the robot stop hearing our lease keep-alive? A Spot that gets
@@ -277,7 +318,7 @@ class SdkCommands:
                 return fault if isinstance(fault, RobotFault) else None
             return None                           # no answer within its deadline: nothing known
         if power_lost:
-            return self._power_fault(what)
+            return self._power_fault(what, state)
         if state.behavior_fault_state.faults:
             return self._behavior_fault(what, state)
         return unanswered

@@ -90,9 +90,25 @@ def fill_status(fake: FakeSpot, state: robot_state_pb2.RobotState) -> None:
         endpoints = list(fake._endpoints.values())
         hw = "estop" in fake.faults
         fault = fake.behavior_fault
+        charge = fake.battery_charge
+        system_faults = list(fake.system_faults)
     del state.behavior_fault_state.faults[:]
     if fault is not None:
         state.behavior_fault_state.faults.add().CopyFrom(fault)
+    # the battery and the system faults (robot_state.proto: BatteryState, SystemFaultState with its
+    # "aggregated" map of the worst severity per attribute, PowerState.locomotion_charge_percentage)
+    del state.battery_states[:]
+    battery = state.battery_states.add(identifier="battery", status=robot_state_pb2.BatteryState.STATUS_DISCHARGING)
+    battery.charge_percentage.value = charge
+    battery.timestamp.CopyFrom(cv.seconds_to_timestamp(fake.robot_now()))
+    state.power_state.locomotion_charge_percentage.value = charge
+    del state.system_fault_state.faults[:]
+    state.system_fault_state.aggregated.clear()
+    for f in system_faults:
+        state.system_fault_state.faults.add().CopyFrom(f)
+        for attribute in f.attributes:
+            worst = state.system_fault_state.aggregated.get(attribute, 0)
+            state.system_fault_state.aggregated[attribute] = max(worst, f.severity)
     del state.estop_states[:]
     PS = robot_state_pb2.PowerState
     state.power_state.motor_power_state = (PS.MOTOR_POWER_STATE_POWERING_ON if powering_on else

@@ -104,12 +104,21 @@ FAULTS: dict[str, str] = {
                       "ClearBehaviorFault clears it (stop and safe power off are still accepted)",
     "power_off_stalls": "a safe power off is accepted and never carried out (the robot cannot sit: it goes on "
                         "standing with motor power on, the command's feedback stays 'in progress')",
+    "battery_critical": "the battery runs critically low (`charge` percent, default 3): the robot state lists a "
+                        "SEVERITY_CRITICAL system fault with the 'battery' attribute, the battery's charge and the "
+                        "locomotion charge, and the robot shuts its motors down at once (robot_state.proto: a critical "
+                        "'battery' fault 'likely means the robot is going to shutdown immediately'): running commands "
+                        "end, motor power goes off, and power-on is refused with STATUS_FAULTED (the SDK's "
+                        "FaultedError) until the battery is swapped (`clear`)",
     "lease_retains_lost": "the lease owner's RetainLease requests never reach the robot (its keep-alive thread is "
                           "wedged, or the link loses just those; each call goes unanswered until its deadline), "
                           "everything else gets through: `comms_loss_timeout` s after the last retain the robot's "
                           "comms-loss behaviour stops it, sits it and powers it off and marks the lease stale, "
                           "which any client may then acquire (comms_loss.py)",
 }
+
+FULL_BATTERY_CHARGE = 80.0      # % of a fresh battery in the robot state (BatteryState.charge_percentage)
+BATTERY_FAULT_NAME = "battery_critical"   # SystemFault.name of inject("battery_critical")
 
 _CACHED_FRAMES = 16
 _CONTROL_DT = 0.05          # s of robot time between the safety checks of a moving robot
@@ -165,6 +174,10 @@ class FakeSpot:
         self.powered = False
         self.standing = False
         self.behavior_fault: robot_state_pb2.BehaviorFault | None = None   # inject("behavior_fault")
+        # The battery (robot_state.proto BatteryState) and the active system faults (SystemFault):
+        # a fresh battery by default; inject("battery_critical") drains it and adds the fault.
+        self.battery_charge = FULL_BATTERY_CHARGE
+        self.system_faults: list[robot_state_pb2.SystemFault] = []
         # A real power-on takes seconds (MOTOR_POWER_STATE_POWERING_ON, feedback IN_PROGRESS) and no
         # other power command is taken meanwhile; 0 powers on at once (most tests).
         self.power_on_seconds = 0.0
@@ -349,6 +362,8 @@ class FakeSpot:
                 self._cut_power("power fault")
             elif fault == "behavior_fault":
                 self._behavior_fault(params.get("cause", "fall"), bool(params.get("clearable", True)))
+            elif fault == "battery_critical":
+                self._battery_critical(float(params.get("charge", 3.0)))
             elif fault == "lease_revoked":
                 self._lease_seq += 1
                 self.lease_owner = "tablet (fault injection)"
@@ -376,6 +391,9 @@ class FakeSpot:
                 self.faults.pop(fault, None)
             if fault in (None, "behavior_fault"):
                 self.behavior_fault = None          # the operator cleared it (the tablet)
+            if fault in (None, "battery_critical"):
+                self.battery_charge = FULL_BATTERY_CHARGE   # the battery was swapped
+                self.system_faults = [f for f in self.system_faults if f.name != BATTERY_FAULT_NAME]
             self._fault_event.set()
             self._fault_event = threading.Event()
 
@@ -544,6 +562,30 @@ class FakeSpot:
         self.behavior_fault.onset_timestamp.CopyFrom(cv.seconds_to_timestamp(self.robot_now()))
         self._end_commands("frozen", f"behavior fault ({cause})")
         self._jobs.put(self._sim_stop)
+
+    def _battery_critical(self, charge: float) -> None:
+        """The battery runs critically low (locked by caller): a SEVERITY_CRITICAL system fault
+        with the 'battery' (and 'robot') attribute appears in the robot state and the robot shuts
+        its motors down at once, ending what it was doing ("a 'battery' fault with severity level
+        SEVERITY_CRITICAL likely means the robot is going to shutdown immediately",
+        robot_state.proto, SystemFault.severity). Power-on is refused (STATUS_FAULTED) while the
+        fault is active (``critical_system_faults``)."""
+        if not (math.isfinite(charge) and 0.0 <= charge <= 100.0):
+            raise ValueError(f"battery_critical: charge must be a percentage within [0, 100], got {charge!r}")
+        SF = robot_state_pb2.SystemFault
+        self.battery_charge = charge
+        self.system_faults = [f for f in self.system_faults if f.name != BATTERY_FAULT_NAME]
+        fault = SF(name=BATTERY_FAULT_NAME, code=1, uid=self._next_id, severity=SF.SEVERITY_CRITICAL,
+                   attributes=["battery", "robot"],
+                   error_message=f"Battery charge critically low ({charge:.0f}%). Robot is shutting down.")
+        self._next_id += 1
+        fault.onset_timestamp.CopyFrom(cv.seconds_to_timestamp(self.robot_now()))
+        self.system_faults.append(fault)
+        self._cut_power(f"critical battery ({charge:.0f} %)")
+
+    def critical_system_faults(self) -> list:
+        """The active SEVERITY_CRITICAL system faults (locked by caller): power-on is refused."""
+        return [f for f in self.system_faults if f.severity == robot_state_pb2.SystemFault.SEVERITY_CRITICAL]
 
     def _end_commands(self, state: str, why: str) -> None:
         for cmd in self.commands.values():

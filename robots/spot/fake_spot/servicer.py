@@ -416,6 +416,8 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
             elif request.request == power_pb2.PowerCommandRequest.REQUEST_ON_MOTORS:
                 if level != estop_pb2.ESTOP_LEVEL_NONE:
                     resp.status = power_pb2.STATUS_ESTOPPED
+                elif f.critical_system_faults():    # "Cannot power on due to a fault" (FaultedError)
+                    resp.status = power_pb2.STATUS_FAULTED
                 elif f.power_on_seconds > 0 and not f.powered:
                     f._powering_on_until = time.monotonic() + f.power_on_seconds
                     resp.status = power_pb2.STATUS_IN_PROGRESS
