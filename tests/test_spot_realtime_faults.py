@@ -449,6 +449,41 @@ def test_a_battery_gone_critical_mid_grasp_is_a_named_power_error_and_stand_is_r
     _check_after_close(fake, "battery_critical", before, backend)
 
 
+def test_a_pick_stalled_mid_reach_is_stopped_within_its_stall_window_not_the_grasp_timeout():
+    """A pick whose arm stops mid-reach (blocked; the fake's command_timeout) goes on reporting
+    MANIP_STATE_MOVING_TO_GRASP: the feedback has no state for a stall. It was waited out for the
+    whole grasp_timeout (8 s here, 20 s by default) with the arm pushing; it must end in a
+    CommandTimeoutError within the reach's stall window (twice stall_time) + 1 s, a stop sent,
+    nothing moving, and close() bounded with the robot off, the lease returned, no threads."""
+    before = python_threads()
+    demo = start_fake(seed=0, time_scale=1.0)      # the pick takes ~1.7 s of wall time
+    backend = connect(demo)
+    fake = demo.fake
+    bound = 2 * backend.config.stall_time + 1.0
+    assert bound < backend.config.grasp_timeout - 2.0
+    try:
+        obs, pixel = _grasp_setup(demo, backend)
+        at = random.Random(5).uniform(0.2, 0.6)
+        fake.inject_at(at, "command_timeout")
+        t0 = time.monotonic()
+        with pytest.raises(CommandTimeoutError, match="stopped making progress while grasping"):
+            backend.grasp(obs, pixel)
+        latency = time.monotonic() - t0 - at
+        assert latency < bound, f"the stalled pick was stopped {latency:.2f} s after it stalled"
+        assert any(c.kind == "stop" for c in fake.commands.values()), "no stop was sent"
+        assert not [a for a in _active_commands(fake) if a[0] == "pick"], "the stalled pick was left active"
+        q = _arm_q(fake)
+        time.sleep(0.3)
+        assert np.max(np.abs(_arm_q(fake) - q)) < 0.01
+        MEASURED.append({"fault": "command_timeout", "motion": "grasp", "latency": latency})
+    finally:
+        t2 = time.monotonic()
+        backend.close()
+        took = time.monotonic() - t2
+    assert took < CLOSE_WITHIN, took
+    _check_after_close(fake, "command_timeout", before, backend)
+
+
 def test_a_grasp_ended_by_a_slow_link_stops_the_pick():
     """(QA 2026-12-04) A grasp that ends in an error sends a stop first, like every other command:
     a pick left running would finish on its own once the link recovers (it did: the claw held the

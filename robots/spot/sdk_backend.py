@@ -21,8 +21,8 @@ Commands map onto the SDK as Spot's own examples use it:
 
 Every command is sent, then its feedback polled every ``feedback_period`` until it ends; a command
 that does not end within its planned duration + ``command_margin``, or (walks, arm joint moves)
-makes no progress for ``stall_time`` while away from where its plan has it, raises
-:class:`CommandTimeoutError`. While a command runs the backend also updates time sync itself every
+makes no progress for ``stall_time`` while away from where its plan has it (a pick: for twice that
+while the robot reports it moves to the grasp), raises :class:`CommandTimeoutError`. While a command runs the backend also updates time sync itself every
 0.25 s. Whatever error ends a command, a stop is sent first (without waiting long for its reply: a
 robot on a slow link acts on it when it arrives). gRPC tracing in the environment (``GRPC_TRACE``)
 would print the session token and is refused unless ``allow_grpc_tracing``. Robot faults raise the HAL's typed errors and most are *sticky*: once
@@ -89,6 +89,7 @@ from robots.spot.sdk_config import (
 from robots.spot.sdk_bringup import SdkBringUp
 from robots.spot.sdk_commands import SdkCommands
 from robots.spot.sdk_shutdown import SdkShutdown
+from robots.spot.stall_watch import StallWatch
 from robots.transforms import invert_transform, rot_z
 
 _LOG = logging.getLogger("helios.spot")
@@ -556,6 +557,7 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
                         M.MANIP_STATE_DONE}
             deadline = t0 + cfg.grasp_timeout
             at_edge_since = None
+            reach: StallWatch | None = None       # while the robot reports it moves to the grasp
             while True:
                 fb = self._call(self._manip_client.manipulation_api_feedback_command,
                                 manipulation_api_feedback_request=request, timeout=cfg.rpc_timeout, during="grasping")
@@ -573,6 +575,25 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
                                            duration=time.monotonic() - t0)
                 else:
                     at_edge_since = None
+                if fb.current_state == M.MANIP_STATE_MOVING_TO_GRASP:
+                    # The reach must move: a pick whose arm is blocked mid-reach goes on reporting
+                    # MOVING_TO_GRASP (the feedback has no state for a stall), and was left pushing
+                    # for the whole grasp_timeout (20 s) before it was stopped (audit 2026-12-06).
+                    # Twice the stall time: the reach may pause briefly between its phases.
+                    now = time.monotonic()
+                    if reach is None:
+                        reach = StallWatch((self._pick_progress, None, lambda _state: False), 2 * cfg.stall_time,
+                                           cfg.grasp_timeout)
+                    if reach.due(now):
+                        reach.add(now - t0, self._state("grasping"))
+                        if reach.stalled():
+                            self._unresponsive = True
+                            raise CommandTimeoutError(f"the robot stopped making progress while grasping "
+                                                      f"({reach.window:.1f} s without motion of the arm, claw or "
+                                                      f"base while it reports moving to the grasp); it was told "
+                                                      f"to stop")
+                else:
+                    reach = None
                 self._guard()                 # a sticky fault (the keep-alive's lost lease, ...)
                 if time.monotonic() > deadline:
                     self._unresponsive = True
@@ -601,6 +622,12 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
                                                                                       Reason.GRASP_MISSED)
         return GraspResult(False, reason, f"the robot reported {state_name}", holding=holding, target_world=tgt,
                            duration=took)
+
+    def _pick_progress(self, state) -> np.ndarray:
+        """What moves while a pick reaches: arm and claw joints, and the base (a pick may walk)."""
+        body = SE2Pose.from_matrix(self._T(state, self._bd.cv.ODOM, self._bd.cv.BODY))
+        return np.concatenate([self._arm_and_gripper_q(state), [body.x, body.y, math.cos(body.yaw),
+                                                                 math.sin(body.yaw)]])
 
     def _shot_for(self, obs: Observation):
         """The frame snapshot, sensor frame and camera model of an observation: the robot's own

@@ -91,7 +91,8 @@ FAULTS: dict[str, str] = {
     "connection_drop": "the robot drops off the network (the server stops); the robot's comms-loss "
                        "behaviour stops it and cuts power",
     "command_timeout": "commands are accepted but never finish (their feedback stays 'in progress'); a motion "
-                       "in progress stalls where it is",
+                       "in progress stalls where it is (a pick stalled mid-reach goes on reporting "
+                       "MANIP_STATE_MOVING_TO_GRASP, one accepted under the fault MANIP_STATE_SEARCHING_FOR_GRASP)",
     "grasp_failure": "pick requests end with MANIP_STATE_GRASP_FAILED (a pick in progress stops where it is)",
     "time_sync_loss": "the time-sync service fails and timed commands are refused with STATUS_NO_TIMESYNC "
                       "(stop, sit and safe power off, which carry no time, are still accepted); a motion in "
@@ -375,6 +376,10 @@ class FakeSpot:
             elif fault == "command_timeout":
                 for cmd in self.commands.values():
                     if cmd.state in ("queued", "running") and cmd.kind not in ("stop", "safe_power_off"):
+                        if cmd.kind == "pick" and cmd.state == "running":
+                            # a pick stalled mid-reach (the arm blocked) goes on saying it moves
+                            # to the grasp: its feedback has no state for a stall
+                            cmd.extra["hung_manip_state"] = manipulation_api_pb2.MANIP_STATE_MOVING_TO_GRASP
                         cmd.state, cmd.detail = "hung", "stalled (fault injection)"
         if fault == "connection_drop":
             self.dropped = True

@@ -564,7 +564,7 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
                                 f"unknown manipulation command id {request.manipulation_cmd_id}")
             resp.manipulation_cmd_id = cmd.id
             if cmd.state in ("queued", "hung"):
-                resp.current_state = manipulation_api_pb2.MANIP_STATE_SEARCHING_FOR_GRASP
+                resp.current_state = cmd.extra.get("hung_manip_state", manipulation_api_pb2.MANIP_STATE_SEARCHING_FOR_GRASP)
             elif cmd.state == "running":
                 resp.current_state = manipulation_api_pb2.MANIP_STATE_MOVING_TO_GRASP
             elif cmd.state in ("overridden", "frozen") and "manip_state" not in cmd.extra:
