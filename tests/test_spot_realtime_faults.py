@@ -484,6 +484,46 @@ def test_a_pick_stalled_mid_reach_is_stopped_within_its_stall_window_not_the_gra
     _check_after_close(fake, "command_timeout", before, backend)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("phase", ["grasp", "carry"])
+@pytest.mark.parametrize("fault", ["estop", "lease_revoked", "power_loss", "battery_critical", "behavior_fault",
+                                   "connection_drop"])
+def test_fault_mid_grasp_or_carry_is_typed_fast_and_leaves_the_robot_safe(fault, phase):
+    """The manipulation loop (a pick) and the carry (the arm to its carry pose with the mug in the
+    claw) are apart from the walk and arm matrices: each robot fault mid-way ends in its typed
+    error within 2 s, nothing moving or left running after, close() bounded and the robot off,
+    the lease returned, no threads (audit 2026-12-06: safe, untested)."""
+    params, expected = FAULTS[fault]
+    before = python_threads()
+    demo = start_fake(seed=0, time_scale=1.0)
+    backend = connect(demo)
+    fake = demo.fake
+    try:
+        obs, pixel = _grasp_setup(demo, backend)
+        if phase == "carry":
+            assert backend.grasp(obs, pixel).success
+        act = (lambda: backend.grasp(obs, pixel)) if phase == "grasp" else backend.stow_arm
+        at = random.Random(f"{fault}-{phase}").uniform(0.2, 0.6)
+        fake.inject_at(at, fault, **params)
+        t0 = time.monotonic()
+        with pytest.raises(expected) as info:
+            act()
+        latency = time.monotonic() - t0 - at
+        message = str(info.value)
+        assert message and "\n" not in message and NAMED.get(fault, "") in message, message
+        assert latency < SURFACE_WITHIN, latency
+        pose, q = _base(fake), _arm_q(fake)
+        time.sleep(0.3)
+        assert _base(fake).distance_to(pose) < 0.01 and np.max(np.abs(_arm_q(fake) - q)) < 0.05
+        assert not _active_commands(fake), _active_commands(fake)
+    finally:
+        t2 = time.monotonic()
+        backend.close()
+        took = time.monotonic() - t2
+    assert took < CLOSE_WITHIN, took
+    _check_after_close(fake, fault, before, backend)
+
+
 def test_a_grasp_ended_by_a_slow_link_stops_the_pick():
     """(QA 2026-12-04) A grasp that ends in an error sends a stop first, like every other command:
     a pick left running would finish on its own once the link recovers (it did: the claw held the
