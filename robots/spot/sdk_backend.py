@@ -22,8 +22,8 @@ Commands map onto the SDK as Spot's own examples use it:
 Every command is sent, then its feedback polled every ``feedback_period`` until it ends; a command
 that does not end within its planned duration + ``command_margin``, or (walks, arm joint moves)
 makes no progress for ``stall_time`` while away from where its plan has it (a pick: for twice that
-while the robot reports it moves to the grasp), raises :class:`CommandTimeoutError`. While a command runs the backend also updates time sync itself every
-0.25 s. Whatever error ends a command, a stop is sent first (without waiting long for its reply: a
+while the robot reports it moves to the grasp), raises :class:`CommandTimeoutError`. While a
+command runs the backend also updates time sync itself every 0.25 s. Whatever error ends a command, a stop is sent first (without waiting long for its reply: a
 robot on a slow link acts on it when it arrives). gRPC tracing in the environment (``GRPC_TRACE``)
 would print the session token and is refused unless ``allow_grpc_tracing``. Robot faults raise the HAL's typed errors and most are *sticky*: once
 the lease is lost, the robot e-stopped, powered off, the link or time sync lost, every further

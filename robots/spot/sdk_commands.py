@@ -6,7 +6,8 @@ bosdyn exceptions into typed HAL errors (:meth:`SdkCommands._translate`) and, af
 ended abnormally, the robot asked why (:meth:`SdkCommands._diagnose`: lease, power, e-stop,
 critical system faults such as a flat battery, behavior fault); time sync checked and probed
 while a command runs; and the send-then-poll loop every motion goes through
-(:meth:`SdkCommands._run_command`), which sends a stop first whatever error ends it. Kept apart from the commands themselves so the safety plumbing reads in one place.
+(:meth:`SdkCommands._run_command`), which sends a stop first whatever error ends it. Kept apart
+from the commands themselves so the safety plumbing reads in one place.
 """
 
 from __future__ import annotations
