@@ -303,12 +303,66 @@ about their value maps' classes, the start and goal receptacles (``tasks.spec`` 
 receptacle categories there), and this one sets its evidence for small objects."""
 
 
+ONLY_WITH: tuple[tuple[str, object, str, str, tuple[str, ...]], ...] = (
+    # (the setting that turns a part of the agent on or off, its value for off, that part, what
+    #  turns it on, the settings only that part reads)
+    ("agent_config.place.mode", "drop", "the improved place", "improved",
+     ("agent_config.place.improved_height", "agent_config.place.top_band", "agent_config.place.surface_cell")),
+    ("agent_config.local_search_views", "all", "local search's choice of informative gaze points", "informative",
+     ("agent_config.local_search_min_gain",)),
+    ("agent_config.stall_steps", 0, "exploration stall detection", "a count above 0",
+     ("agent_config.stall_radius", "agent_config.stall_new_area")),
+    ("agent_config.max_revisits", 0, "revisiting the most promising seen places", "a count above 0",
+     ("agent_config.revisit_spacing", "agent_config.revisit_candidates")),
+    ("agent_config.max_looks_per_candidate", 0, "taking extra views of a candidate", "a count above 0",
+     ("agent_config.fresh_view_distance", *(f"helios.decision.{name}" for name in
+                                            ("tau_increase", "view_prediction", "view_prediction_poses")))),
+)
+"""Settings only one part of a HELIOS agent reads, and the setting that turns that part off: with
+it off, they change nothing. The place skill's ``improved`` branch (helios.agents.place:
+``choose_place_point`` past its ``drop`` return, and the ``mode != "drop"`` fallback of ``place``);
+``informative_views``, called only with ``local_search_views=informative``
+(``HeliosAgent._start_local_search``); ``frontier_goals.StallWatch``, which the agent makes only
+with ``stall_steps`` above 0 (``HeliosAgent.reset``); ``revisit_goals``, called only below
+``max_revisits`` revisits (``HeliosAgent._revisit``); ``HeliosAgent._best_view`` and the Psi' rule's
+``decide``, reached only for a candidate with fewer than ``max_looks_per_candidate`` extra views
+(``_judge_targets``). A variant's forced value counts (``helios-place`` places ``improved``).
+PlaceConfig's check ``improved_height <= drop_height`` binds in either mode, so ``improved_height``
+is allowed with a drop below its default, and ``drop_height``, unread by the improved place, is
+never refused (raising ``improved_height`` needs it raised). Checked against what runs read by
+tests/test_config_reads.py, in both states of each switch."""
+
+
+def _value_at(cfg, key: str):
+    for part in key.split("."):
+        cfg = getattr(cfg, part)
+    return cfg
+
+
+def _only_with_unread(config) -> dict[str, str]:
+    """:data:`ONLY_WITH`'s settings whose part of the agent ``config`` turns off -> why."""
+    from helios.agents.config import PlaceConfig
+
+    forced = replaced_settings(config.agent)
+    out: dict[str, str] = {}
+    for switch, off, part, on, keys in ONLY_WITH:
+        value = forced.get(switch, _value_at(config, switch))
+        if value == off:
+            out.update({key: f"{part}, which alone reads it, is off ({switch}={value}; {on} turns it on)"
+                        for key in keys})
+    if config.agent_config.place.drop_height < PlaceConfig().improved_height:
+        # PlaceConfig needs improved_height <= drop_height in either mode: a drop this low needs it lowered too
+        out.pop("agent_config.place.improved_height", None)
+    return out
+
+
 def unread_settings(config) -> dict[str, str]:
     """Settings (dotted keys) that ``config``'s agent would not read in the mode the config puts it
     in -> why: the simulated detector's noise with ground-truth semantics, the exact detector's
     smallest mask without ground-truth roles, the radius arm model's sizes with the measured one,
-    the object map's settings with the trusting variant (:data:`OBJECT_MAP_ONLY`), and the
-    scorer's evidence for objects, which no agent asks for (:data:`NO_AGENT_READS`)."""
+    the object map's settings with the trusting variant (:data:`OBJECT_MAP_ONLY`), the scorer's
+    evidence for objects, which no agent asks for (:data:`NO_AGENT_READS`), and the settings of a
+    part of the agent that its switch turns off (:data:`ONLY_WITH`)."""
     import dataclasses
 
     from helios.agents.config import VariantFlags
@@ -331,6 +385,7 @@ def unread_settings(config) -> dict[str, str]:
         out.update({f"agent_config.view.{name}": "the measured arm model (agent_config.view.arm_model, the "
                                                  "default) does not read it; the radius model does"
                     for name in ("arm_swing_radius", "arm_swing_height")})
+    out.update(_only_with_unread(config))           # before the variant's: no object map says more
     variant = replaced_settings(config.agent).get("agent_config.variant", config.agent_config.variant)
     if not VariantFlags.of(variant).object_map:
         variant = f"the {variant} variant (agent_config.variant={variant})"
@@ -352,17 +407,11 @@ def check_agent_settings(config, explicit: Iterable[str] = ()) -> None:
     from tasks.trial_config import TrialConfig
 
     default = TrialConfig(agent=config.agent)
-
-    def value_at(cfg, key):
-        for part in key.split("."):
-            cfg = getattr(cfg, part)
-        return cfg
-
     named = {key.strip() for key in explicit}
     for key, forced in replaced_settings(config.agent).items():
         given = sorted(k for k in named if k == key or k.startswith(key + "."))
-        value = value_at(config, key)
-        if not given and value == value_at(default, key):
+        value = _value_at(config, key)
+        if not given and value == _value_at(default, key):
             continue
         agent = short_repr(config.agent, 40)
         if forced is IGNORED:
@@ -375,6 +424,6 @@ def check_agent_settings(config, explicit: Iterable[str] = ()) -> None:
                               f"or run agent {short_repr(other, 40)} with it")
     for key, why in unread_settings(config).items():
         given = key in named
-        if given or value_at(config, key) != value_at(default, key):
+        if given or _value_at(config, key) != _value_at(default, key):
             raise ConfigError(f"{key}{' (set in the scenario file)' if not given else ''} would change nothing with "
                               f"agent {short_repr(config.agent, 40)}: {why}; leave it out")

@@ -210,7 +210,81 @@ def test_the_trusting_variant_is_refused_the_object_maps_settings():
     check("helios", "helios.decision.tau_object=0.7", "agent_config.gaze.spacing=0.4", "helios.search.alpha_d=0.01")
     check("helios-no-global-gt", "helios.search.min_frontier_value=0.01", "agent_config.fresh_view_distance=0.3")
     assert set(OBJECT_MAP_ONLY) | set(HIGHEST_VALUE_UNREAD) <= set(unread_settings(TrialConfig(agent="trusting")))
-    assert not set(OBJECT_MAP_ONLY) & set(unread_settings(TrialConfig(agent="helios-gt")))
+    informative = with_overrides(TrialConfig(agent="helios-gt"), ["agent_config.local_search_views=informative"])
+    assert not set(OBJECT_MAP_ONLY) & set(unread_settings(informative))     # local_search_min_gain: ONLY_WITH
+
+
+def test_settings_only_a_switched_off_part_of_the_agent_reads_are_refused():
+    """Audit 2026-12-07: `helios agent_config.stall_steps=0 agent_config.stall_radius=0.8` ran and
+    recorded a radius no code read (no stall watch without stall_steps), as did the improved
+    place's sizes with the default drop, `local_search_min_gain` with every gaze point visited,
+    the revisits' spacing with `max_revisits=0` and the extra views' settings with
+    `max_looks_per_candidate=0`. Refused now, naming the switch and its value; with the switch
+    on, or the agent's variant turning it on, they are allowed."""
+    from helios.schema import ConfigError, with_overrides
+    from tasks.registry import ONLY_WITH, check_agent_settings, unread_settings
+
+    def check(agent, *overrides, explicit=True):
+        cfg = with_overrides(TrialConfig(agent=agent), list(overrides))
+        check_agent_settings(cfg, [o.partition("=")[0] for o in overrides] if explicit else ())
+
+    with pytest.raises(ConfigError, match=r"^agent_config.stall_radius would change nothing with agent 'helios': "
+                                          r"exploration stall detection, which alone reads it, is off "
+                                          r"\(agent_config.stall_steps=0; a count above 0 turns it on\); leave it out$"):
+        check("helios", "agent_config.stall_steps=0", "agent_config.stall_radius=0.8")
+    for agent, setting, switch in (
+            ("helios", "agent_config.stall_new_area=1", "agent_config.stall_steps=0"),
+            ("helios-gt", "agent_config.place.improved_height=0.05", "agent_config.place.mode=drop"),
+            ("trusting", "agent_config.place.top_band=0.05", "agent_config.place.mode=drop"),
+            ("helios-5050", "agent_config.place.surface_cell=0.05", "agent_config.place.mode=drop"),
+            ("helios-no-global", "agent_config.local_search_min_gain=0.2", "agent_config.local_search_views=all"),
+            ("trusting-gt", "agent_config.revisit_spacing=2", "agent_config.max_revisits=0"),
+            ("helios", "agent_config.revisit_candidates=3", "agent_config.max_revisits=0"),
+            ("helios", "agent_config.fresh_view_distance=0.3", "agent_config.max_looks_per_candidate=0"),
+            ("helios-place-gt", "helios.decision.tau_increase=0.1", "agent_config.max_looks_per_candidate=0"),
+            ("helios", "helios.decision.view_prediction=optimistic", "agent_config.max_looks_per_candidate=0"),
+            ("helios", "helios.decision.view_prediction_poses=all", "agent_config.max_looks_per_candidate=0")):
+        key = setting.partition("=")[0]
+        overrides = [setting] if switch.endswith(("=drop", "=all")) else [switch, setting]   # those are defaults
+        with pytest.raises(ConfigError, match=rf"^{key} would change nothing with agent '{agent}': .*, which alone "
+                                              rf"reads it, is off \({switch}; .* turns it on\); leave it out$"):
+            check(agent, *overrides)
+        with pytest.raises(ConfigError, match=rf"^{key} \(set in the scenario file\) would change nothing"):
+            check(agent, *overrides, explicit=False)
+    with pytest.raises(ConfigError, match=r"the improved place, which alone reads it, is off "
+                                          r"\(agent_config.place.mode=drop; improved turns it on\)"):
+        check("helios", "agent_config.place.improved_height=0.02")     # even at its default: it was asked for
+    # with the switch on (given, by default, or by the agent's variant) they are read, so allowed
+    check("helios", "agent_config.stall_steps=3", "agent_config.stall_radius=0.8", "agent_config.stall_new_area=1")
+    check("helios", "agent_config.stall_radius=0.8", "agent_config.revisit_spacing=2")     # stall_steps=6, 4 revisits
+    check("helios", "agent_config.place.mode=improved", "agent_config.place.improved_height=0.05",
+          "agent_config.place.top_band=0.05", "agent_config.place.surface_cell=0.05")
+    check("helios-place", "agent_config.place.improved_height=0.05", "agent_config.place.top_band=0.05")
+    check("helios-place-gt", "agent_config.place.surface_cell=0.05", explicit=False)
+    check("helios", "agent_config.local_search_views=informative", "agent_config.local_search_min_gain=0.2")
+    check("helios", "agent_config.max_looks_per_candidate=2", "agent_config.fresh_view_distance=0.3",
+          "helios.decision.tau_increase=0.1", "helios.decision.view_prediction_poses=all")
+    check("helios", "agent_config.max_revisits=1", "agent_config.revisit_candidates=3")
+    # the switches themselves are read in either state
+    check("helios", "agent_config.stall_steps=0", "agent_config.max_revisits=0", "agent_config.place.mode=drop",
+          "agent_config.max_looks_per_candidate=0", "agent_config.local_search_views=all")
+    # PlaceConfig needs improved_height <= drop_height in either mode: a drop below the improved
+    # height's default needs it lowered too, so that is not refused
+    check("helios", "agent_config.place.drop_height=0.01", "agent_config.place.improved_height=0.01")
+    # the trusting variant reaches no local search or extra views at all: that refusal says so
+    with pytest.raises(ConfigError, match=r"local_search_min_gain would change nothing .* the trusting variant"):
+        check("trusting", "agent_config.local_search_min_gain=0.2")
+    with pytest.raises(ConfigError, match=r"tau_increase would change nothing .* the trusting variant"):
+        check("trusting", "agent_config.max_looks_per_candidate=0", "helios.decision.tau_increase=0.1")
+    # the oracle reads none of them: its refusal is the whole section's
+    with pytest.raises(ConfigError, match=r"agent 'oracle' reads no agent_config"):
+        check("oracle", "agent_config.stall_radius=0.8")
+    assert not unread_settings(TrialConfig(agent="oracle"))
+    defaults = unread_settings(TrialConfig(agent="helios"))
+    assert {"agent_config.place.improved_height", "agent_config.local_search_min_gain"} <= set(defaults)
+    assert not {"agent_config.stall_radius", "agent_config.revisit_spacing", "helios.decision.tau_increase"} & set(defaults)
+    for switch, off, *_ in ONLY_WITH:      # each switch's off value is a value the setting takes
+        with_overrides(TrialConfig(agent="helios"), [f"{switch}={off}"])
 
 
 def test_no_agent_is_asked_for_the_scorers_object_evidence():

@@ -136,6 +136,7 @@ def ws(tmp_path_factory):
         "comments.yaml": b"# all defaults, I hope\n\n",
         "oracle_helios.yaml": b"agent: oracle\nhelios:\n  search:\n    cs_start_receptacle: 0.4\n",
         "trusting_local.yaml": b"agent: trusting\nagent_config:\n  local_search_views: informative\n",
+        "drop_top_band.yaml": b"agent: helios\nagent_config:\n  place:\n    top_band: 0.05\n",
     }
     for name, data in configs.items():
         (cfg / name).write_bytes(data)
@@ -758,6 +759,37 @@ CASES: list[tuple[str, list[str], str]] = [
      "helios.decision.cs_object would change nothing with agent 'trusting'"),
     ("gt-scorer-object-saturation", [*T, "--agent", "helios-gt", "perception.scorer_saturation_object=0.01"],
      "the agents ask the image-text scorer only about receptacles"),
+    # settings only a part of the agent reads that its switch turns off (tasks.registry.ONLY_WITH)
+    ("trials-stall-radius-stall-off", [*T, "--agent", "helios", "agent_config.stall_steps=0",
+                                       "agent_config.stall_radius=0.8"],
+     "agent_config.stall_radius would change nothing with agent 'helios': exploration stall detection, which alone "
+     "reads it, is off (agent_config.stall_steps=0; a count above 0 turns it on); leave it out"),
+    ("trials-stall-area-stall-off", [*T, "--agent", "trusting", "agent_config.stall_steps=0",
+                                     "agent_config.stall_new_area=1"],
+     "agent_config.stall_new_area would change nothing with agent 'trusting': exploration stall detection"),
+    ("trials-improved-height-drop", [*T, "--agent", "helios-gt", "agent_config.place.improved_height=0.05"],
+     "the improved place, which alone reads it, is off (agent_config.place.mode=drop; improved turns it on)"),
+    ("trials-cfg-top-band-drop", ["trials", "--config", C + "drop_top_band.yaml", "--out", "{ws}/new_run"],
+     "agent_config.place.top_band (set in the scenario file) would change nothing with agent 'helios': the "
+     "improved place"),
+    ("trials-surface-cell-drop", [*T, "--agent", "helios-no-global", "agent_config.place.surface_cell=0.05"],
+     "(agent_config.place.mode=drop; improved turns it on)"),
+    ("trials-min-gain-all-views", [*T, "--agent", "helios", "agent_config.local_search_min_gain=0.2"],
+     "local search's choice of informative gaze points, which alone reads it, is off "
+     "(agent_config.local_search_views=all; informative turns it on)"),
+    ("trials-revisit-spacing-no-revisits", [*T, "--agent", "helios-5050", "agent_config.max_revisits=0",
+                                            "agent_config.revisit_spacing=2"],
+     "revisiting the most promising seen places, which alone reads it, is off (agent_config.max_revisits=0"),
+    ("trials-tau-increase-no-looks", [*T, "--agent", "helios-place-gt", "agent_config.max_looks_per_candidate=0",
+                                      "helios.decision.tau_increase=0.1"],
+     "helios.decision.tau_increase would change nothing with agent 'helios-place-gt': taking extra views of a "
+     "candidate, which alone reads it, is off (agent_config.max_looks_per_candidate=0"),
+    ("trials-fresh-view-no-looks", [*T, "--agent", "helios", "agent_config.max_looks_per_candidate=0",
+                                    "agent_config.fresh_view_distance=0.3"],
+     "agent_config.fresh_view_distance would change nothing with agent 'helios': taking extra views"),
+    ("bench-agent-revisits-off-set", ["bench", "agent", "--agent-name", "helios", "--agent-set",
+                                      "agent_config.max_revisits=0", "--agent-set", "agent_config.revisit_candidates=3"],
+     "agent_config.revisit_candidates would change nothing with agent 'helios': revisiting"),
     ("ep-robot-start-overflows", ["episodes", "check", E + "start_overflow.jsonl"],
      "robot_start must be 3 finite numbers"),
     ("ep-robot-start-bool", [*T, "--episodes-file", E + "start_bool.jsonl"], "robot_start must be 3 finite numbers"),

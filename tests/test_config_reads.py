@@ -28,6 +28,11 @@ from tools.config_reads import ReadTracer, config_classes, refused_as_unread, tr
 RADIUS = "agent_config.view.arm_model=radius"
 ROLES = "perception.gt_roles=[object,goal_receptacle]"
 FRONTIER_TERM = "helios.search.frontier_choice=value_minus_distance"
+SWITCHED = ("agent_config.stall_steps=0 agent_config.max_revisits=0 agent_config.max_looks_per_candidate=0 "
+            "agent_config.place.mode=improved agent_config.local_search_views=informative")
+"""Every switch of ``tasks.registry.ONLY_WITH`` the other way round from its default: the settings
+the defaults refuse (the improved place's, informative local search's) are then allowed, and those
+of the parts it turns off are refused."""
 
 
 def _read_view_distance(view: ViewConfig) -> float:
@@ -75,17 +80,18 @@ def test_every_config_class_sits_at_one_place_in_the_agents_sections():
 # ------------------------------------------------------------------------------------------------
 def _modes(agent: str) -> list[str]:
     """The modes the refusals depend on, as overrides: ground-truth or noisy semantics (the
-    agent's name), with and without ground-truth roles, the measured and the radius arm model."""
+    agent's name), with and without ground-truth roles, the measured and the radius arm model,
+    the switches of ``ONLY_WITH`` as by default and each the other way (:data:`SWITCHED`)."""
     if agent == "oracle":
         return [""]
     extra = [FRONTIER_TERM] if agent.startswith("trusting") else []     # its frontier term: HIGHEST_VALUE_UNREAD
     if agent.endswith("-gt"):
-        return ["", RADIUS, *extra]
-    return ["", ROLES, RADIUS, f"{ROLES} {RADIUS}", *extra]
+        return ["", RADIUS, SWITCHED, *extra]
+    return ["", ROLES, RADIUS, f"{ROLES} {RADIUS}", SWITCHED, *extra]
 
 
-FAST = {"oracle": "", "helios": "", "helios-gt": RADIUS, "helios-no-global": f"{ROLES} {RADIUS}",
-        "helios-no-global-gt": "", "helios-5050": RADIUS, "helios-5050-gt": RADIUS, "helios-place": ROLES,
+FAST = {"oracle": "", "helios": SWITCHED, "helios-gt": RADIUS, "helios-no-global": f"{ROLES} {RADIUS}",
+        "helios-no-global-gt": "", "helios-5050": RADIUS, "helios-5050-gt": SWITCHED, "helios-place": ROLES,
         "helios-place-gt": "", "trusting": "", "trusting-gt": RADIUS}
 """The fast suite's one run per agent: every mode of :func:`_modes` for some variants, with and
 without the object map (``test_slow_*`` runs every agent in every mode, on more episodes)."""
@@ -147,12 +153,49 @@ def test_the_fast_guard_runs_every_agent_and_every_mode():
 
 
 def test_every_run_of_the_guard_has_refusals_to_check():
-    """The guard is not vacuous: in each mode it runs, a run of each agent refuses something
-    (but with gt roles and the radius arm model, where a HELIOS agent reads every setting)."""
+    """The guard is not vacuous: in each mode it runs, a run of each agent refuses something (with
+    gt roles and the radius arm model a HELIOS agent still refuses what ``ONLY_WITH``'s switches
+    turn off: the improved place's settings, or informative local search's)."""
     for agent in agent_names():
         for mode in _modes(agent):
             config = with_overrides(TrialConfig(agent=agent), mode.split())
-            assert refused_as_unread(config) or mode == f"{ROLES} {RADIUS}", (agent, mode)
+            assert refused_as_unread(config), (agent, mode)
+
+
+SWITCHED_ON = (
+    # (agent, overrides that turn the parts on (stall detection and revisits are on by default), smoke episode,
+    #  HAL commands, what the run reads)
+    ("helios", "agent_config.local_search_views=informative", 0, 60,
+     ("agent_config.local_search_min_gain", "agent_config.fresh_view_distance", "helios.decision.tau_increase",
+      "helios.decision.view_prediction", "helios.decision.view_prediction_poses")),
+    ("trusting", "agent_config.place.mode=improved", 15, 60,
+     ("agent_config.place.improved_height", "agent_config.place.top_band", "agent_config.place.surface_cell")),
+    ("trusting", "", 1, 200, ("agent_config.stall_radius", "agent_config.stall_new_area",
+                              "agent_config.revisit_spacing", "agent_config.revisit_candidates")),
+)
+"""Runs (seed 0) that reach every part of the agent ``ONLY_WITH`` can turn off, with it on."""
+
+
+@pytest.mark.parametrize("case", SWITCHED_ON, ids=[c[0] + (" " + c[1] if c[1] else "") for c in SWITCHED_ON])
+def test_the_guard_would_catch_a_switched_off_setting_refused_while_its_part_is_on(case):
+    """Each setting of ``tasks.registry.ONLY_WITH`` is read by a run with its part of the agent on
+    (positive controls: the tracer sees those reads), and refused by a run with that part off; so
+    a refusal that also fired with the part on would be read, and fail the guard."""
+    from tasks.registry import ONLY_WITH
+
+    agent, mode, episode, max_commands, keys = case
+    tracer = check_reads(agent, mode, [load_split("smoke")[episode]], max_commands)
+    assert [key for key in keys if not tracer.read(key)] == []
+    off = {key: f"{switch}={value}" for switch, value, _, _, names in ONLY_WITH for key in names}
+    for key in keys:
+        config = with_overrides(TrialConfig(agent=agent), [*mode.split(), off[key]])
+        assert key in refused_as_unread(config), (key, off[key])
+
+
+def test_the_runs_with_the_switches_on_cover_every_setting_only_a_switch_reads():
+    from tasks.registry import ONLY_WITH
+
+    assert sorted(key for *_, names in ONLY_WITH for key in names) == sorted(k for *_, ks in SWITCHED_ON for k in ks)
 
 
 @pytest.mark.slow
