@@ -20,6 +20,7 @@ import os
 import select
 import shutil
 import subprocess
+import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -67,6 +68,25 @@ def find_or_install_browser(timeout: float = 900.0) -> tuple[str | None, str]:
     return None, f"installing Debian's chromium failed: {tail[0]}"
 
 
+# Run as ``python -c _PIPES_THEN_EXEC R W BROWSER ARGS...``: BROWSER ARGS... with pipe ends R and W
+# (passed with ``pass_fds``) as its fds 3 and 4, which ``--remote-debugging-pipe`` reads and writes.
+# Both are first copied above 100, out of the way of 3 and 4 (R or W may be one of them).
+_PIPES_THEN_EXEC = ("import fcntl, os, sys\n"
+                    "r, w = int(sys.argv[1]), int(sys.argv[2])\n"
+                    "a, b = fcntl.fcntl(r, fcntl.F_DUPFD, 100), fcntl.fcntl(w, fcntl.F_DUPFD, 100)\n"
+                    "os.dup2(a, 3)\n"
+                    "os.dup2(b, 4)\n"
+                    "for fd in {r, w, a, b} - {3, 4}:\n"
+                    "    os.close(fd)\n"
+                    "os.execv(sys.argv[3], sys.argv[3:])")
+"""Not a ``preexec_fn`` (it was, until 2026-12-06): with one, ``subprocess`` must fork() instead of
+vfork(), and the fork of a pytest process in which gRPC is alive (an xdist worker after fake-Spot
+tests) can abort in the child before exec (gRPC's fork support meets the epoll fd that
+``close_fds`` closed: SIGABRT, exit -6; see ``_python_with_default_hangup`` in
+``tests/test_spot_realtime_faults.py``, where ``tools spot``'s child was fixed the same way).
+``tests/test_subprocess_rules.py`` keeps ``preexec_fn`` out of tests/ and the packages."""
+
+
 @dataclass
 class PageResult:
     url: str
@@ -80,24 +100,19 @@ class Browser:
     """One headless Chromium; ``load`` a local file, then read what it saw."""
 
     def __init__(self, exe: str, width: int = 1280, height: int = 1000, timeout: float = 60.0):
-        import fcntl
-
         self.timeout = timeout
         self.profile = tempfile.mkdtemp(prefix="helios-chromium-")
         to_chrome_r, self._w = os.pipe()
         self._r, from_chrome_w = os.pipe()
-
-        def child_fds():             # the protocol's fds 3 (commands in) and 4 (answers out)
-            a = fcntl.fcntl(to_chrome_r, fcntl.F_DUPFD, 100)
-            b = fcntl.fcntl(from_chrome_w, fcntl.F_DUPFD, 100)
-            os.dup2(a, 3)
-            os.dup2(b, 4)
-
         args = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--no-first-run",
                 "--no-default-browser-check", "--disable-extensions", "--remote-debugging-pipe",
                 f"--user-data-dir={self.profile}", f"--window-size={width},{height}", "about:blank"]
-        self.proc = subprocess.Popen(args, preexec_fn=child_fds, close_fds=False, stdin=subprocess.DEVNULL,
-                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        # the protocol's fds 3 (commands in) and 4 (answers out), set by a shim that then execs the
+        # browser (see _PIPES_THEN_EXEC: no preexec_fn)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", _PIPES_THEN_EXEC, str(to_chrome_r), str(from_chrome_w), *args],
+            pass_fds=(to_chrome_r, from_chrome_w), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL)
         os.close(to_chrome_r)
         os.close(from_chrome_w)
         self._buf = b""
