@@ -1362,11 +1362,14 @@ def test_diff_names_damage_report_names(clean_run, tmp_path):
     DAMAGES[[d[0] for d in DAMAGES].index("conflicting-duplicate")][1](folder)
     _to_directory("invocations.jsonl")(folder)
     rc, out, err = run_cli(["diff", str(clean_run), str(folder)])
-    assert rc == 0, err
+    assert rc == 1, err              # smoke-00000 has no valid record in B: one run only, which counts
     assert "episodes.jsonl:1: episode smoke-00000 has records that disagree" in err
     assert "episodes.jsonl:4: episode smoke-00000 has records that disagree" in err
     assert "invocations.jsonl is a directory" in err
     assert "only in A: 1 episode, smoke-00000" in out
+    assert "not the same episodes: 1 episode in one run only counts as a difference (only in A: smoke-00000)" in out
+    rc, out, err = run_cli(["diff", str(clean_run), str(folder), "--common"])
+    assert rc == 0, out + err
 
 
 def test_repeated_robot_runs_of_one_episode_are_not_a_disagreement(clean_run, tmp_path):

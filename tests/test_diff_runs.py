@@ -112,7 +112,39 @@ def test_episodes_only_one_run_has_and_configurations_that_differ(tmp_path):
     assert "... and 2 more episode(s) (--show to list them)" in out
     assert f"config_fingerprint: \"{config_fingerprint(TrialConfig(agent='helios', split='val', episodes=6))}\"" in out
     rc, out, _ = run_cli(["diff", str(a), str(b), "--ignore", "config_fingerprint"])
-    assert rc == 0 and "identical: 3 of 3" in out
+    assert rc == 1 and "identical: 3 of 3" in out         # the episodes only one run has count
+    assert "not the same episodes: 4 episodes in one run only count as a difference (only in A: val-00000, " \
+           "val-00001, val-00002; only in B: val-00006); --common compares only the episodes both runs have" in out
+    rc, out, _ = run_cli(["diff", str(a), str(b), "--ignore", "config_fingerprint", "--common"])
+    assert rc == 0 and "identical: 3 of 3" in out and "not the same episodes" not in out
+    assert "(--common: episodes only one run has do not count)" in out
+
+
+def test_episodes_only_one_run_has_set_the_exit_status_unless_common(tmp_path):
+    """(reliability audit 2026-12-06) The exit status covered only the compared records: a run cut
+    short, or one of another episode set, compared as the same as the full run (exit 0) where they
+    overlapped. Episodes in one run only now count, named on one line (the first ten), unless
+    ``--common`` asks for the episodes both runs have, as ``tools report --common`` does."""
+    a = _run(tmp_path / "a", 30)
+    b = _run(tmp_path / "b", 14, config=TrialConfig(agent="helios", split="val", episodes=30))   # cut short
+    rc, out, err = run_cli(["diff", str(a), str(b)])
+    assert rc == 1, out + err
+    assert "identical: 14 of 14" in out and "different:" not in out
+    line = next(s for s in out.splitlines() if s.startswith("not the same episodes:"))
+    assert line == ("not the same episodes: 16 episodes in one run only count as a difference (only in A: "
+                    + ", ".join(f"val-{i:05d}" for i in range(14, 24)) + " and 6 more); --common compares only "
+                    "the episodes both runs have")
+    rc, out, err = run_cli(["diff", str(b), str(a), "--common"])
+    assert rc == 0 and "identical: 14 of 14" in out, out + err
+    # --episodes N: the first N by id of either run, so a missing one among them counts ...
+    rc, out, _ = run_cli(["diff", str(a), str(b), "--episodes", "16"])
+    assert rc == 1 and "identical: 14 of 14" in out
+    assert "16 episodes in one run only" not in out and "2 episodes in one run only count as a difference " \
+        "(only in A: val-00014, val-00015)" in out
+    rc, out, _ = run_cli(["diff", str(a), str(b), "--episodes", "14"])       # ... and none beyond them
+    assert rc == 0 and "identical: 14 of 14" in out and "not the same episodes" not in out
+    rc, out, _ = run_cli(["diff", str(a), str(b), "--episodes", "16", "--common"])   # the first 16 both have
+    assert rc == 0 and "compared: the 14 episodes both runs have" in out
 
 
 def test_a_damaged_line_is_named_and_the_rest_compared(tmp_path):
@@ -122,9 +154,12 @@ def test_a_damaged_line_is_named_and_the_rest_compared(tmp_path):
     lines[1] = b'{"episode_id": "val-00001", "broken\n'
     (b / "episodes.jsonl").write_bytes(b"".join(lines))
     rc, out, err = run_cli(["diff", str(a), str(b)])
-    assert rc == 0, out + err
+    assert rc == 1, out + err                    # B lacks a valid record of val-00001
     assert f"warning: {b / 'episodes.jsonl'}:2: not valid JSON" in err
     assert "identical: 2 of 2" in out and "only in A: 1 episode, val-00001" in out
+    assert "not the same episodes: 1 episode in one run only counts as a difference (only in A: val-00001)" in out
+    rc, out, err = run_cli(["diff", str(a), str(b), "--common"])
+    assert rc == 0 and "identical: 2 of 2" in out, out + err
 
 
 def test_the_cpu_code_paths_of_the_two_runs_are_compared(tmp_path):

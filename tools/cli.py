@@ -23,7 +23,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "trials": ("tools.trials", "run an agent over episodes in simulation; resumable results and a metrics table"),
     "report": ("tools.report", "compare run folders: the paper-style table (text, Markdown) and PNG/HTML plots"),
     "diff": ("tools.diff_runs", "which episodes' records differ between two run folders, field by field "
-                                "(exit 1 if any): did a change keep every result?"),
+                                "(exit 1 if any, or if an episode is in one run only; --common: the episodes "
+                                "both have): did a change keep every result?"),
     "unchanged": ("tools.unchanged", "run val episodes with a commit's code and with this working tree, here, and "
                                      "compare the records (exit 1 if any differs): the refactor check"),
     "view": ("tools.view", "open a rerun recording (.rrd) in the viewer, or say how to view it elsewhere"),

@@ -1,16 +1,22 @@
 """Which episodes' records differ between two run folders, field by field, with wall time, memory
 and recording paths aside: the check that a refactor or an exact speed-up changed no result, and
-that a run reproduces another one (the same configuration on another machine or commit).
+that a run reproduces another one (the same configuration on another machine or commit). Exit
+status 1 when a record differs or an episode is in one run only (``--common``: only the episodes
+both runs have count).
 
     python -m tools diff runs/val/helios runs/new --episodes 30
 
-Exit status 0 when every compared episode's record is identical, 1 when any differs, 2 for bad
-input. Fields in ``--ignore`` (dotted paths into a record, e.g. ``config_fingerprint`` when a
-config key was added, or ``extra.start_receptacle.viewed`` for a field one run does not record
-yet) are left out; a path that names nothing in either run is refused (a typo would otherwise
-hide every difference it was meant to let through). The two configurations are compared too
-(the number of episodes aside), and a difference in the CPU code paths the runs' episodes ran on
-is said: those alone can move outcomes (README, "One CPU code path").
+Exit status 0 when both runs have the same episodes and every record is identical, 1 when any
+differs or an episode is in one run only (a run cut short, another episode set: one line names
+them, and they count; ``--common`` compares the episodes both runs have and lets the rest
+through, as ``tools report --common`` does), 2 for bad input. ``--episodes N`` takes the first N
+episodes by id of either run (with ``--common``, of those both have). Fields in ``--ignore``
+(dotted paths into a record, e.g. ``config_fingerprint`` when a config key was added, or
+``extra.start_receptacle.viewed`` for a field one run does not record yet) are left out; a path
+that names nothing in either run is refused (a typo would otherwise hide every difference it was
+meant to let through). The two configurations are compared too (the number of episodes aside),
+and a difference in the CPU code paths the runs' episodes ran on is said: those alone can move
+outcomes (README, "One CPU code path").
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from pathlib import Path
 
 MAX_EPISODES_LISTED = 20     # differing episodes named one by one; the rest are counted
 MAX_FIELDS_LISTED = 5        # differing fields shown per episode
+MAX_IDS_LISTED = 10          # episodes only one run has, named on their line; the rest are counted
 VALUE_CHARS = 60             # a value longer than this is shortened in the middle
 CONFIG_ASIDE = ("helios_version", "git_commit", "episodes")     # config keys that may differ freely
 
@@ -30,7 +37,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run_a", metavar="RUN_A", help="run folder (from `python -m tools trials --out`)")
     parser.add_argument("run_b", metavar="RUN_B", help="the run folder to compare it with")
     parser.add_argument("--episodes", type=int, default=None, metavar="N",
-                        help="compare only the first N episodes (by id) that both runs have (default: all shared)")
+                        help="compare only the first N episodes by id (default: all); one of them that only one "
+                             "run has counts as a difference, unless --common")
+    parser.add_argument("--common", action="store_true",
+                        help="compare the episodes both runs have; episodes only one run has are listed but do not "
+                             "count (exit 0 when those compared are identical: a run still going, or cut short)")
     parser.add_argument("--ignore", default="", metavar="FIELD[,FIELD...]",
                         help="dotted record fields to leave out (and everything under them), e.g. "
                              "config_fingerprint,extra.start_receptacle.viewed")
@@ -124,6 +135,16 @@ class RunDiff:
     cpu: tuple[tuple[str, ...], tuple[str, ...]] = ((), ())
     shared: int = 0                                       # episodes both runs have (compared or not)
     tolerance: float = 0.0                                # relative; 0 = exact
+    # of the episodes in scope (all, or the first --episodes), those one run lacks: they count as a
+    # difference (empty with --common, which compares only what both have)
+    one_sided_a: list[str] = field(default_factory=list)
+    one_sided_b: list[str] = field(default_factory=list)
+    common: bool = False
+
+    @property
+    def same(self) -> bool:
+        """The verdict (exit status 0): no compared record differs and no episode is missing."""
+        return not self.differing and not self.one_sided_a and not self.one_sided_b
 
     @property
     def identical(self) -> int:
@@ -173,10 +194,13 @@ def _record_fields() -> dict[str, frozenset[str]]:
 
 
 def diff_runs(a, b, episodes: int | None = None, ignore: frozenset[str] = frozenset(),
-              tolerance: float = 0.0) -> RunDiff:
-    """Compare two loaded runs (``tools.report_runs.Run``) on the episodes both have (the first
-    ``episodes`` of them by id). The records' nondeterministic fields (wall time, memory, recording
-    path: ``tasks.trial_config.NONDETERMINISTIC_FIELDS``) are always left out; CliError when the runs
+              tolerance: float = 0.0, common: bool = False) -> RunDiff:
+    """Compare two loaded runs (``tools.report_runs.Run``): the records of the episodes both have,
+    among all episodes (or the first ``episodes`` by id) of either run; those of them that one run
+    lacks are in ``one_sided_a``/``one_sided_b`` and make the runs differ (``RunDiff.same``). With
+    ``common``, only the episodes both have (the first ``episodes`` of them) and nothing one-sided
+    counts. The records' nondeterministic fields (wall time, memory, recording path:
+    ``tasks.trial_config.NONDETERMINISTIC_FIELDS``) are always left out; CliError when the runs
     share no episode or an ``ignore`` path names nothing in either run."""
     from helios.schema import short_repr
     from tasks.trial_config import deterministic_view
@@ -188,7 +212,9 @@ def diff_runs(a, b, episodes: int | None = None, ignore: frozenset[str] = frozen
     if not shared:
         raise CliError(f"runs {a.name!r} and {b.name!r} share no finished episode ({a.name}: {_span(sorted(ra))}; "
                        f"{b.name}: {_span(sorted(rb))}): nothing to compare")
-    compared = shared if episodes is None else shared[:episodes]
+    scope = shared if common else sorted(set(ra) | set(rb))
+    scope = scope if episodes is None else scope[:episodes]
+    compared = [eid for eid in scope if eid in ra and eid in rb]
     known = set()
     for eid in compared if ignore else ():
         known |= paths_of(ra[eid]) | paths_of(rb[eid])
@@ -206,7 +232,8 @@ def diff_runs(a, b, episodes: int | None = None, ignore: frozenset[str] = frozen
     cfg_b = {k: v for k, v in b.config.items() if k not in CONFIG_ASIDE}
     config = differences(cfg_a, cfg_b) if a.config and b.config else []
     return RunDiff(compared, differing, sorted(set(ra) - set(rb)), sorted(set(rb) - set(ra)), config, (a.cpu, b.cpu),
-                   len(shared), tolerance)
+                   len(shared), tolerance, [e for e in scope if e not in rb], [e for e in scope if e not in ra],
+                   common)
 
 
 def outcomes_first(diffs: list[tuple[str, object, object]]) -> list[tuple[str, object, object]]:
@@ -295,7 +322,22 @@ def report_lines(a, b, diff: RunDiff, show: int = MAX_EPISODES_LISTED) -> list[s
         lines.append("fields that differ, in how many episodes: "
                      + ", ".join(f"{p} {n}" for p, n in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))))
     lines.append(f"only in A: {_span(diff.only_a)}; only in B: {_span(diff.only_b)}")
+    missing = len(diff.one_sided_a) + len(diff.one_sided_b)
+    if missing:
+        sides = "; ".join(f"only in {side}: {_ids(ids)}" for side, ids in (("A", diff.one_sided_a),
+                                                                         ("B", diff.one_sided_b)) if ids)
+        lines.append(f"not the same episodes: {missing} episode{'s' if missing != 1 else ''} in one run only "
+                     f"count{'' if missing != 1 else 's'} as a difference ({sides}); --common compares only the "
+                     f"episodes both runs have")
+    elif diff.common and (diff.only_a or diff.only_b):
+        lines.append("(--common: episodes only one run has do not count)")
     return lines
+
+
+def _ids(ids: list[str], limit: int = MAX_IDS_LISTED) -> str:
+    """Episode ids, the first ``limit`` of them by name, then how many more."""
+    more = f" and {len(ids) - limit} more" if len(ids) > limit else ""
+    return ", ".join(ids[:limit]) + more
 
 
 def _top(path: str) -> str:
@@ -324,8 +366,8 @@ def run(args: argparse.Namespace) -> int:
     warnings: list[str] = []
     a = load_run(args.run_a, warnings=warnings)
     b = load_run(args.run_b, warnings=warnings)
-    diff = diff_runs(a, b, args.episodes, ignore, args.tolerance)
+    diff = diff_runs(a, b, args.episodes, ignore, args.tolerance, common=args.common)
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
     print("\n".join(report_lines(a, b, diff, args.show)))
-    return 1 if diff.differing else 0
+    return 0 if diff.same else 1

@@ -198,7 +198,7 @@ def compare(out: Path, runs: list[str], episodes: int, workers: int, ignore: fro
             print(f"[unchanged] {name}: {label} done in {seconds:.0f} s", flush=True)
         warnings: list[str] = []
         a, b = load_run(folders["base"], warnings=warnings), load_run(folders["now"], warnings=warnings)
-        diff = diff_runs(a, b, episodes, ignore)
+        diff = diff_runs(a, b, episodes, ignore, common=True)     # an episode missing on a side: checked below
         for w in warnings:
             print(f"warning: {w}", file=sys.stderr)
         print("\n".join(report_lines(a, b, diff)))
