@@ -247,13 +247,14 @@ def prepare_run_folder(out: Path, config: TrialConfig, report: "BatchReport | No
             raise RunFolderError(f"run folder {str(out)!r}: config.yaml does not describe the records in episodes.jsonl "
                                  f"(they were made with configuration {next(iter(known))}, config.yaml says {saved_fp}): "
                                  f"it was edited or replaced after they were written; restore it or use another --out")
+        # (no difference also when only the spelling of episodes_file differs: the folder keeps its own)
+        diff = config_difference(saved_cfg, config)
         if not scan.records:                        # nothing to protect: the folder takes this configuration
             if saved_cfg != config or saved_fp != current:
                 new_config_text = config_text(config)
-            if saved_cfg != config:
+            if diff:
                 notes.append("config.yaml of a run without results was replaced by this configuration")
-        elif saved_cfg != config:
-            diff = config_difference(saved_cfg, config)
+        elif diff:
             # fewer episodes, but every record is one of them: an extension cut short before it
             # finished an episode beyond this count (config.yaml is written when a run starts)
             held = set(scan.records) | {r["episode_id"] for r in scan.unused}

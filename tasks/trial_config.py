@@ -112,7 +112,14 @@ def config_fingerprint(config: TrialConfig | dict) -> str:
     loaded), without its provenance (version, commit) and without ``episodes`` (extending a run
     keeps its fingerprint). Every record carries the fingerprint of the configuration that made
     it, so a folder whose records disagree with its config.yaml (edited, replaced or deleted) is
-    recognised."""
+    recognised.
+
+    A hash of the text as written, and so of ``episodes_file`` as spelt: ``tools trials`` spells
+    it one way for a file however it was named (:func:`canonical_episodes_file`), and a run folder
+    resumed with another spelling of its file keeps its own (:func:`config_difference`). It is not
+    the file's contents: a fingerprint is computed from config.yaml alone (``tools report`` and
+    ``tools diff`` check folders whose episode file may be gone), and the contents are checked
+    episode by episode when a run resumes (``tasks.run_folder.prepare_run_folder``)."""
     d = dict(to_dict(config)) if not isinstance(config, dict) else dict(config)
     for key in (*PROVENANCE_KEYS, "episodes"):
         d.pop(key, None)
@@ -129,12 +136,52 @@ def load_trial_config(path: str | Path) -> tuple[dict, TrialConfig]:
     return header, load_config(TrialConfig, path, ignore=PROVENANCE_KEYS)
 
 
+def canonical_episodes_file(path: str) -> str:
+    """One spelling of an episode file however it is named (the identity of ``episodes_file``):
+    relative to the working directory when the file lies under it (``splits/x.jsonl``,
+    ``./splits/x.jsonl`` and ``/abs/project/splits/x.jsonl`` run from ``/abs/project`` are all
+    ``splits/x.jsonl``), else absolute; ``..`` and ``.`` are resolved, a symbolic link to the
+    file is not (the link is a name of its own). "" (no file: the split) stays "".
+
+    Why the path, and relative: the commands are run from the project folder, so the same file
+    has the same spelling, and its runs the same fingerprint, in every clone and on every machine
+    (an absolute path would differ between clones, and ``tools unchanged`` runs the commit's side
+    in a tree of its own); it is the spelling a relative name always had, so run folders made
+    with one keep their fingerprints; and it names what ``load_episodes`` opens from here. Not
+    the contents: see :func:`config_fingerprint`."""
+    import os
+
+    if not path:
+        return path
+    absolute = Path(os.path.abspath(path))
+    cwd = Path(os.getcwd())
+    for base, target in ((cwd, absolute), (Path(os.path.realpath(cwd)), Path(os.path.realpath(absolute.parent)) /
+                                           absolute.name)):      # a working directory reached through a link
+        try:
+            rel = target.relative_to(base)
+        except ValueError:
+            continue
+        if rel.parts:
+            return rel.as_posix()
+    return str(absolute)
+
+
+def same_episodes_file(a: str, b: str) -> bool:
+    """Whether two spellings of ``episodes_file`` name the same file from this working directory
+    (two empty ones: both the split)."""
+    return a == b or (bool(a) and bool(b) and canonical_episodes_file(a) == canonical_episodes_file(b))
+
+
 def config_difference(saved: TrialConfig, config: TrialConfig) -> list[str]:
-    """The top-level keys where ``config`` differs from a run folder's ``saved`` configuration."""
+    """The top-level keys where ``config`` differs from a run folder's ``saved`` configuration.
+    ``episodes_file`` spelt another way for the same file (relative against absolute, as a run
+    folder made before :func:`canonical_episodes_file` may hold it) is no difference: the run
+    resumes, and keeps the spelling and the fingerprint it was made with."""
     if saved == config:
         return []
     old = to_dict(saved)
-    return [k for k, v in to_dict(config).items() if old.get(k) != v]
+    return [k for k, v in to_dict(config).items() if old.get(k) != v and
+            not (k == "episodes_file" and same_episodes_file(old.get(k), v))]
 
 
 def is_extension(diff: list[str], saved: TrialConfig, config: TrialConfig) -> bool:

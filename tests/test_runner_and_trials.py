@@ -202,6 +202,70 @@ def test_a_resume_refuses_an_episode_edited_under_the_same_task(tmp_path, monkey
     assert set(json.loads((out / DIGESTS_FILE).read_text())) == {smoke[0].episode_id, smoke[2].episode_id}
 
 
+def test_an_episode_file_named_relative_or_absolute_is_one_configuration(tmp_path, monkeypatch):
+    """(reliability audit 2026-12-06) ``--episodes-file splits/x.jsonl`` and the same file as
+    ``/abs/.../splits/x.jsonl`` gave two configuration fingerprints: a run resumed or extended with
+    the other spelling was refused as a different configuration, and two runs of one file compared
+    as different. The file now has one spelling (relative to the working directory)."""
+    from tasks.trial_config import FINGERPRINT_FIELD
+
+    smoke = load_split("smoke")
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "splits").mkdir()
+    (tmp_path / "splits" / "x.jsonl").write_text(smoke[0].to_json() + "\n" + smoke[1].to_json() + "\n")
+    spellings = ["splits/x.jsonl", str(tmp_path / "splits" / "x.jsonl"), "./splits/../splits/x.jsonl"]
+    common = ["trials", "--agent", "oracle", "--progress", "none", "--no-pictures", "runner.max_commands=3"]
+    for i, name in enumerate(spellings):
+        rc, _, err = run_cli([*common, "--episodes-file", name, "--episodes", "1", "--out", f"run{i}"])
+        assert rc == 0, err
+        assert "episodes_file: splits/x.jsonl\n" in (tmp_path / f"run{i}" / "config.yaml").read_text()
+    fps = {r[FINGERPRINT_FIELD] for i in range(3)
+           for r in read_results(tmp_path / f"run{i}" / "episodes.jsonl").values()}
+    assert len(fps) == 1, fps
+    # extended with another spelling: resumed, not refused
+    rc, out, err = run_cli([*common, "--episodes-file", spellings[1], "--episodes", "2", "--out", "run0"])
+    assert rc == 0 and "resuming: 1 of 2" in out, out + err
+    assert {r[FINGERPRINT_FIELD] for r in read_results(tmp_path / "run0" / "episodes.jsonl").values()} == fps
+    rc, out, err = run_cli(["diff", "run0", "run1", "--common"])
+    assert rc == 0 and "configurations: the same" in out, out + err
+    # a file outside the working directory is named by its absolute path
+    (tmp_path / "sub").mkdir()
+    monkeypatch.chdir(tmp_path / "sub")
+    rc, _, err = run_cli([*common, "--episodes-file", "../splits/x.jsonl", "--episodes", "1", "--out", "run3"])
+    assert rc == 0, err
+    saved = (tmp_path / "sub" / "run3" / "config.yaml").read_text()
+    assert f"episodes_file: {tmp_path / 'splits' / 'x.jsonl'}\n" in saved
+
+
+def test_a_run_folder_made_with_an_absolute_episode_file_resumes_with_the_relative_name(tmp_path, monkeypatch):
+    """A run folder written before episode files had one spelling holds the file as it was named
+    (here absolute, as ``tools trials --episodes-file /abs/x.jsonl`` wrote it). Named relative now,
+    it resumes and extends: config.yaml keeps its spelling and the new records its fingerprint."""
+    from tasks.trial_config import FINGERPRINT_FIELD, config_fingerprint
+
+    smoke = load_split("smoke")
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "x.jsonl").write_text(smoke[0].to_json() + "\n" + smoke[1].to_json() + "\n")
+    old = TrialConfig(agent="oracle", episodes_file=str(tmp_path / "x.jsonl"), episodes=1,
+                      runner=RunnerConfig(max_commands=3))
+    out = tmp_path / "run"
+    run_batch(old, smoke[:1], out, pictures=False)         # the folder as the old command line made it
+    rc, text, err = run_cli(["trials", "--agent", "oracle", "--episodes-file", "x.jsonl", "--episodes", "2",
+                             "--progress", "none", "--no-pictures", "--out", str(out), "runner.max_commands=3"])
+    assert rc == 0 and "resuming: 1 of 2" in text, text + err
+    assert f"episodes_file: {tmp_path / 'x.jsonl'}\n" in (out / "config.yaml").read_text()
+    records = read_results(out / "episodes.jsonl")
+    assert list(records) == [smoke[0].episode_id, smoke[1].episode_id]
+    assert {r[FINGERPRINT_FIELD] for r in records.values()} == {config_fingerprint(old)}
+    # and another file of the same name elsewhere is still another configuration
+    (tmp_path / "other").mkdir()
+    monkeypatch.chdir(tmp_path / "other")
+    (tmp_path / "other" / "x.jsonl").write_text(smoke[0].to_json() + "\n" + smoke[1].to_json() + "\n")
+    rc, _, err = run_cli(["trials", "--agent", "oracle", "--episodes-file", "x.jsonl", "--episodes", "2",
+                          "--progress", "none", "--no-pictures", "--out", str(out), "runner.max_commands=3"])
+    assert rc == 2 and "different configuration (differs in: episodes_file)" in err, err
+
+
 @pytest.mark.slow
 def test_oracle_reaches_90_percent_on_the_smoke_split(tmp_path):
     records = run_batch(TrialConfig(agent="oracle", split="smoke", episodes=20), load_split("smoke"), tmp_path)

@@ -256,3 +256,20 @@ def test_a_records_error_compares_by_its_first_line_and_keeps_paths_relative():
     assert deterministic_view(a) == deterministic_view(b) == {"episode_id": "x", "error": "error: boom"}
     assert deterministic_view({**b, "error": "error: bang\nsame"}) != deterministic_view(a)
     assert deterministic_view({"episode_id": "x", "error": None}) == {"episode_id": "x", "error": None}
+
+
+def test_an_episode_file_has_one_spelling_however_it_is_named(tmp_path, monkeypatch):
+    """``tasks.trial_config.canonical_episodes_file``: relative to the working directory when the
+    file lies under it, absolute otherwise, also from a working directory reached through a link."""
+    from tasks.trial_config import canonical_episodes_file, same_episodes_file
+
+    (tmp_path / "proj" / "splits").mkdir(parents=True)
+    (tmp_path / "link").symlink_to(tmp_path / "proj")
+    monkeypatch.chdir(tmp_path / "proj")
+    for name in ("splits/x.jsonl", "./splits/x.jsonl", "splits/../splits/x.jsonl",
+                 str(tmp_path / "proj/splits/x.jsonl"), str(tmp_path / "link/splits/x.jsonl")):
+        assert canonical_episodes_file(name) == "splits/x.jsonl", name
+    assert canonical_episodes_file("../other/x.jsonl") == str(tmp_path / "other" / "x.jsonl")
+    assert canonical_episodes_file("") == ""
+    assert same_episodes_file("splits/x.jsonl", str(tmp_path / "proj/splits/x.jsonl"))
+    assert not same_episodes_file("splits/x.jsonl", "x.jsonl") and not same_episodes_file("", "x.jsonl")

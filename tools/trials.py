@@ -24,6 +24,7 @@ number.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import signal
 import sys
 from pathlib import Path
@@ -80,7 +81,7 @@ def resolve_config(args: argparse.Namespace):
     from helios.schema import ConfigError, short_repr, with_overrides
     from tasks.episodes import SPLITS
     from tasks.registry import check_agent_settings
-    from tasks.trial_config import TrialConfig, load_trial_config
+    from tasks.trial_config import TrialConfig, canonical_episodes_file, load_trial_config
 
     base = TrialConfig()
     for flag in ("config", "episodes_file", "split", "agent"):     # an empty one once meant "the default"
@@ -104,7 +105,10 @@ def resolve_config(args: argparse.Namespace):
     if "split" in given and "episodes_file" in given and config.episodes_file:
         raise ConfigError(f"{given['split']} and {given['episodes_file']} both name the episodes; give one")
     check_agent_settings(config, explicit=[o.partition("=")[0] for o in args.overrides])
-    return config
+    # one spelling of the episode file however it was named (relative or absolute, from a flag, an
+    # override or a --config file), so that the same file gives the same configuration fingerprint
+    # (tasks.trial_config.canonical_episodes_file)
+    return dataclasses.replace(config, episodes_file=canonical_episodes_file(config.episodes_file))
 
 
 def _check_map_covers_homes(config, episodes) -> None:
