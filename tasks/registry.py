@@ -317,6 +317,8 @@ ONLY_WITH: tuple[tuple[str, object, str, str, tuple[str, ...]], ...] = (
     ("agent_config.max_looks_per_candidate", 0, "taking extra views of a candidate", "a count above 0",
      ("agent_config.fresh_view_distance", *(f"helios.decision.{name}" for name in
                                             ("tau_increase", "view_prediction", "view_prediction_poses")))),
+    ("agent_config.view.near_look_distance", 0.0, "the views of the near floor", "a distance above 0",
+     ("agent_config.view.start_near_yaws_deg",)),
 )
 """Settings only one part of a HELIOS agent reads, and the setting that turns that part off: with
 it off, they change nothing. The place skill's ``improved`` branch (helios.agents.place:
@@ -326,7 +328,8 @@ it off, they change nothing. The place skill's ``improved`` branch (helios.agent
 with ``stall_steps`` above 0 (``HeliosAgent.reset``); ``revisit_goals``, called only below
 ``max_revisits`` revisits (``HeliosAgent._revisit``); ``HeliosAgent._best_view`` and the Psi' rule's
 ``decide``, reached only for a candidate with fewer than ``max_looks_per_candidate`` extra views
-(``_judge_targets``). A variant's forced value counts (``helios-place`` places ``improved``).
+(``_judge_targets``); ``Body.look``'s near-floor views, none with ``near_look_distance`` 0
+(``Body.look_all_around`` then passes no directions). A variant's forced value counts (``helios-place`` places ``improved``).
 PlaceConfig's check ``improved_height <= drop_height`` binds in either mode, so ``improved_height``
 is allowed with a drop below its default, and ``drop_height``, unread by the improved place, is
 never refused (raising ``improved_height`` needs it raised). Checked against what runs read by

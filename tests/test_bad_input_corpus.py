@@ -790,6 +790,10 @@ CASES: list[tuple[str, list[str], str]] = [
     ("bench-agent-revisits-off-set", ["bench", "agent", "--agent-name", "helios", "--agent-set",
                                       "agent_config.max_revisits=0", "--agent-set", "agent_config.revisit_candidates=3"],
      "agent_config.revisit_candidates would change nothing with agent 'helios': revisiting"),
+    ("trials-near-yaws-no-near-views", [*T, "--agent", "trusting", "agent_config.view.near_look_distance=0",
+                                        "agent_config.view.start_near_yaws_deg=[-90,90]"],
+     "agent_config.view.start_near_yaws_deg would change nothing with agent 'trusting': the views of the near "
+     "floor, which alone reads it, is off (agent_config.view.near_look_distance=0.0; a distance above 0 turns it on)"),
     ("ep-robot-start-overflows", ["episodes", "check", E + "start_overflow.jsonl"],
      "robot_start must be 3 finite numbers"),
     ("ep-robot-start-bool", [*T, "--episodes-file", E + "start_bool.jsonl"], "robot_start must be 3 finite numbers"),

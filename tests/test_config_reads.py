@@ -29,7 +29,8 @@ RADIUS = "agent_config.view.arm_model=radius"
 ROLES = "perception.gt_roles=[object,goal_receptacle]"
 FRONTIER_TERM = "helios.search.frontier_choice=value_minus_distance"
 SWITCHED = ("agent_config.stall_steps=0 agent_config.max_revisits=0 agent_config.max_looks_per_candidate=0 "
-            "agent_config.place.mode=improved agent_config.local_search_views=informative")
+            "agent_config.place.mode=improved agent_config.local_search_views=informative "
+            "agent_config.view.near_look_distance=0")
 """Every switch of ``tasks.registry.ONLY_WITH`` the other way round from its default: the settings
 the defaults refuse (the improved place's, informative local search's) are then allowed, and those
 of the parts it turns off are refused."""
@@ -167,7 +168,8 @@ SWITCHED_ON = (
     #  HAL commands, what the run reads)
     ("helios", "agent_config.local_search_views=informative", 0, 60,
      ("agent_config.local_search_min_gain", "agent_config.fresh_view_distance", "helios.decision.tau_increase",
-      "helios.decision.view_prediction", "helios.decision.view_prediction_poses")),
+      "helios.decision.view_prediction", "helios.decision.view_prediction_poses",
+      "agent_config.view.start_near_yaws_deg")),
     ("trusting", "agent_config.place.mode=improved", 15, 60,
      ("agent_config.place.improved_height", "agent_config.place.top_band", "agent_config.place.surface_cell")),
     ("trusting", "", 1, 200, ("agent_config.stall_radius", "agent_config.stall_new_area",

@@ -361,7 +361,9 @@ class Body:
     def look_all_around(self, robot: RobotBackend) -> None:
         """The start's look pattern: wide far views plus the near floor on three sides."""
         view = self.config.view
-        self.look(robot, view.start_look_yaws_deg, near_yaws_deg=view.start_near_yaws_deg)
+        # with the near views off, their directions are not read (tasks.registry.ONLY_WITH refuses them)
+        near_yaws_deg = view.start_near_yaws_deg if view.near_look_distance > 0 else ()
+        self.look(robot, view.start_look_yaws_deg, near_yaws_deg=near_yaws_deg)
 
     def gaze(self, robot: RobotBackend, point) -> CommandResult:
         """Point the hand camera at a world point (the arm leaves its stowed/carry pose)."""
