@@ -308,6 +308,7 @@ ONLY_WITH: tuple[tuple[str, object, str, str, tuple[str, ...]], ...] = (
     #  turns it on, the settings only that part reads)
     ("agent_config.place.mode", "drop", "the improved place", "improved",
      ("agent_config.place.improved_height", "agent_config.place.top_band", "agent_config.place.surface_cell")),
+    ("agent_config.place.mode", "improved", "the paper's drop", "drop", ("agent_config.place.drop_height",)),
     ("agent_config.local_search_views", "all", "local search's choice of informative gaze points", "informative",
      ("agent_config.local_search_min_gain",)),
     ("agent_config.stall_steps", 0, "exploration stall detection", "a count above 0",
@@ -329,11 +330,10 @@ with ``stall_steps`` above 0 (``HeliosAgent.reset``); ``revisit_goals``, called 
 ``max_revisits`` revisits (``HeliosAgent._revisit``); ``HeliosAgent._best_view`` and the Psi' rule's
 ``decide``, reached only for a candidate with fewer than ``max_looks_per_candidate`` extra views
 (``_judge_targets``); ``Body.look``'s near-floor views, none with ``near_look_distance`` 0
-(``Body.look_all_around`` then passes no directions). A variant's forced value counts (``helios-place`` places ``improved``).
-PlaceConfig's check ``improved_height <= drop_height`` binds in either mode, so ``improved_height``
-is allowed with a drop below its default, and ``drop_height``, unread by the improved place, is
-never refused (raising ``improved_height`` needs it raised). Checked against what runs read by
-tests/test_config_reads.py, in both states of each switch."""
+(``Body.look_all_around`` then passes no directions); and the other way round, the paper's drop
+height, which the improved place never reads (``place`` and ``choose_place_point`` read the height
+of their mode only). A variant's forced value counts (``helios-place`` places ``improved``).
+Checked against what runs read by tests/test_config_reads.py, in both states of each switch."""
 
 
 def _value_at(cfg, key: str):
@@ -344,8 +344,6 @@ def _value_at(cfg, key: str):
 
 def _only_with_unread(config) -> dict[str, str]:
     """:data:`ONLY_WITH`'s settings whose part of the agent ``config`` turns off -> why."""
-    from helios.agents.config import PlaceConfig
-
     forced = replaced_settings(config.agent)
     out: dict[str, str] = {}
     for switch, off, part, on, keys in ONLY_WITH:
@@ -353,9 +351,6 @@ def _only_with_unread(config) -> dict[str, str]:
         if value == off:
             out.update({key: f"{part}, which alone reads it, is off ({switch}={value}; {on} turns it on)"
                         for key in keys})
-    if config.agent_config.place.drop_height < PlaceConfig().improved_height:
-        # PlaceConfig needs improved_height <= drop_height in either mode: a drop this low needs it lowered too
-        out.pop("agent_config.place.improved_height", None)
     return out
 
 

@@ -268,9 +268,15 @@ def test_settings_only_a_switched_off_part_of_the_agent_reads_are_refused():
     # the switches themselves are read in either state
     check("helios", "agent_config.stall_steps=0", "agent_config.max_revisits=0", "agent_config.place.mode=drop",
           "agent_config.max_looks_per_candidate=0", "agent_config.local_search_views=all")
-    # PlaceConfig needs improved_height <= drop_height in either mode: a drop below the improved
-    # height's default needs it lowered too, so that is not refused
-    check("helios", "agent_config.place.drop_height=0.01", "agent_config.place.improved_height=0.01")
+    # each place mode reads its own height only: the other's is refused, whichever way round
+    check("helios", "agent_config.place.drop_height=0.01")
+    with pytest.raises(ConfigError, match=r"agent_config.place.drop_height would change nothing with agent "
+                                          r"'helios-place': the paper's drop, which alone reads it, is off "
+                                          r"\(agent_config.place.mode=improved; drop turns it on\)"):
+        check("helios-place", "agent_config.place.drop_height=0.2")
+    with pytest.raises(ConfigError, match=r"improved_height would change nothing with agent 'helios'"):
+        check("helios", "agent_config.place.drop_height=0.01", "agent_config.place.improved_height=0.01")
+    check("helios", "agent_config.place.mode=improved", "agent_config.place.improved_height=0.3")
     # the trusting variant reaches no local search or extra views at all: that refusal says so
     with pytest.raises(ConfigError, match=r"local_search_min_gain would change nothing .* the trusting variant"):
         check("trusting", "agent_config.local_search_min_gain=0.2")

@@ -790,6 +790,9 @@ CASES: list[tuple[str, list[str], str]] = [
     ("bench-agent-revisits-off-set", ["bench", "agent", "--agent-name", "helios", "--agent-set",
                                       "agent_config.max_revisits=0", "--agent-set", "agent_config.revisit_candidates=3"],
      "agent_config.revisit_candidates would change nothing with agent 'helios': revisiting"),
+    ("trials-drop-height-improved-place", [*T, "--agent", "helios-place", "agent_config.place.drop_height=0.2"],
+     "agent_config.place.drop_height would change nothing with agent 'helios-place': the paper's drop, which alone "
+     "reads it, is off (agent_config.place.mode=improved; drop turns it on)"),
     ("trials-near-yaws-no-near-views", [*T, "--agent", "trusting", "agent_config.view.near_look_distance=0",
                                         "agent_config.view.start_near_yaws_deg=[-90,90]"],
      "agent_config.view.start_near_yaws_deg would change nothing with agent 'trusting': the views of the near "

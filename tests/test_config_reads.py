@@ -174,6 +174,7 @@ SWITCHED_ON = (
      ("agent_config.place.improved_height", "agent_config.place.top_band", "agent_config.place.surface_cell")),
     ("trusting", "", 1, 200, ("agent_config.stall_radius", "agent_config.stall_new_area",
                               "agent_config.revisit_spacing", "agent_config.revisit_candidates")),
+    ("trusting", "", 15, 60, ("agent_config.place.drop_height",)),
 )
 """Runs (seed 0) that reach every part of the agent ``ONLY_WITH`` can turn off, with it on."""
 

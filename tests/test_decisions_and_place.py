@@ -174,6 +174,9 @@ def test_none_with_fewer_than_five_points(mode):
 
 
 def test_place_config_validation():
-    for bad in (dict(mode="throw"), dict(improved_height=0.2, drop_height=0.1), dict(region=(1.0, 0.5, -0.3, 0.3))):
+    for bad in (dict(mode="throw"), dict(improved_height=1.2), dict(drop_height=-0.1),
+                dict(region=(1.0, 0.5, -0.3, 0.3))):
         with pytest.raises(ValueError):
             PlaceConfig(**bad)
+    # each mode reads its own height: an improved height above the drop's is no contradiction
+    assert PlaceConfig(mode="improved", improved_height=0.2, drop_height=0.1).improved_height == 0.2
