@@ -3,7 +3,7 @@ function or an ``if TYPE_CHECKING`` block, goes to the same floor or a lower one
 
 Floors, bottom to top: the robots vocabulary (``robots/{hal,transforms}.py``,
 ``robots/spot/{model,urdf,kinematics,motion}.py``) -> ``sim/`` -> the robot adapters
-(``robots/spot/{sim_backend,sdk_*,stall_watch,signals}.py``, ``robots/spot/fake_spot/``) ->
+(``robots/spot/{sim_*,sdk_*,stall_watch,signals}.py``, ``robots/spot/fake_spot/``) ->
 ``helios/`` -> ``tasks/`` -> ``tools/``. ``sim`` using the robots vocabulary is downward here; the
 one upward arrow by design is ``sim -> helios.perception`` (the protocols the simulated detector
 implements). ``helios/schema.py``, the config machinery, imports nothing of ours and counts as the
@@ -24,7 +24,8 @@ VOCABULARY = {"robots", "robots.hal", "robots.transforms", "robots.spot", "robot
 CONFIG_MACHINERY = "helios.schema"
 """The config machinery (dataclasses as the schema, YAML, overrides, ``require``) serves the config
 trees of every floor and imports nothing of ours, so it stands on the bottom floor (checked below)."""
-ADAPTERS = ("robots.spot.sim_backend", "robots.spot.sdk_backend", "robots.spot.sdk_bringup",
+ADAPTERS = ("robots.spot.sim_backend", "robots.spot.sim_arm", "robots.spot.sim_manipulation",
+            "robots.spot.sdk_backend", "robots.spot.sdk_bringup",
             "robots.spot.sdk_commands", "robots.spot.sdk_config",
             "robots.spot.sdk_conversions", "robots.spot.sdk_futures", "robots.spot.sdk_shutdown",
             "robots.spot.stall_watch", "robots.spot.signals", "robots.spot.fake_spot")

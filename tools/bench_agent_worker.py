@@ -41,7 +41,9 @@ PROFILE_PHASES = (
     # where cProfile books it as the hook's own time
     ("simulator: physics stepping", [("sim/world.py", "step", None)]),
     ("simulator: collision queries", [("sim/spot.py", "touching", None)]),
-    ("simulator: arm motion", [("robots/spot/sim_backend.py", "_move_arm", None)]),
+    # _move_arm moved to sim_arm.py (the split of SimSpotBackend); one of the two exists per commit
+    ("simulator: arm motion", [("robots/spot/sim_backend.py", "_move_arm", None),
+                               ("robots/spot/sim_arm.py", "_move_arm", None)]),
     ("simulator: base motion", [("robots/spot/sim_backend.py", "follow_base_path", None)]),
     ("map: Gaussian rendering", [("helios/maps/gaussians.py", "render", "update")]),
     ("map: Gaussian update (all)", [("helios/maps/gaussians.py", "update", None)]),

@@ -5,6 +5,13 @@ with real physics.
 It exposes exactly the ``robots.hal.RobotBackend`` contract. Simulation-only facilities (the
 world, collision events, ground-truth segmentation for the simulated detector, a frame stream for
 recordings) are separate attributes that agents never receive.
+
+:class:`SimSpotBackend` is one class in three modules: this one holds its construction and state,
+observation and frames, the base walk, what every motion shares (contact bookkeeping and guards,
+the held object's kinematic ride and slip check), time (physics steps, kinematic advances, the
+pacer, the frame stream) and the small HAL commands; the arm's motion is the mixin
+:class:`robots.spot.sim_arm.SimArm`, the grasp, place and claw physics the mixin
+:class:`robots.spot.sim_manipulation.SimManipulation`. Callers import everything from here.
 """
 
 from __future__ import annotations
@@ -18,31 +25,27 @@ import numpy as np
 
 from helios.schema import ConfigValueError, require_range
 from robots.hal import (
-    as_hand_pose,
-    as_pixel,
-    as_point,
     as_se2,
     BackendClosedError,
     CameraIntrinsics,
     CommandResult,
-    GraspResult,
-    InvalidCommandError,
     NavigateResult,
     Observation,
-    PlaceResult,
     Reason,
     SE2Pose,
 )
-from robots.spot import kinematics, model
-from robots.spot.motion import MotionConfig, check_arm_target, plan_arm, plan_base
-from robots.transforms import invert_transform, rot_y, rot_z, transform_points, transform_to_pose
+from robots.spot import model
+from robots.spot.motion import MotionConfig, plan_base
+from robots.spot.sim_arm import SimArm
+from robots.spot.sim_manipulation import _Held, SimManipulation
+from robots.transforms import invert_transform, transform_to_pose
 from sim import camera as sim_camera
 from sim import grasping
 from sim.camera import CameraConfig
 from sim.grasping import GraspConfig
 from sim.render_worker import RenderWorker, moving_state
 from sim.spot import ContactGuard, SpotBody
-from sim.world import FURNITURE, OBJECT, STRUCTURE, World, WorldConfig
+from sim.world import OBJECT, World, WorldConfig
 
 
 @dataclass(frozen=True)
@@ -106,13 +109,6 @@ class CollisionEvent:
     phase: str
 
 
-@dataclass
-class _Held:
-    body_id: int
-    constraint_id: int
-    T_wrist_obj: np.ndarray   # where the object sat in the claw when the constraint was made
-
-
 class _KinematicCarry:
     """Moves a held object rigidly with the wrist during one kinematic move.
 
@@ -150,7 +146,7 @@ class _KinematicCarry:
         return any(c.getClosestPoints(self.body_id, other, distance=0.0) for other in others)
 
 
-class SimSpotBackend:
+class SimSpotBackend(SimArm, SimManipulation):
     """Spot in a PyBullet :class:`World` behind the :class:`robots.hal.RobotBackend` contract."""
 
     def __init__(self, world: World, spot: SpotBody, config: SimBackendConfig = SimBackendConfig(),
@@ -314,190 +310,8 @@ class SimSpotBackend:
                 self.collision_events.append(CollisionEvent(self.world.time, link, self.world.bodies[body].name, phase))
         self._active_contacts = set(current)
 
-    # ================================================================== arm
-    def move_arm_joints(self, joints: Sequence[float]) -> CommandResult:
-        self._check_open()
-        q = check_arm_target(joints)
-        return self._move_arm(q, phase="arm")
-
-    def move_hand(self, T_body_hand: np.ndarray) -> CommandResult:
-        self._check_open()
-        T = as_hand_pose(T_body_hand)
-        q = kinematics.inverse_kinematics(T, self.spot.arm_q())
-        if q is None:
-            return CommandResult(False, Reason.IK_FAILED, "no arm configuration within limits reaches that hand pose")
-        return self._move_arm(q, phase="arm")
-
-    def gaze_at(self, point: Sequence[float]) -> CommandResult:
-        self._check_open()
-        p_world = as_point(point, "gaze point")
-        T_body_world = invert_transform(self.spot.T_world_body())
-        p_body = transform_points(T_body_world, p_world[None])[0]
-        q = self._gaze_solution(p_body)
-        if q is None:
-            return CommandResult(False, Reason.UNREACHABLE,
-                                 f"cannot point the hand camera at ({p_world[0]:.2f}, {p_world[1]:.2f}, "
-                                 f"{p_world[2]:.2f}) from here; turn the body towards it")
-        return self._move_arm(q, phase="gaze")
-
-    def _gaze_solution(self, p_body: np.ndarray) -> np.ndarray | None:
-        cam = model.HAND_CAMERA
-        R_hand_cam = kinematics.forward_kinematics(model.ARM_READY)
-        R_hand_cam = (invert_transform(R_hand_cam["arm0.hand"]) @ R_hand_cam[cam.name])[:3, :3]
-        axis = R_hand_cam[:, 2]
-        tilt = math.atan2(axis[2], axis[0])  # the camera looks ~9 degrees above the hand's x axis
-        base = np.array(self.config.gaze_hand_position)
-        for dz, dx in ((0.0, 0.0), (-0.15, 0.1), (0.1, -0.1), (-0.3, 0.15), (0.0, -0.2)):
-            hand_p = base + np.array([dx, 0.0, dz])
-            if np.linalg.norm(p_body - hand_p) < 0.15:
-                continue
-            try:
-                T = kinematics.look_at_hand_pose(hand_p, p_body)
-            except ValueError:
-                continue
-            T[:3, :3] = T[:3, :3] @ rot_y(tilt)
-            q = kinematics.inverse_kinematics(T, self.spot.arm_q())
-            if q is not None:
-                return q
-        return None
-
-    def stow_arm(self) -> CommandResult:
-        """Stow; with an object in the claw, go to the carry pose instead (Spot refuses to stow it).
-
-        From an extended arm the hand first retracts along a straight line: back towards the body
-        at its current height, then up to the carry/gaze height, so neither the hand nor a held
-        object is dragged through the furniture it was just working on.
-        """
-        self._check_open()
-        t0 = self.world.time
-        holding = self._held is not None
-        T_cur = kinematics.hand_pose(self.spot.arm_q())
-        x = T_cur[:3, 0]
-        R_fwd = rot_z(-math.atan2(x[1], x[0])) @ T_cur[:3, :3]   # same pitch/roll, facing forward
-        tuck = np.array(self.config.carry_hand_position if holding else self.config.gaze_hand_position)
-        waypoints = []
-        if T_cur[0, 3] > tuck[0] + 0.05 or T_cur[2, 3] < tuck[2] - 0.15:
-            back = T_cur.copy()
-            back[:3, 3] = [tuck[0], T_cur[1, 3] * 0.5, max(T_cur[2, 3], tuck[2] - 0.3)]
-            waypoints.append(back)
-            up = np.eye(4)
-            up[:3, :3] = R_fwd if holding else kinematics.look_at_hand_pose(tuck, tuck + [1.0, 0.0, -0.3])[:3, :3]
-            up[:3, 3] = tuck
-            waypoints.append(up)
-        phase = "carry" if holding else "stow"
-        res = self._move_hand_linear(waypoints, phase)
-        if not res:
-            return res
-        if holding:
-            T = np.eye(4)
-            T[:3, :3] = R_fwd
-            T[:3, 3] = tuck
-            q = kinematics.inverse_kinematics(T, self.spot.arm_q())
-            if q is None:
-                return CommandResult(False, Reason.IK_FAILED, "carry pose unreachable", duration=self.world.time - t0)
-        else:
-            q = np.array(model.ARM_STOW)
-        res = self._move_arm(q, phase=phase)
-        return CommandResult(res.success, res.reason, res.message, duration=self.world.time - t0)
-
-    def _move_hand_linear(self, waypoints, phase: str, steps_per_metre: float = 12.0,
-                          allow_gripper_contact: bool = False) -> CommandResult:
-        """Move the hand through body-frame poses along (approximately) straight lines: each leg
-        is cut into short joint-space moves between IK solutions of interpolated poses."""
-        t0 = self.world.time
-        T_prev = kinematics.hand_pose(self.spot.arm_q())
-        for T_next in waypoints:
-            n = max(1, int(math.ceil(np.linalg.norm(T_next[:3, 3] - T_prev[:3, 3]) * steps_per_metre)))
-            for k in range(1, n + 1):
-                T = T_prev.copy()
-                T[:3, 3] = T_prev[:3, 3] + (T_next[:3, 3] - T_prev[:3, 3]) * k / n
-                T[:3, :3] = T_prev[:3, :3] if k < n else T_next[:3, :3]
-                q = kinematics.inverse_kinematics(T, self.spot.arm_q())
-                if q is None:
-                    continue   # skip an unreachable intermediate pose; the next one may be fine
-                res = self._move_arm(q, phase, allow_gripper_contact)
-                if not res:
-                    return CommandResult(False, res.reason, res.message, duration=self.world.time - t0)
-            T_prev = T_next
-        return CommandResult(True, Reason.OK, duration=self.world.time - t0)
-
-    def _move_arm(self, q_goal: np.ndarray, phase: str, allow_gripper_contact: bool = False) -> CommandResult:
-        t0 = self.world.time
-        traj = plan_arm(self.spot.arm_q(), q_goal, self.config.motion.arm)
-        kinematic = self.config.kinematic_carry if self._held is not None else self.config.kinematic_free_arm
-        if kinematic and not allow_gripper_contact:
-            result = self._follow_arm_kinematically(traj, q_goal, phase, t0)
-            if result is not None:
-                return result
-            traj = plan_arm(self.spot.arm_q(), q_goal, self.config.motion.arm)  # continue under physics
-        ts = self.world.timestep
-        n = max(1, int(math.ceil(traj.duration / ts)))
-        every = self.config.contact_check_every
-        for k in range(1, n + 1):
-            q, qd = traj.at_time(k * ts)
-            self.spot.command_arm(q, qd)
-            self._step(1)
-            if k % every == 0 or k == n:
-                hit = self._new_arm_hits(phase, allow_gripper_contact)
-                if hit:
-                    self.spot.command_arm(self.spot.arm_q())
-                    self._step(every)
-                    link, body = hit
-                    return CommandResult(False, Reason.COLLISION,
-                                         f"{link} touched {self.world.bodies[body].name} during the {phase} move",
-                                         duration=self.world.time - t0)
-        # Let the position controllers converge on the final target.
-        self.spot.command_arm(q_goal)
-        settle_steps = int(self.config.arm_settle_time / ts)
-        for _ in range(settle_steps):
-            if np.max(np.abs(self.spot.arm_q() - q_goal)) < self.config.arm_tolerance:
-                break
-            self._step(1)
-        self._check_slip()
-        q_now = self.spot.arm_q()
-        err = float(np.max(np.abs(q_now - q_goal)))
-        hand_err = float(np.linalg.norm(kinematics.hand_pose(q_now)[:3, 3] - kinematics.hand_pose(q_goal)[:3, 3]))
-        if err >= self.config.arm_tolerance and hand_err >= self.config.hand_tolerance:
-            return CommandResult(False, Reason.TIMEOUT, f"arm stopped {err:.3f} rad ({100 * hand_err:.1f} cm) short "
-                                                        f"of the target", duration=self.world.time - t0)
-        return CommandResult(True, Reason.OK, duration=self.world.time - t0)
-
-    def _follow_arm_kinematically(self, traj, q_goal: np.ndarray, phase: str, t0: float) -> CommandResult | None:
-        """Replay an arm trajectory pose by pose (free space, or carrying with the held object
-        moved along); None means 'touched an object, or the held object touched anything: use
-        physics from here'."""
-        times = traj.sample_times(self.config.motion.control_dt)
-        carry = self._kinematic_carry()
-        dynamic = self._physics_needed(held_is_kinematic=carry is not None)
-        q_prev = self.spot.arm_q()
-        guard = self._contact_guard("arm", carry, dynamic)
-        for t_prev, t in zip(times[:-1], times[1:]):
-            q, qd = traj.at_time(t)
-            self.spot.set_arm_state(q, qd)
-            if carry is not None:
-                carry.follow()
-            hits = self._new_base_hits(phase, guard, q)
-            if hits:
-                static = [(l, b) for l, b in hits if self.world.bodies[b].kind != OBJECT]
-                if not static:
-                    return None
-                self.spot.set_arm_state(q_prev)
-                if carry is not None:
-                    carry.follow()
-                self._advance(t - t_prev, dynamic)
-                link, body = static[0]
-                return CommandResult(False, Reason.COLLISION,
-                                     f"{link} touched {self.world.bodies[body].name} during the {phase} move",
-                                     duration=self.world.time - t0)
-            if carry is not None and carry.touching():
-                return None
-            q_prev = q
-            self._advance(t - t_prev, dynamic)
-        self.spot.set_arm_state(q_goal)
-        if carry is not None:
-            carry.follow()
-        return CommandResult(True, Reason.OK, duration=self.world.time - t0)
-
+    # ================================================================== shared by every motion
+    # Contact guards for kinematic moves, and the held object as base and arm moves see it.
     def _contact_guard(self, kind: str, carry, dynamic: bool) -> ContactGuard | None:
         """The guard that spares a kinematic move's contact queries where they cannot find
         anything (None: check every pose): only while nothing is held and nothing else moves."""
@@ -523,195 +337,6 @@ class SimSpotBackend:
             return None
         return _KinematicCarry(self.world, self.spot, self._held.body_id)
 
-    def _new_arm_hits(self, phase: str, allow_gripper_contact: bool) -> tuple[str, int] | None:
-        held = self._held.body_id if self._held else None
-        current = set()
-        for pt in self.world.contacts(self.spot.id):
-            body, link = pt[2], pt[3]
-            if body == held or body == self.spot.id:
-                continue
-            if allow_gripper_contact and link in self.spot.gripper_link_ids:
-                continue
-            current.add((self.spot.link_name.get(link, str(link)), body))
-        self._record_contacts(sorted(current), phase)
-        if held is not None and not allow_gripper_contact:
-            # Outside grasping and placing, the held object is part of what the arm moves: jammed
-            # against furniture or a wall it stops the arm and counts as a collision.
-            for pt in self.world.contacts(held):
-                other = pt[2]
-                if other != self.spot.id and self.world.bodies.get(other) is not None and \
-                        self.world.bodies[other].kind in (FURNITURE, STRUCTURE):
-                    self._record_contacts(sorted(current) + [("held object", other)], phase)
-                    return ("held object", other)
-        if not current:
-            return None
-        # Only contacts with the static scene stop the arm; nudging a small object is allowed.
-        static = [(l, b) for l, b in sorted(current) if self.world.bodies[b].kind != OBJECT]
-        return static[0] if static else None
-
-    # ================================================================== grasp and place
-    def grasp(self, observation: Observation, pixel: tuple[int, int]) -> GraspResult:
-        self._check_open()
-        if not isinstance(observation, Observation):
-            raise InvalidCommandError(f"grasp needs the Observation the pixel refers to, got {type(observation).__name__}")
-        u, v = as_pixel(pixel, observation)
-        t0 = self.world.time
-        if self._held is not None:
-            return GraspResult(False, Reason.ALREADY_HOLDING, "the claw already holds an object", holding=True)
-        target = observation.point_at_pixel(u, v)
-        if target is None:
-            return GraspResult(False, Reason.NO_DEPTH, f"no depth at pixel ({u}, {v})")
-        tgt = tuple(float(x) for x in target)
-        cfg = self.config.grasp
-        T_world_body = self.spot.T_world_body()
-        shoulder = (T_world_body @ np.array([*model.SHOULDER_ORIGIN, 1.0]))[:3]
-        reach = model.UPPER_ARM[0] + math.hypot(model.FOREARM[0], model.FOREARM[2]) + model.HAND_OFFSET
-        dist = float(np.linalg.norm(target - shoulder))
-        plan = grasping.plan_side_grasp(observation, target, T_world_body[:2, 3], cfg, model.HAND_OFFSET)
-        T_body_world = invert_transform(T_world_body)
-        solution = None
-        for T_world_grasp in plan.hand_poses:
-            T_grasp = T_body_world @ T_world_grasp
-            T_pre = T_grasp.copy()
-            T_pre[:3, 3] -= cfg.approach_back * T_grasp[:3, 0]
-            T_pre[:3, 3] += cfg.approach_up * (T_body_world[:3, :3] @ np.array([0.0, 0.0, 1.0]))
-            q_pre = kinematics.inverse_kinematics(T_pre, self.spot.arm_q())
-            q_grasp = kinematics.inverse_kinematics(T_grasp, q_pre) if q_pre is not None else None
-            if q_pre is not None and q_grasp is not None:
-                solution = (T_grasp, q_pre, q_grasp)
-                break
-        if solution is None:
-            reason = Reason.OUT_OF_REACH if dist > reach - 0.3 else Reason.IK_FAILED
-            return GraspResult(False, reason, f"grasp point {dist:.2f} m from the shoulder cannot be reached from "
-                                              f"here (arm length {reach:.2f} m); move closer", target_world=tgt)
-        T_grasp, q_pre, q_grasp = solution
-        res = self._move_arm(q_pre, "grasp")  # free-space move to the pre-grasp pose
-        if not res:
-            return GraspResult(False, res.reason, f"approach failed: {res.message}", target_world=tgt,
-                               duration=self.world.time - t0)
-        self._gripper_to(cfg.open_angle, cfg.close_force, cfg.close_speed * 2, 0.4)
-        res = self._move_arm(q_grasp, "grasp", allow_gripper_contact=True)
-        if res.reason == Reason.COLLISION:
-            self._retreat_after_failed_grasp()
-            return GraspResult(False, Reason.COLLISION, f"approach hit the scene: {res.message}", target_world=tgt,
-                               duration=self.world.time - t0)
-        fixed_link = self.spot.link_index["arm0.link_wr1"]
-        moving_link = self.spot.link_index["arm0.link_fngr"]
-        body = self._close_until_pinch(fixed_link, moving_link)
-        if body is None:
-            self._retreat_after_failed_grasp()
-            return GraspResult(False, Reason.GRASP_MISSED, "the jaws closed without both touching an object",
-                               target_world=tgt, duration=self.world.time - t0)
-        cid = grasping.attach(self.world, self.spot.id, fixed_link, body, cfg.hold_force)
-        T_wrist_obj = invert_transform(self.spot.link_pose("arm0.link_wr1")) @ self.world.pose(body)
-        self._held = _Held(body, cid, T_wrist_obj)
-        self._lift(T_body_world[:3, :3] @ np.array([0.0, 0.0, 1.0]))
-        self._check_slip()
-        if self._held is None:
-            self._retreat_after_failed_grasp()
-            return GraspResult(False, Reason.GRASP_SLIPPED, "the object slipped out of the claw during the lift",
-                               target_world=tgt, duration=self.world.time - t0)
-        return GraspResult(True, Reason.OK, f"holding {self.world.bodies[body].name}", holding=True,
-                           target_world=tgt, duration=self.world.time - t0)
-
-    def _lift(self, up_body: np.ndarray) -> None:
-        """Raise the grasped object clear of its support: straight up by ``lift_height`` if the arm
-        reaches, otherwise up and back towards the body (an arm at full stretch cannot go straight up)."""
-        cfg = self.config.grasp
-        T0 = kinematics.hand_pose(self.spot.arm_q())
-        back = -np.array([T0[0, 0], T0[1, 0], 0.0])
-        back /= max(np.linalg.norm(back), 1e-9)
-        for up, away in ((1.0, 0.0), (0.8, 0.5), (0.6, 0.9), (0.4, 1.2)):
-            T = T0.copy()
-            T[:3, 3] += cfg.lift_height * (up * up_body + away * back)
-            if kinematics.inverse_kinematics(T, self.spot.arm_q()) is not None:
-                self._move_hand_linear([T], "grasp", allow_gripper_contact=True)
-                return
-
-    def _retreat_after_failed_grasp(self) -> None:
-        """Open, back the hand out along its approach axis, close again."""
-        cfg = self.config.grasp
-        self._gripper_to(cfg.open_angle, cfg.close_force, 4.0, 0.3)
-        T = kinematics.hand_pose(self.spot.arm_q())
-        T[:3, 3] -= cfg.approach_back * T[:3, 0]
-        q = kinematics.inverse_kinematics(T, self.spot.arm_q())
-        if q is not None:
-            self._move_arm(q, "grasp", allow_gripper_contact=True)
-        self._gripper_to(0.0, cfg.close_force, 4.0, 0.3)
-
-    def _close_until_pinch(self, fixed_link: int, moving_link: int) -> int | None:
-        """Close the claw under motor force; return the object as soon as both jaws touch it.
-
-        Attaching at the first pinch (rather than after the jaw stops) keeps the sweeping jaw from
-        pushing the object out past the jaw tips.
-        """
-        cfg = self.config.grasp
-        self.last_grasp_hand_pose = self.spot.T_world_hand()
-        self.spot.command_gripper(0.0, cfg.close_force, cfg.close_speed)
-        for _ in range(max(1, int(cfg.close_time / self.world.timestep))):
-            self._step(1)
-            body = grasping.pinched_object(self.world, self.spot.id, fixed_link, moving_link)
-            if body is not None:
-                self._step(4)  # let the jaw press in before the constraint freezes the relative pose
-                return body
-        return None
-
-    def _gripper_to(self, angle: float, force: float, speed: float, duration: float) -> None:
-        self.spot.command_gripper(angle, force, speed)
-        self._step(max(1, int(duration / self.world.timestep)))
-
-    def place(self, point: Sequence[float], release_height: float = 0.10) -> PlaceResult:
-        self._check_open()
-        p_world = as_point(point, "place point")
-        if not (math.isfinite(release_height) and 0.0 <= release_height <= 1.0):
-            raise InvalidCommandError(f"release_height must be within [0, 1] m, got {release_height}")
-        if self._held is None:
-            return PlaceResult(False, Reason.NOT_HOLDING, "nothing in the claw to place")
-        t0 = self.world.time
-        held = self._held.body_id
-        T_world_hand = self.spot.T_world_hand()
-        lo, hi = self.world.aabb(held)
-        below = T_world_hand[2, 3] - lo[2]   # how far the object hangs below the hand frame
-        centre_hand = invert_transform(T_world_hand) @ np.array([*(lo[:2] + hi[:2]) / 2, T_world_hand[2, 3], 1.0])
-        T_world_body = self.spot.T_world_body()
-        yaw = math.atan2(p_world[1] - T_world_body[1, 3], p_world[0] - T_world_body[0, 3])
-        # Turn the hand (about world z) to face the release point, keeping its roll and the grip.
-        x = T_world_hand[:3, 0]
-        R = rot_z(yaw - math.atan2(x[1], x[0])) @ T_world_hand[:3, :3]
-        T_target = np.eye(4)
-        T_target[:3, :3] = R
-        offset = R @ centre_hand[:3]
-        T_target[:3, 3] = [p_world[0] - offset[0], p_world[1] - offset[1], p_world[2] + release_height + below]
-        T_body = invert_transform(T_world_body) @ T_target
-        q = kinematics.inverse_kinematics(T_body, self.spot.arm_q())
-        if q is None:
-            return PlaceResult(False, Reason.OUT_OF_REACH, "the release point cannot be reached from here; move closer",
-                               duration=self.world.time - t0)
-        res = self._move_arm(q, "place", allow_gripper_contact=True)
-        if not res.success:   # never let go somewhere it was not meant to
-            return PlaceResult(False, res.reason, f"did not reach the release pose: {res.message}",
-                               duration=self.world.time - t0)
-        release = tuple(float(v) for v in self.spot.T_world_hand()[:3, 3])
-        self._release()
-        T_back = kinematics.hand_pose(self.spot.arm_q())
-        T_back[:3, 3] -= self.config.grasp.release_retreat * T_back[:3, 0]
-        T_back[:3, 3] += 0.05 * (invert_transform(T_world_body)[:3, :3] @ np.array([0.0, 0.0, 1.0]))
-        q_back = kinematics.inverse_kinematics(T_back, self.spot.arm_q())
-        if q_back is not None:
-            self._move_arm(q_back, "place", allow_gripper_contact=True)
-        self._gripper_to(0.0, self.config.grasp.close_force, 4.0, 0.2)
-        self.world.settle([held])
-        return PlaceResult(True, Reason.OK, f"released {self.world.bodies[held].name}", duration=self.world.time - t0,
-                           release_point=release)
-
-    def _release(self) -> None:
-        if self._held is None:
-            return
-        self.last_release = (self._held.body_id, self.world.position(self._held.body_id))
-        grasping.detach(self.world, self._held.constraint_id, self.spot.id, self._held.body_id)
-        self._held = None
-        self._gripper_to(self.config.grasp.open_angle, self.config.grasp.close_force, 4.0, 0.25)
-
     def _check_slip(self) -> None:
         """Let go if the object was dragged out of its grasp pose (the hold force is finite, so a
         heavy or snagged object can slip); beyond ``slip_distance`` the claw no longer holds it."""
@@ -726,37 +351,11 @@ class SimSpotBackend:
     # ================================================================== robot-level primitives
     # What a real Spot executes that the HAL does not name; the fake Spot server uses them to
     # execute SDK commands on this simulation.
-    def set_claw(self, angle: float) -> None:
-        """Drive the claw joint to ``angle`` (0 closed, -pi/2 open). Opening while holding lets go."""
-        self._check_open()
-        cfg = self.config.grasp
-        angle = float(min(max(angle, model.GRIPPER_LIMITS[0]), model.GRIPPER_LIMITS[1]))
-        if self._held is not None and angle < -0.05:
-            self._release()
-            return
-        self._gripper_to(angle, cfg.close_force, 4.0, 0.25 if angle < -0.05 else 0.2)
-
-    def settle_loose_objects(self, max_time: float = 2.0) -> None:
-        """Let objects still moving (e.g. just dropped) come to rest: real time runs on between a
-        robot's commands, while the simulation only runs while asked to."""
-        if self._held is not None:
-            return
-        moving = [b.body_id for b in self.world.bodies_of_kind(OBJECT) if not self.world.is_at_rest(b.body_id)]
-        if moving:
-            self.world.settle(moving, max_time=max_time)
-
     def render_at(self, T_world_cam: np.ndarray) -> Observation:
         """A hand-camera frame rendered from an arbitrary camera pose."""
         T = np.asarray(T_world_cam, dtype=float)
         frame = sim_camera.render(self.world, self.intrinsics, T, self.config.camera)
         return self._make_observation(self._capture_state(T), frame)
-
-    @property
-    def gripper_angle(self) -> float:
-        return self.spot.gripper_q()
-
-    def arm_is_stowed(self, tol: float = 0.05) -> bool:
-        return bool(np.max(np.abs(self.spot.arm_q() - np.array(model.ARM_STOW))) < tol)
 
     # ================================================================== misc
     def stand(self) -> CommandResult:
