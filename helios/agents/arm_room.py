@@ -12,7 +12,7 @@ not either when the camera looks at something on it; but a steep look at the flo
 gripper to 0.63 m up to 0.8 m ahead, below a table's top.
 
 ``measured`` keeps the arm's lowest point over body-frame ground cells, taken over stow -> gaze ->
-stow moves of the simulated Spot (``robots.spot.sim_backend``, the real arm's URDF and joint limits)
+stow moves of the simulated Spot (``robots.spot.sim_arm``, the real arm's URDF and joint limits)
 towards 450 targets at bearings -105..105 degrees, 0.7-3.5 m away and 0-1.2 m high, by
 vertical ray tests at every control sample (2026-12-05; ``python -m tools arm-envelope`` measures
 it again). The gripper dips lowest when the camera looks steeply down, so the table is kept per
