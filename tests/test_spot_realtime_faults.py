@@ -484,6 +484,55 @@ def test_a_pick_stalled_mid_reach_is_stopped_within_its_stall_window_not_the_gra
     _check_after_close(fake, "command_timeout", before, backend)
 
 
+@pytest.mark.parametrize("fault,stale", [("estop", None), ("power_loss", None), ("behavior_fault", None),
+                                         ("power_loss", "MANIP_STATE_GRASP_PLANNING_SUCCEEDED")])
+def test_a_fault_mid_grasp_is_typed_fast_also_when_the_pick_feedback_keeps_its_last_state(fault, stale):
+    """Whether a real Spot's ManipulationApiFeedback turns to MANIP_STATE_GRASP_FAILED after an
+    e-stop or a power cut mid-pick is unverified; one that kept reporting its last state (the
+    fake's manip_feedback_stale) left the fault to the stall watch (a CommandTimeoutError, "stopped
+    making progress", 2 s on) or, in a state other than MOVING_TO_GRASP (``stale``: a planning state),
+    to grasp_timeout (8 s here, 20 s by default). The grasp loop reads
+    the robot's own state (power, e-stop, behavior faults) every 0.25 s: the typed error within
+    2 s, the pick's feedback still in its last state, nothing moving; close() bounded, the robot
+    off, the lease returned, no threads."""
+    params, expected = FAULTS[fault]
+    before = python_threads()
+    demo = start_fake(seed=0, time_scale=1.0)      # the pick takes ~1.7 s of wall time
+    backend = connect(demo)
+    fake = demo.fake
+    try:
+        obs, pixel = _grasp_setup(demo, backend)
+        fake.inject("manip_feedback_stale", **({"state": stale} if stale else {}))
+        at = random.Random(f"stale-{fault}-{stale}").uniform(0.2, 0.8)
+        fake.inject_at(at, fault, **params)
+        t0 = time.monotonic()
+        with pytest.raises(expected) as info:
+            backend.grasp(obs, pixel)
+        latency = time.monotonic() - t0 - at
+        assert "while grasping" in str(info.value) and "\n" not in str(info.value), str(info.value)
+        assert latency < SURFACE_WITHIN, f"{fault}: the error came {latency:.2f} s after the fault"
+        picks = [c for c in fake.commands.values() if c.kind == "pick"]
+        assert len(picks) == 1 and picks[0].state == "frozen", [(c.kind, c.state) for c in picks]
+        from bosdyn.api import manipulation_api_pb2 as M
+        fb = backend._manip_client.manipulation_api_feedback_command(
+            manipulation_api_feedback_request=M.ManipulationApiFeedbackRequest(manipulation_cmd_id=picks[0].id),
+            timeout=1.0)
+        said = M.ManipulationFeedbackState.Name(fb.current_state)    # the fake did keep the last state
+        assert said == stale if stale else said not in ("MANIP_STATE_GRASP_FAILED", "MANIP_STATE_GRASP_SUCCEEDED"), said
+        pose, q = _base(fake), _arm_q(fake)
+        time.sleep(0.3)
+        assert _base(fake).distance_to(pose) < 0.01 and np.max(np.abs(_arm_q(fake) - q)) < 0.05
+        assert not _active_commands(fake), _active_commands(fake)
+        MEASURED.append({"fault": f"{fault}+manip_feedback_stale", "motion": "grasp", "latency": latency})
+        print(f"\n{fault} (feedback kept at {said}): typed {latency:.2f} s after the fault", end=" ")
+    finally:
+        t2 = time.monotonic()
+        backend.close()
+        took = time.monotonic() - t2
+    assert took < CLOSE_WITHIN, took
+    _check_after_close(fake, fault, before, backend)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("phase", ["grasp", "carry"])
 @pytest.mark.parametrize("fault", ["estop", "lease_revoked", "power_loss", "battery_critical", "behavior_fault",

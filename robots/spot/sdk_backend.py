@@ -23,9 +23,13 @@ Every command is sent, then its feedback polled every ``feedback_period`` until 
 that does not end within its planned duration + ``command_margin``, or (walks, arm joint moves)
 makes no progress for ``stall_time`` while away from where its plan has it (a pick: for twice that
 while the robot reports it moves to the grasp), raises :class:`CommandTimeoutError`. While a
-command runs the backend also updates time sync itself every 0.25 s. Whatever error ends a command, a stop is sent first (without waiting long for its reply: a
-robot on a slow link acts on it when it arrives). gRPC tracing in the environment (``GRPC_TRACE``)
-would print the session token and is refused unless ``allow_grpc_tracing``. Robot faults raise the HAL's typed errors and most are *sticky*: once
+command runs the backend also updates time sync itself every 0.25 s; a pick, whose feedback may
+not turn to a failed state when the robot stops it (unverified on a real Spot), also reads the
+robot's state (power, e-stop, behavior faults) every 0.25 s and ends in the typed fault. Whatever
+error ends a command, a stop is sent first (without waiting long for its reply: a robot on a slow
+link acts on it when it arrives). gRPC tracing in the environment (``GRPC_TRACE``) would print the
+session token and is refused unless ``allow_grpc_tracing``. Robot faults raise the HAL's typed
+errors and most are *sticky*: once
 the lease is lost, the robot e-stopped, powered off, the link or time sync lost, every further
 command raises the same error without reaching the robot (``stand()`` retries power after an
 e-stop is released). TLS verification is never disabled: the backend only ever uses the SDK's
@@ -93,6 +97,10 @@ from robots.spot.stall_watch import StallWatch
 from robots.transforms import invert_transform, rot_z
 
 _LOG = logging.getLogger("helios.spot")
+
+# s between the grasp loop's reads of the robot state (power, e-stop, behavior faults), which end a
+# pick the robot stopped by itself whatever its manipulation feedback says (SdkSpotBackend._fault_in_state)
+_GRASP_STATE_PERIOD = 0.25
 
 # What callers import from here: the backend and its vocabulary (configuration, credentials, errors).
 __all__ = ["PASSWORD_ENV", "USERNAME_ENV", "CommandRejectedError", "CredentialsError", "GrpcTracingError",
@@ -558,6 +566,7 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
             deadline = t0 + cfg.grasp_timeout
             at_edge_since = None
             reach: StallWatch | None = None       # while the robot reports it moves to the grasp
+            next_check = t0 + _GRASP_STATE_PERIOD   # the robot's own state, whatever the feedback says
             while True:
                 fb = self._call(self._manip_client.manipulation_api_feedback_command,
                                 manipulation_api_feedback_request=request, timeout=cfg.rpc_timeout, during="grasping")
@@ -575,17 +584,19 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
                                            duration=time.monotonic() - t0)
                 else:
                     at_edge_since = None
+                now, state = time.monotonic(), None
                 if fb.current_state == M.MANIP_STATE_MOVING_TO_GRASP:
                     # The reach must move: a pick whose arm is blocked mid-reach goes on reporting
                     # MOVING_TO_GRASP (the feedback has no state for a stall), and was left pushing
                     # for the whole grasp_timeout (20 s) before it was stopped (audit 2026-12-06).
                     # Twice the stall time: the reach may pause briefly between its phases.
-                    now = time.monotonic()
                     if reach is None:
                         reach = StallWatch((self._pick_progress, None, lambda _state: False), 2 * cfg.stall_time,
                                            cfg.grasp_timeout)
                     if reach.due(now):
-                        reach.add(now - t0, self._state("grasping"))
+                        state = self._state("grasping")
+                        self._fault_in_state(state, "grasping")     # a power cut is no stall
+                        reach.add(now - t0, state)
                         if reach.stalled():
                             self._unresponsive = True
                             raise CommandTimeoutError(f"the robot stopped making progress while grasping "
@@ -594,6 +605,11 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
                                                       f"to stop")
                 else:
                     reach = None
+                if state is None and now >= next_check:
+                    state = self._state("grasping")
+                    self._fault_in_state(state, "grasping")
+                if state is not None:
+                    next_check = now + _GRASP_STATE_PERIOD
                 self._guard()                 # a sticky fault (the keep-alive's lost lease, ...)
                 if time.monotonic() > deadline:
                     self._unresponsive = True
@@ -622,6 +638,24 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
                                                                                       Reason.GRASP_MISSED)
         return GraspResult(False, reason, f"the robot reported {state_name}", holding=holding, target_world=tgt,
                            duration=took)
+
+    def _fault_in_state(self, state, during: str) -> None:
+        """Raise the typed fault (EstopError, PowerError naming a critical fault or the comms-loss
+        behaviour, BehaviorFaultError, LeaseLostError: :meth:`_diagnose`) when the robot's state
+        says it cannot be carrying out a command: motor power not on while we want it on, an
+        e-stop engaged, a behavior fault. The grasp loop reads this every
+        :data:`_GRASP_STATE_PERIOD` s (the reach's stall watch's state when it has one) instead of
+        relying on the manipulation feedback to turn to a failed state after an e-stop or a power
+        cut: whether a real Spot's does is unverified, and one that kept reporting its last state
+        (MOVING_TO_GRASP, a planning state) left the fault to ``grasp_timeout`` (20 s)."""
+        PS = state.power_state
+        if not ((self._power_wanted and PS.motor_power_state != PS.MOTOR_POWER_STATE_ON)
+                or any(e.state == e.STATE_ESTOPPED for e in state.estop_states)
+                or state.behavior_fault_state.faults):
+            return
+        fault = self._diagnose(during)
+        if fault is not None:
+            raise type(fault)(str(fault))
 
     def _pick_progress(self, state) -> np.ndarray:
         """What moves while a pick reaches: arm and claw joints, and the base (a pick may walk)."""

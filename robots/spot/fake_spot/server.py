@@ -94,6 +94,13 @@ FAULTS: dict[str, str] = {
                        "in progress stalls where it is (a pick stalled mid-reach goes on reporting "
                        "MANIP_STATE_MOVING_TO_GRASP, one accepted under the fault MANIP_STATE_SEARCHING_FOR_GRASP)",
     "grasp_failure": "pick requests end with MANIP_STATE_GRASP_FAILED (a pick in progress stops where it is)",
+    "manip_feedback_stale": "a pick the robot ends by itself (an e-stop, a power cut, a critical battery, a fall) "
+                            "goes on reporting the manipulation state it last reported (e.g. "
+                            "MANIP_STATE_MOVING_TO_GRASP or a planning state) instead of MANIP_STATE_GRASP_FAILED: "
+                            "whether a real Spot's ManipulationApiFeedback turns to a failed state then is "
+                            "unverified, so the backend must not rely on it (combine with those faults); `state` "
+                            "(a ManipulationFeedbackState name, e.g. 'MANIP_STATE_GRASP_PLANNING_SUCCEEDED') is "
+                            "reported instead of the last one",
     "time_sync_loss": "the time-sync service fails and timed commands are refused with STATUS_NO_TIMESYNC "
                       "(stop, sit and safe power off, which carry no time, are still accepted); a motion in "
                       "progress goes on to its end time",

@@ -571,6 +571,12 @@ class SpotServicer(auth_service_pb2_grpc.AuthServiceServicer,
                 resp.current_state = manipulation_api_pb2.MANIP_STATE_GRASP_FAILED
             else:
                 resp.current_state = cmd.extra.get("manip_state", manipulation_api_pb2.MANIP_STATE_GRASP_FAILED)
+            last = cmd.extra.get("reported_manip_state")
+            if cmd.state == "frozen" and last is not None and f.has_fault("manip_feedback_stale"):
+                # ended by the robot itself, still reporting its last state (or the one scripted)
+                said = f.faults["manip_feedback_stale"].get("state")
+                resp.current_state = manipulation_api_pb2.ManipulationFeedbackState.Value(said) if said else last
+            cmd.extra["reported_manip_state"] = resp.current_state
             T_grasp = cmd.extra.get("grasp_hand_pose")
         if T_grasp is not None:
             resp.transforms_snapshot_manipulation_data.CopyFrom(cv.frame_tree({
