@@ -333,6 +333,50 @@ def test_close_is_bounded_when_the_robot_never_completes_the_safe_power_off(capl
     assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
 
 
+# A healthy robot on a slow link that answers every RPC just within rpc_timeout: close() waits for
+# each step it depends on and for no other (sdk_shutdown.SdkShutdown._shutdown_in_turn), so it takes
+# about this many round trips (robot state; stop with the state that decides the stow; safe power
+# off with its state polls; lease return with the e-stop deregistration), plus the stow's three with
+# the arm out (its gripper check, the command, its feedback). It took 7 and 10 one after the other
+# (5.6 s and 8.0 s with replies 0.8 s late); measured now 3.2 s and 5.6 s.
+SLOW_LINK_CLOSE_ROUND_TRIPS = {"stowed": 4, "arm out": 7}
+
+
+@pytest.mark.parametrize("arm", sorted(SLOW_LINK_CLOSE_ROUND_TRIPS))
+def test_close_on_a_slow_link_waits_only_for_the_steps_the_next_one_needs(arm):
+    """Every reply 0.8 s late (rpc_timeout 1 s: no step times out, the shutdown stays in turn):
+    close() returns within its documented number of round trips + 1 s, in the safe order (stop,
+    stow with the arm out, safe power off; the lease return and the e-stop deregistration only
+    after the robot said its motors are off), the robot off and sitting, the lease returned, our
+    endpoint gone, no thread left."""
+    delay = 0.8
+    before = python_threads()
+    demo = start_fake(seed=0)
+    backend = connect(demo)
+    fake = demo.fake
+    try:
+        if arm == "arm out":
+            assert backend.move_arm_joints(model.ARM_READY).success
+        n_commands, n_rpcs = len(fake.commands), len(fake.rpc_log)
+        fake.inject("slow", delay=delay)
+    finally:
+        t0 = time.monotonic()
+        backend.close()
+        closing = time.monotonic() - t0
+    bound = SLOW_LINK_CLOSE_ROUND_TRIPS[arm] * delay + 1.0
+    assert closing < bound, f"close() on a slow link took {closing:.2f} s (bound {bound:.1f} s)"
+    assert not fake.powered and not fake.standing and fake.lease_owner is None and not fake._endpoints
+    kinds = [c.kind for c in list(fake.commands.values())[n_commands:]]
+    assert kinds[0] == "stop" and kinds[-1] == "safe_power_off" and len(kinds) == (3 if arm == "arm out" else 2), kinds
+    rpcs = fake.rpc_log[n_rpcs:]
+    last_command = max(i for i, name in enumerate(rpcs) if name == "RobotCommand")
+    assert rpcs.index("ReturnLease") > last_command and rpcs.index("DeregisterEstopEndpoint") > last_command, rpcs
+    off_seen = [i for i, name in enumerate(rpcs) if name == "GetRobotState" and i > last_command]
+    assert off_seen and off_seen[0] < rpcs.index("ReturnLease"), rpcs   # the motors-off was asked first
+    leaked = wait_for_threads_to_end(before)
+    assert not leaked, f"threads left after close(): {sorted(t.name for t in leaked)}"
+
+
 @pytest.mark.parametrize("motion", ["walk", "arm"])
 def test_close_from_another_thread_mid_command_ends_that_command_typed_and_a_second_close_waits(motion):
     """A library user's safety monitor closes the backend while the agent's thread is mid-command:
