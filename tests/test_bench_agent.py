@@ -322,3 +322,26 @@ def test_quick_only_changes_the_defaults_an_explicit_count_wins():
     assert bench_agent.episode_counts(ns(True)) == (2, 10)
     assert bench_agent.episode_counts(ns(True, 5, 7)) == (5, 7)
     assert (episode_count(ns(False)), episode_count(ns(True)), episode_count(ns(True, 5))) == (12, 3, 5)
+
+
+def test_bench_trials_with_no_more_episodes_than_workers_prints_no_steady_rate(monkeypatch):
+    """`bench trials --trials-episodes 1` (or as many episodes as workers) has no episode after every
+    worker's first: its steady rate is "-", not a ValueError from round(nan) after the whole run."""
+    import argparse
+
+    import tasks.trials
+    from tools import bench_trials
+
+    def fake_batch(config, episodes, out, workers, on_episode):
+        records = [{"episode_id": e.episode_id, "success": True, "wall_time": 0.5} for e in episodes]
+        for r in records:
+            on_episode(r, None, None)
+        return records
+
+    monkeypatch.setattr(tasks.trials, "run_batch", fake_batch)
+    args = argparse.Namespace(quick=False, trials_episodes=1, trials_agent="oracle", trials_split="smoke",
+                              trials_workers="1", seed=0)
+    text = bench_trials.run(args)
+    row = next(line for line in text.splitlines() if line.split()[:2] == ["1", "1"])
+    assert row.split()[4] == "-" and row.split()[-1] == "-"
+    assert "identical records across worker counts: yes" in text

@@ -100,11 +100,13 @@ def run(args: argparse.Namespace) -> str:
         k = min(workers, n) - 1          # from the moment every worker has finished one episode
         steady = 3600.0 * (n - 1 - k) / (marks[-1] - marks[k]) if n - 1 > k and marks[-1] > marks[k] else float("nan")
         sr = 100.0 * sum(r["success"] for r in records) / n
-        rows.append([workers, n, round(wall, 1), round(3600.0 * n / wall), round(steady), f"{sr:.0f}%",
-                     f"{sum(r['wall_time'] for r in records) / n:.2f}"])
+        # "-": no steady rate when no episode finishes after every worker's first (episodes <= workers)
+        rows.append([workers, n, round(wall, 1), round(3600.0 * n / wall), "-" if steady != steady else round(steady),
+                     f"{sr:.0f}%", f"{sum(r['wall_time'] for r in records) / n:.2f}"])
     base, base_steady = rows[0][3], rows[0][4]
     for row in rows:
-        row += [f"{row[3] / base:.2f}x", f"{row[4] / base_steady:.2f}x"]
+        steady_ok = isinstance(row[4], int) and isinstance(base_steady, int) and base_steady > 0
+        row += [f"{row[3] / base:.2f}x", f"{row[4] / base_steady:.2f}x" if steady_ok else "-"]
     same = all(results[w] == results[counts[0]] for w in counts)
     title = (f"Trial throughput: {args.trials_agent} on {n} {args.trials_split} episodes, seed {args.seed}, "
              f"{os.cpu_count()} cores; load average before {load_before}, after {_load()}")
