@@ -39,9 +39,9 @@ compare: setup
 	done
 	$(PY) -m tools report $(addprefix runs/val/,$(COMPARE)) --common --pick-limits "$(PICK_LIMITS)" --out runs/val/report
 
-# Fast test suite (what CI runs): headless, deterministic, under 5 minutes on 2 cores. Tests run
+# Fast test suite (what CI runs): headless, deterministic, 4-5.5 minutes on 2 cores. Tests run
 # in TEST_WORKERS pytest-xdist processes (auto: one per core, at most 4: a test process's memory
-# peaks near 2 GB; each test single-threaded; about 3.5 min on the 2-core machine (1,377 tests, 2026-12-05); more in
+# peaks near 2 GB; each test single-threaded; about 4 min on a 2-core Intel Xeon, 5.5 on a 2-core AMD EPYC (1,528 tests, 2026-12-06); more in
 # one process); TEST_WORKERS=0 runs them in this process (a debugger, `-s`).
 TEST_WORKERS ?= auto
 XDIST = -n $(TEST_WORKERS) --maxprocesses 4 --dist load

@@ -37,7 +37,7 @@ def test_missing_transformers_is_one_clear_error(monkeypatch):
         return real_import(name, *args, **kwargs)
 
     monkeypatch.setattr(builtins, "__import__", fake_import)
-    with pytest.raises(PerceptionDependencyError, match=r"pip install 'helios-testbed\[perception\]'"):
+    with pytest.raises(PerceptionDependencyError, match=r"pip install -e '\.\[perception\]' \(in the checkout\)"):
         load_real_perception(ModelConfig(detector_weights="/x", scorer_weights="/y"))
 
 

@@ -279,3 +279,31 @@ def test_a_session_log_on_a_full_disk_is_one_warning_and_the_run_goes_on(capsys)
     err = capsys.readouterr().err
     assert err.splitlines() == ["[spot] warning: session.log cannot be written (No space left on device); the run "
                                 "goes on without it"], err
+
+
+@pytest.mark.parametrize("missing", ["cryptography", "bosdyn.client"])
+def test_a_missing_extra_names_an_install_command_that_works(missing, monkeypatch):
+    """The package is not on any index: the install hint is the checkout's extra
+    (`pip install -e '.[spot]'`), never `pip install 'helios-testbed[...]'`, which finds nothing."""
+    import builtins
+
+    from robots.spot.sdk_backend import SpotSdkMissingError, _Bosdyn
+    from tools import spot
+    from tools.cli import CliError
+
+    real_import = builtins.__import__
+
+    def fake_import(name, *args, **kwargs):
+        if name == missing or name.startswith(missing + "."):
+            raise ImportError(f"No module named {missing!r}", name=missing)
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", fake_import)
+    if missing == "cryptography":
+        with pytest.raises(CliError) as err:
+            spot._check_fake_available()
+    else:
+        with pytest.raises(SpotSdkMissingError) as err:
+            _Bosdyn()
+    assert "pip install -e '.[spot]'" in str(err.value)
+    assert "helios-testbed[" not in str(err.value)

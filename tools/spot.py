@@ -653,7 +653,7 @@ def _check_fake_available() -> None:
         import cryptography  # noqa: F401  (makes the fake's throwaway CA)
         import robots.spot.fake_spot.launch  # noqa: F401
     except ImportError as exc:
-        raise CliError(f"--fake needs {exc.name or 'cryptography'}: pip install 'helios-testbed[dev]'") from None
+        raise CliError(f"--fake needs {exc.name or 'cryptography'}: pip install -e '.[spot]' (in the checkout)") from None
 
 
 def _dry_run_credentials(user_env: str, password_env: str) -> dict[str, str | None]:

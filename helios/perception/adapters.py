@@ -1,7 +1,7 @@
 """Real open-vocabulary models behind the perception protocols, for the real Spot: OWLv2 as the
 detector and CLIP as the image-text scorer, through Hugging Face ``transformers``.
 
-``transformers`` is an optional extra (``pip install 'helios-testbed[perception]'``) imported
+``transformers`` is an optional extra (``pip install -e '.[perception]'`` in the checkout) imported
 only when an adapter is built. Weights are read from local directories (the ``save_pretrained``
 layout) given in :class:`helios.perception.config.ModelConfig`; nothing is downloaded at run
 time, and a missing or incomplete directory is one clear :class:`ModelWeightsMissingError`
@@ -45,7 +45,7 @@ def _transformers():
     except ImportError as exc:
         raise PerceptionDependencyError(
             "the real-model perception adapters need the optional dependency 'transformers' "
-            f"({exc}); install it with: pip install 'helios-testbed[perception]'") from None
+            f"({exc}); install it with: pip install -e '.[perception]' (in the checkout)") from None
     # one line per problem: no progress bars or load reports (a bad load is refused below instead)
     transformers.utils.logging.set_verbosity_error()
     transformers.utils.logging.disable_progress_bar()

@@ -127,7 +127,7 @@ class _Bosdyn:
             from robots.spot import sdk_conversions
         except ImportError as exc:  # pragma: no cover - exercised only without the extra
             raise SpotSdkMissingError(
-                f"the Spot SDK is not installed ({exc}); install it with: pip install 'helios-testbed[spot]'") from exc
+                f"the Spot SDK is not installed ({exc}); install it with: pip install -e '.[spot]' (in the checkout)") from exc
         self.client = bosdyn.client
         self.basic = basic_command_pb2
         self.geometry = geometry_pb2
