@@ -345,3 +345,13 @@ def test_bench_trials_with_no_more_episodes_than_workers_prints_no_steady_rate(m
     row = next(line for line in text.splitlines() if line.split()[:2] == ["1", "1"])
     assert row.split()[4] == "-" and row.split()[-1] == "-"
     assert "identical records across worker counts: yes" in text
+
+
+def test_a_run_with_agent_set_and_no_baseline_names_its_options():
+    """`bench agent --agent-set KEY=VALUE` alone: the numbers are of the agent with that option, and
+    the report says so (it printed the label only beside a baseline)."""
+    text = bench_agent.format_report(_run("this checkout (agent_config.face_unseen=false)", [5.0], [600.0], [20.0]),
+                                     None, "helios")
+    assert "after: this checkout (agent_config.face_unseen=false)" in text
+    plain = bench_agent.format_report(_run("this checkout", [5.0], [600.0], [20.0]), None, "helios")
+    assert "after: " not in plain

@@ -427,6 +427,8 @@ def format_report(after: dict, before: dict | None, agent: str) -> str:
     if before is not None:
         out.append(f"before: {before.get('label', '?')}    after: {after.get('label', 'this checkout')}"
                    "    (ratio = before / after: above 1 is faster)")
+    elif after.get("label", "this checkout") != "this checkout":   # --agent-set without a baseline: say so
+        out.append(f"after: {after['label']}")
     out += cpu_lines(after, before)
     out += workload_lines(after, before)
     repeats = max([e.get("repeats", 1) for c in (after, before) if c for e in c.get("episodes", [])] or [1])
