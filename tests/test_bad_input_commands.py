@@ -5,6 +5,7 @@ one ``error:`` line, no traceback, nothing written (README "Reliability")."""
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
 
@@ -126,6 +127,15 @@ def test_episodes_check_accepts_the_shipped_smoke_split(capsys):
 
     assert main(["episodes", "check", "tasks/data/smoke.jsonl"]) == 0
     assert "20 valid episodes in 20 homes" in capsys.readouterr().out
+
+
+def test_episodes_check_counts_one_episode_in_the_singular(capsys, tmp_path):
+    from tools.cli import main
+
+    one = tmp_path / "one.jsonl"
+    one.write_text(Path("tasks/data/smoke.jsonl").read_text().splitlines()[0] + "\n")
+    assert main(["episodes", "check", str(one)]) == 0
+    assert f"{one}: 1 valid episode in 1 home\n" in capsys.readouterr().out
 
 
 def test_overrides_may_stand_among_the_flags_and_later_ones_win():

@@ -395,6 +395,8 @@ def test_cli_replace_stale_moves_another_configurations_results_aside_and_runs_a
     args = ("trials", "--agent", "oracle", "--split", "smoke", "--episodes", "1", "--out", str(out))
     rc, _, err = run_cli([*args])             # without the flag: one clear line, nothing touched
     assert rc == 2 and "different configuration (differs in: seed)" in err
+    assert err.rstrip().endswith("use another --out to start a new run, or --replace-stale to move it aside and "
+                                 "start a new run in it"), err          # the way out this command has
     rc, out_text, err = run_cli([*args, "--replace-stale"])
     assert rc == 0, err
     moved = [p for p in tmp_path.iterdir() if p.name.startswith("r.")]

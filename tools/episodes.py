@@ -67,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
     progress.close()
     scenes = {e.scene.seed for e in episodes}
     objects = Counter(e.object_category for e in episodes)
-    print(f"{args.file}: {len(episodes)} valid episodes in {len(scenes)} homes")
+    n, homes = len(episodes), len(scenes)
+    print(f"{args.file}: {n} valid episode{'s' * (n != 1)} in {homes} home{'s' * (homes != 1)}")
     print("objects: " + ", ".join(f"{k} {v}" for k, v in objects.most_common()))
     print("goal receptacles: " + ", ".join(f"{k} {v}" for k, v in Counter(e.goal_receptacle_category
                                                                               for e in episodes).most_common()))

@@ -190,8 +190,8 @@ def run(args: argparse.Namespace) -> int:
     from robots.spot.signals import handling_signals
     from tasks.executors import check_address
     from tasks.registry import check_agent
-    from tasks.run_folder import (FolderLock, check_folder_layout, move_aside, prepare_run_folder, read_results,
-                                  stale_results)
+    from tasks.run_folder import (FolderLock, RunFolderError, check_folder_layout, move_aside, prepare_run_folder,
+                                  read_results, stale_results)
     from tasks.trial_config import check_devices
     from tasks.trials import BatchReport, EpisodeSetupError, run_batch, run_folder_episodes
     from tools.cli import CliError, check_output_dir
@@ -227,7 +227,12 @@ def run(args: argparse.Namespace) -> int:
     check_folder_layout(out, args.record, not args.no_pictures)
     _check_writable_parts(out, args.record, not args.no_pictures)
     # refuse a folder before creating or locking anything (checked as run_batch will check it)
-    prepare_run_folder(out, config, dry_run=True, **run_folder_episodes(config, episodes))
+    try:
+        prepare_run_folder(out, config, dry_run=True, **run_folder_episodes(config, episodes))
+    except RunFolderError as exc:
+        if args.replace_stale or not stale_results(out, config):
+            raise
+        raise RunFolderError(f"{exc}, or --replace-stale to move it aside and start a new run in it") from None
     FolderLock(out).check_free()      # a folder another batch is running: say so before "resuming: ..."
     where = "" if args.executor == "local" else f" on Ray ({args.address})"
     print(f"[trials] {config.agent} on {len(episodes)} episode(s) "
