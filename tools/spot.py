@@ -366,35 +366,50 @@ def _terminate_as_interrupt():
         yield
 
 
+def backend_config(hostname: str | None = None, *, port: int | None = None, cert: str | None = None,
+                   estop: str | None = None, take_lease: bool = False, config_file: str | None = None,
+                   overrides=(), fake: bool = False):
+    """The ``SdkBackendConfig`` of a robot run: defaults < the ``--config`` file < the flags given
+    (HOSTNAME, ``--port``, ``--cert``, ``--estop``, ``--take-lease``) < ``--set KEY=VALUE``. For a
+    robot (not ``fake``) a hostname is required and a ``cert_path`` must be a regular file; each
+    problem is one ``CliError``. ``tests/test_hardware.py`` builds its robot's config here too."""
+    from helios.schema import load_config, with_overrides
+    from robots.spot.sdk_config import SdkBackendConfig
+    from tools.cli import CliError
+
+    flags = {"hostname": hostname} if hostname else {}
+    if port is not None:
+        flags["port"] = port
+    if cert is not None:
+        flags["cert_path"] = cert
+    if estop is not None:
+        flags["estop_mode"] = estop
+    if take_lease:
+        flags["take_lease"] = True
+    base = load_config(SdkBackendConfig, config_file) if config_file else SdkBackendConfig(hostname="127.0.0.1")
+    config = with_overrides(with_overrides(base, flags), list(overrides))
+    if not fake and not config.hostname:
+        raise CliError(f"the robot's HOSTNAME is required: {config_file} sets none (or --fake for a dry run)")
+    if not fake and config.cert_path is not None:     # --cert or the config file's cert_path
+        path = Path(config.cert_path)
+        if not path.exists():
+            raise CliError(f"certificate file {config.cert_path!r} does not exist (--cert: the CA bundle, PEM)")
+        if not path.is_file():
+            raise CliError(f"certificate file {config.cert_path!r} is not a regular file (--cert: the CA bundle, PEM)")
+    return config
+
+
 def _run(args: argparse.Namespace) -> int:
     # grpc's C core prints its own TLS/connection diagnostics to stderr; our errors say it clearly.
     os.environ.setdefault("GRPC_VERBOSITY", "NONE")
-    from helios.schema import dump_yaml, load_config, with_overrides
+    from helios.schema import dump_yaml
     from robots.hal import HalError
-    from robots.spot.sdk_backend import PASSWORD_ENV, USERNAME_ENV, SdkBackendConfig, SdkSpotBackend
+    from robots.spot.sdk_backend import PASSWORD_ENV, USERNAME_ENV, SdkSpotBackend
     from tools.cli import CliError
 
-    # defaults < --config file < flags given < --set KEY=VALUE
-    flags = {"hostname": args.hostname} if args.hostname else {}
-    if args.port is not None:
-        flags["port"] = args.port
-    if args.cert is not None:
-        flags["cert_path"] = args.cert
-    if args.estop is not None:
-        flags["estop_mode"] = args.estop
-    if args.take_lease:
-        flags["take_lease"] = True
-    config_file = getattr(args, "config", None)
-    base = load_config(SdkBackendConfig, config_file) if config_file else SdkBackendConfig(hostname="127.0.0.1")
-    config = with_overrides(with_overrides(base, flags), list(args.overrides))
-    if not args.fake and not config.hostname:
-        raise CliError(f"the robot's HOSTNAME is required: {config_file} sets none (or --fake for a dry run)")
-    if not args.fake and config.cert_path is not None:     # --cert or the config file's cert_path
-        cert = Path(config.cert_path)
-        if not cert.exists():
-            raise CliError(f"certificate file {config.cert_path!r} does not exist (--cert: the CA bundle, PEM)")
-        if not cert.is_file():
-            raise CliError(f"certificate file {config.cert_path!r} is not a regular file (--cert: the CA bundle, PEM)")
+    config = backend_config(args.hostname, port=args.port, cert=args.cert, estop=args.estop,
+                            take_lease=args.take_lease, config_file=getattr(args, "config", None),
+                            overrides=args.overrides, fake=args.fake)
 
     from tools.cli import check_output_dir
 
