@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 ARGS   ?=
 
-.PHONY: setup run demo compare test test-all test-workers bench lint clean
+.PHONY: setup run demo compare test test-all test-workers test-hardware test-hardware-env bench lint clean
 
 setup: $(STAMP)
 
@@ -46,15 +46,28 @@ compare: setup
 TEST_WORKERS ?= auto
 XDIST = -n $(TEST_WORKERS) --maxprocesses 4 --dist load
 test: test-workers setup
-	$(PY) -m pytest -m "not slow" -q $(XDIST) $(ARGS)
+	$(PY) -m pytest -m "not slow and not hardware" -q $(XDIST) $(ARGS)
 
 # TEST_WORKERS checked before set-up (xdist's own parser takes -1 and runs in one process unannounced).
 test-workers:
 	@case "$(TEST_WORKERS)" in auto|logical) ;; ""|*[!0-9]*) echo "error: TEST_WORKERS must be auto, logical or a number of test processes (0: in this process), got '$(TEST_WORKERS)'" >&2; exit 2;; esac
 
-# Everything, including slow multi-episode tests.
+# Everything, including slow multi-episode tests (not the hardware stages: make test-hardware).
 test-all: test-workers setup
-	$(PY) -m pytest -q $(XDIST) $(ARGS)
+	$(PY) -m pytest -m "not hardware" -q $(XDIST) $(ARGS)
+
+# The hardware stages on a real Spot (tests/test_hardware.py; README, "Hardware checks"): connect
+# only, power-stand-sit, one hand-camera frame, arm gaze and stow, in that order, in this process,
+# stopping at the first failure. The robot: HELIOS_SPOT_HOST, BOSDYN_CLIENT_USERNAME/PASSWORD
+# (optional HELIOS_SPOT_PORT, HELIOS_SPOT_CA, HELIOS_SPOT_ESTOP, HELIOS_SPOT_CONFIG). The robot
+# stands up and unfolds its arm: a clear 2 m around it, an e-stop at hand.
+test-hardware: test-hardware-env setup
+	$(PY) -m pytest -m hardware -x -v -rA -p no:cacheprovider tests/test_hardware.py $(ARGS)
+
+# The robot's address and credentials checked before set-up, in one line.
+test-hardware-env:
+	@if [ -z "$$HELIOS_SPOT_HOST" ]; then echo "error: make test-hardware needs a robot: set HELIOS_SPOT_HOST (its hostname or IP address), BOSDYN_CLIENT_USERNAME and BOSDYN_CLIENT_PASSWORD" >&2; exit 2; fi
+	@if [ -z "$$BOSDYN_CLIENT_USERNAME" ] || [ -z "$$BOSDYN_CLIENT_PASSWORD" ]; then echo "error: make test-hardware needs the robot's credentials: set BOSDYN_CLIENT_USERNAME and BOSDYN_CLIENT_PASSWORD" >&2; exit 2; fi
 
 # Benchmarks: SUITES (default sim; e.g. SUITES="scenes agent"), then ARGS (e.g. ARGS=--quick).
 SUITES ?= sim
