@@ -59,6 +59,11 @@ def run_fake_sdk_episode(agent_name: str, episode: Episode, seed: int | None = N
     """Start a fake Spot on ``episode``'s scene, connect an SDK backend to it, run a fresh
     ``agent_name`` agent (``tasks.registry``) through ``tasks.runner.run_episode`` and score it.
 
+    ``seed`` seeds the agent as ``tasks.trials`` does on the sim backend: its simulated perception
+    (``RunContext.seed``) and the runner's generator alike (default: the episode's own seed).
+    ``tools trials --seed S`` gives an episode the seed ``tasks.trial_config.episode_seed(S, id)``;
+    pass that to run it as that trial ran (``tools spot --fake --episode`` does).
+
     ``backend_config``: an ``SdkBackendConfig`` whose timeouts and modes to use (host, port and
     CA are the fake's). ``pki``: a ``TestPKI`` or a folder to make one in (default: a throwaway
     one, removed afterwards). ``on_connected(backend)`` is called once the robot stands (the
@@ -84,8 +89,9 @@ def run_fake_sdk_episode(agent_name: str, episode: Episode, seed: int | None = N
         try:
             if on_connected is not None:
                 on_connected(backend)
-            # simulated perception is seeded by the episode's own seed; ``seed`` seeds the agent's generator
-            agent = make_agent(agent_name, RunContext.for_episode(ep), **(agent_options or {}))
+            # ``seed`` seeds the agent's simulated perception and its generator, as ``tools trials`` seeds
+            # an episode's agent (``tasks.trials``); None: the episode's own seed for both
+            agent = make_agent(agent_name, RunContext.for_episode(ep, seed), **(agent_options or {}))
             if wrap_agent is not None:
                 agent = wrap_agent(agent, ep)
             result = run_episode(agent, ep.backend.watch(backend), episode, config, ep.judge,

@@ -59,18 +59,19 @@ def test_sdk_observation_resolves_to_the_frame_the_fake_rendered():
         ep.stop()
 
 
-# A smoke episode HELIOS completes on the sim backend at seed 0 (the same as tests/test_helios_agent.py).
+# A smoke episode HELIOS completes on the sim backend with its simulated perception seeded by the
+# episode's own seed (as tests/test_helios_agent.py runs it).
 SUCCESS_EPISODE = "smoke-00000"
 
 
 def test_smoke_episode_through_sdk_matches_sim_backend():
     episode = _episode(SUCCESS_EPISODE)
-    sim = run_sim_episode(lambda s: make_agent("helios", s), episode, seed=0)
+    sim = run_sim_episode(lambda s: make_agent("helios", s), episode)      # the episode's seed, perception too
     assert sim.success, sim.as_dict()
 
     before = python_threads()
     with credentials_env():
-        sdk = run_fake_sdk_episode("helios", episode, seed=0, pki=session_pki())
+        sdk = run_fake_sdk_episode("helios", episode, pki=session_pki())
     leaked = wait_for_threads_to_end(before, timeout=5.0)
     assert not leaked, f"threads left after teardown: {sorted(t.name for t in leaked)}"
 
@@ -78,4 +79,41 @@ def test_smoke_episode_through_sdk_matches_sim_backend():
     assert {f: getattr(sdk.metrics, f) for f in FLAGS} == {f: getattr(sim.metrics, f) for f in FLAGS}
     assert sdk.metrics.released_on == sim.metrics.released_on
     assert sdk.metrics.collisions == sim.metrics.collisions == 0
-    assert sdk.agent == sim.agent and sdk.seed == sim.seed == 0
+    assert sdk.agent == sim.agent and sdk.seed == sim.seed == episode.seed
+
+
+# On smoke-00001 `tools trials --seed 0` finds the vase from the first gaze point of the first local
+# search. `tools spot --fake --episode` used to seed the simulated perception with the episode's own
+# seed instead of the trial's (`tasks.trial_config.episode_seed`): other detections, another search
+# (7 local searches, 30 gaze point visits, not found), though every SDK observation matched its sim
+# frame. The same seed must give the same search.
+SEARCH_EPISODE = "smoke-00001"
+SEARCH_DECISIONS = ("global_with_candidates", "chose_candidate_before_f0", "chose_frontier_before_f0",
+                    "extra_views_object", "gaze_point_visits", "gaze_point_views", "local_search_sizes")
+
+
+def test_fake_episode_command_searches_as_the_trial_of_the_same_seed(tmp_path, capsys):
+    import json
+
+    from tasks.trial_config import TrialConfig, episode_seed
+    from tasks.trials import run_one
+    from tools.cli import main
+
+    episode = _episode(SEARCH_EPISODE)
+    sim = run_one(TrialConfig(agent="helios", seed=0), episode)         # a record of `tools trials --seed 0`
+    assert sim["metrics"]["find_obj"] and sim["metrics"]["pick"], sim["metrics"]
+    assert sim["seed"] == episode_seed(0, SEARCH_EPISODE)
+
+    with credentials_env():
+        code = main(["spot", "--fake", "--episode", SEARCH_EPISODE, "--agent", "helios", "--seed", "0",
+                     "--max-time", "120", "--no-recording", "--out", str(tmp_path), "--name", "sdk"])
+    out = capsys.readouterr()
+    assert code in (0, 1), out.err
+    (sdk,) = [json.loads(line) for line in (tmp_path / "sdk" / "episodes.jsonl").read_text().splitlines()]
+    assert sdk["error"] is None and not sdk["limit_hit"], sdk
+    # the place may differ (module docstring); the search for the object must not
+    assert {f: sdk["metrics"][f] for f in ("find_obj", "pick")} == {"find_obj": True, "pick": True}, sdk["extra"]
+    decisions = {k: sdk["extra"]["decisions"][k] for k in SEARCH_DECISIONS}
+    assert decisions == {k: sim["extra"]["decisions"][k] for k in SEARCH_DECISIONS}
+    assert decisions["gaze_point_visits"] == 1 and decisions["local_search_sizes"] == [6]
+    assert sdk["seed"] == sim["seed"]          # the record names the seed the trial's record names

@@ -89,7 +89,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "client registers its own software e-stop")
     parser.add_argument("--take-lease", action="store_true", help="take the body lease from its current holder")
     parser.add_argument("--seed", type=int, default=0,
-                        help="--fake: demo scene seed (mug placement); with --episode: the agent's seed")
+                        help="--fake: demo scene seed (mug placement); with --episode: the seed `tools trials "
+                             "--seed` takes (the episode's agent and simulated perception get the seed the trial "
+                             "gives that episode)")
     parser.add_argument("--out", default="runs/spot", help="parent folder of the run folder")
     parser.add_argument("--name", default=None, help="run folder name (default: a timestamp)")
     parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
@@ -700,6 +702,7 @@ def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str,
     from tasks.instrument import InstrumentedAgent
     from tasks.runner import RunnerConfig
     from tasks.run_folder import append_result
+    from tasks.trial_config import episode_seed
     from tools.cli import CliError
 
     _check_fake_available()
@@ -707,6 +710,8 @@ def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str,
     if not matches:
         raise CliError(f"no episode {args.episode!r} in split {args.split or args.episode.split('-')[0]!r}")
     episode = matches[0]
+    # the seed `tools trials --seed` gives this episode (perception and agent): the same run as the trial's
+    seed = episode_seed(args.seed, episode.episode_id)
     saved = _dry_run_credentials(user_env, password_env)
 
     def connected(backend) -> None:
@@ -719,7 +724,7 @@ def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str,
         rid = backend.robot_id
         print(f"[spot] connected to {rid.nickname or 'robot'} on 127.0.0.1:{backend.config.port} (fake Spot, "
               f"episode scene); e-stop {backend.config.estop_mode}, lease held, standing")
-        print(f"[spot] running {args.agent} (seed {args.seed})")
+        print(f"[spot] running {args.agent} (seed {seed}: `tools trials --seed {args.seed}`'s for this episode)")
 
     print(f"[spot] episode {episode.episode_id}: {episode.task!r} (scene {episode.scene.seed}); "
           f"starting a fake Spot on it")
@@ -747,7 +752,7 @@ def _run_episode(args, config, run_dir: Path, handler: "_RunLog", user_env: str,
     options = {"perception": trial.perception} if trial.perception is not None else {}
     fake_options = {"time_scale": args.time_scale} if args.time_scale is not None else {}
     try:
-        result = run_fake_sdk_episode(args.agent, episode, seed=args.seed, backend_config=config,
+        result = run_fake_sdk_episode(args.agent, episode, seed=seed, backend_config=config,
                                       config=RunnerConfig(max_sim_time=float(args.max_time)), agent_options=options,
                                       on_connected=connected, wrap_agent=wrap, fake_options=fake_options)
     finally:
