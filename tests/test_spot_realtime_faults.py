@@ -400,9 +400,7 @@ def test_grasp_failure_mid_grasp_is_a_failed_grasp_result_and_mid_walk_leaves_th
         assert latency < SURFACE_WITHIN
         MEASURED.append({"fault": "grasp_failure", "motion": "grasp", "latency": latency})
     finally:
-        t0 = time.monotonic()
-        backend.close()
-        took = time.monotonic() - t0
+        took = _timed_close(backend)
     _check_after_close(fake, "grasp_failure", before)
     assert took < CLOSE_WITHIN
 
@@ -414,10 +412,7 @@ def test_a_battery_gone_critical_mid_grasp_is_a_named_power_error_and_stand_is_r
     end in a PowerError that names the fault and the charge within 2 s, nothing moving after;
     ``stand()``, which retries power after a PowerError, must be refused naming it too, without
     powering on; close() is bounded and leaves the robot off, the lease returned, no threads."""
-    before = python_threads()
-    demo = start_fake(seed=0, time_scale=1.0)      # the pick takes ~1.7 s of wall time
-    backend = connect(demo)
-    fake = demo.fake
+    before, demo, backend, fake = _real_time_session()
     try:
         obs, pixel = _grasp_setup(demo, backend)
         at = random.Random(11).uniform(0.2, 0.8)
@@ -442,9 +437,7 @@ def test_a_battery_gone_critical_mid_grasp_is_a_named_power_error_and_stand_is_r
         assert not fake.powered
         MEASURED.append({"fault": "battery_critical", "motion": "grasp", "latency": latency})
     finally:
-        t2 = time.monotonic()
-        backend.close()
-        took = time.monotonic() - t2
+        took = _timed_close(backend)
     assert took < CLOSE_WITHIN, took
     _check_after_close(fake, "battery_critical", before, backend)
 
@@ -455,10 +448,7 @@ def test_a_pick_stalled_mid_reach_is_stopped_within_its_stall_window_not_the_gra
     whole grasp_timeout (8 s here, 20 s by default) with the arm pushing; it must end in a
     CommandTimeoutError within the reach's stall window (twice stall_time) + 1 s, a stop sent,
     nothing moving, and close() bounded with the robot off, the lease returned, no threads."""
-    before = python_threads()
-    demo = start_fake(seed=0, time_scale=1.0)      # the pick takes ~1.7 s of wall time
-    backend = connect(demo)
-    fake = demo.fake
+    before, demo, backend, fake = _real_time_session()
     bound = 2 * backend.config.stall_time + 1.0
     assert bound < backend.config.grasp_timeout - 2.0
     try:
@@ -477,9 +467,7 @@ def test_a_pick_stalled_mid_reach_is_stopped_within_its_stall_window_not_the_gra
         assert np.max(np.abs(_arm_q(fake) - q)) < 0.01
         MEASURED.append({"fault": "command_timeout", "motion": "grasp", "latency": latency})
     finally:
-        t2 = time.monotonic()
-        backend.close()
-        took = time.monotonic() - t2
+        took = _timed_close(backend)
     assert took < CLOSE_WITHIN, took
     _check_after_close(fake, "command_timeout", before, backend)
 
@@ -496,10 +484,7 @@ def test_a_fault_mid_grasp_is_typed_fast_also_when_the_pick_feedback_keeps_its_l
     2 s, the pick's feedback still in its last state, nothing moving; close() bounded, the robot
     off, the lease returned, no threads."""
     params, expected = FAULTS[fault]
-    before = python_threads()
-    demo = start_fake(seed=0, time_scale=1.0)      # the pick takes ~1.7 s of wall time
-    backend = connect(demo)
-    fake = demo.fake
+    before, demo, backend, fake = _real_time_session()
     try:
         obs, pixel = _grasp_setup(demo, backend)
         fake.inject("manip_feedback_stale", **({"state": stale} if stale else {}))
@@ -526,9 +511,7 @@ def test_a_fault_mid_grasp_is_typed_fast_also_when_the_pick_feedback_keeps_its_l
         MEASURED.append({"fault": f"{fault}+manip_feedback_stale", "motion": "grasp", "latency": latency})
         print(f"\n{fault} (feedback kept at {said}): typed {latency:.2f} s after the fault", end=" ")
     finally:
-        t2 = time.monotonic()
-        backend.close()
-        took = time.monotonic() - t2
+        took = _timed_close(backend)
     assert took < CLOSE_WITHIN, took
     _check_after_close(fake, fault, before, backend)
 
@@ -566,9 +549,7 @@ def test_fault_mid_grasp_or_carry_is_typed_fast_and_leaves_the_robot_safe(fault,
         assert _base(fake).distance_to(pose) < 0.01 and np.max(np.abs(_arm_q(fake) - q)) < 0.05
         assert not _active_commands(fake), _active_commands(fake)
     finally:
-        t2 = time.monotonic()
-        backend.close()
-        took = time.monotonic() - t2
+        took = _timed_close(backend)
     assert took < CLOSE_WITHIN, took
     _check_after_close(fake, fault, before, backend)
 
@@ -577,10 +558,7 @@ def test_a_grasp_ended_by_a_slow_link_stops_the_pick():
     """(QA 2026-12-04) A grasp that ends in an error sends a stop first, like every other command:
     a pick left running would finish on its own once the link recovers (it did: the claw held the
     mug 4 s later)."""
-    before = python_threads()
-    demo = start_fake(seed=0, time_scale=1.0)      # the pick takes ~1.7 s of wall time
-    backend = connect(demo)
-    fake = demo.fake
+    before, demo, backend, fake = _real_time_session()
     try:
         obs, pixel = _grasp_setup(demo, backend)
         fake.inject_on_call("ManipulationApiFeedback", 3, "slow", delay=1.5)   # > the 1 s RPC timeout
@@ -858,11 +836,24 @@ def _serve_fake_in_a_subprocess(tmp_path):
     return proc, json.loads(line)
 
 
-def _close_is_bounded(backend, before: set, how: str) -> float:
-    """close() within CLOSE_WITHIN and no thread of ours left; returns how long it took."""
+def _real_time_session():
+    """The threads before it, a fake Spot in real time (a pick takes ~1.7 s of wall time), a
+    backend connected to it, and the fake itself."""
+    before = python_threads()
+    demo = start_fake(seed=0, time_scale=1.0)
+    return before, demo, connect(demo), demo.fake
+
+
+def _timed_close(backend) -> float:
+    """close(), and how long it took (s)."""
     t0 = time.monotonic()
     backend.close()
-    took = time.monotonic() - t0
+    return time.monotonic() - t0
+
+
+def _close_is_bounded(backend, before: set, how: str) -> float:
+    """close() within CLOSE_WITHIN and no thread of ours left; returns how long it took."""
+    took = _timed_close(backend)
     assert took < CLOSE_WITHIN, f"close() with a {how} robot took {took:.2f} s"
     leaked = wait_for_threads_to_end(before)
     assert not leaked, sorted(t.name for t in leaked)

@@ -596,13 +596,9 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
                     if reach.due(now):
                         state = self._state("grasping")
                         self._fault_in_state(state, "grasping")     # a power cut is no stall
-                        reach.add(now - t0, state)
-                        if reach.stalled():
-                            self._unresponsive = True
-                            raise CommandTimeoutError(f"the robot stopped making progress while grasping "
-                                                      f"({reach.window:.1f} s without motion of the arm, claw or "
-                                                      f"base while it reports moving to the grasp); it was told "
-                                                      f"to stop")
+                        self._end_if_stalled(reach, now - t0, state,
+                                             f"while grasping ({reach.window:.1f} s without motion of the arm, "
+                                             f"claw or base while it reports moving to the grasp)")
                 else:
                     reach = None
                 if state is None and now >= next_check:

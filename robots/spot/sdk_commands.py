@@ -447,6 +447,16 @@ class SdkCommands:
         C = bd.lease.Lease.CompareResult
         return latest.is_valid_lease() and ours.compare(latest) in (C.NEWER, C.SAME)
 
+    def _end_if_stalled(self, watch, elapsed: float, state, what: str) -> None:
+        """Give a command's stall watch the robot's ``state``; once nothing has moved for the
+        watch's window, the robot counts as unresponsive (the shutdown then goes out without
+        waiting) and the command ends in CommandTimeoutError saying ``what`` did not move (the
+        caller's error path sends the stop)."""
+        watch.add(elapsed, state)
+        if watch.stalled():
+            self._unresponsive = True
+            raise CommandTimeoutError(f"the robot stopped making progress {what}; it was told to stop")
+
     def _run_command(self, command, *, during: str, expected: float, done: Callable, end_time_secs=None,
                      track: "tuple | None" = None):
         """Send a RobotCommand and poll its feedback until ``done(feedback) -> (finished, ok)``
@@ -502,13 +512,9 @@ class SdkCommands:
                     self._probe_time_sync(during)
                     next_sync = time.monotonic() + _TIME_SYNC_PROBE
                 if stall is not None and stall.due(now):
-                    stall.add(now - t0, self._state(during))
-                    if stall.stalled():
-                        self._unresponsive = True
-                        raise CommandTimeoutError(f"the robot stopped making progress {during} "
-                                                  f"({stall.window:.1f} s without motion while "
-                                                  f"{'not there yet' if stall.planned is None else 'its plan moves'}); "
-                                                  f"it was told to stop")
+                    self._end_if_stalled(stall, now - t0, self._state(during),
+                                         f"{during} ({stall.window:.1f} s without motion while "
+                                         f"{'not there yet' if stall.planned is None else 'its plan moves'})")
                 if now > deadline:
                     self._unresponsive = True
                     raise CommandTimeoutError(f"the robot did not finish {during} within "
