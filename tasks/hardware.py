@@ -253,6 +253,8 @@ def prepare_hardware_folder(out: Path, config: HardwareConfig, dry_run: bool = F
         if known and known != {current}:
             raise HardwareTrialError(f"run folder {str(out)!r} holds records of another configuration; use another "
                                      f"--name or --out")
+        if config.setting == "fake":
+            _check_fake_episode_seeds(out, config, scan.records.values())
         if dry_run:
             return current
         out.mkdir(parents=True, exist_ok=True)
@@ -263,6 +265,25 @@ def prepare_hardware_folder(out: Path, config: HardwareConfig, dry_run: bool = F
     except OSError as exc:
         raise HardwareTrialError(f"cannot use run folder {str(out)!r}: {exc.strerror or exc}") from None
     return current
+
+
+def _check_fake_episode_seeds(out: Path, config: HardwareConfig, records) -> None:
+    """A fake-Spot task-episode folder whose records were seeded otherwise is refused: until
+    2026-12-06 ``tools spot --fake --episode --seed S`` gave the episode seed S itself (and the
+    simulated perception the episode's own seed), since then ``episode_seed(S, id)`` as ``tools
+    trials --seed S`` does. The configuration did not change, so the fingerprint cannot tell the
+    two apart, and their perception draws differ: mixed in one folder, they would not compare."""
+    from tasks.trial_config import episode_seed
+
+    other = sorted({(r["episode_id"], r.get("seed")) for r in records
+                    if r.get("seed") != episode_seed(config.seed, r["episode_id"])})
+    if other:
+        (eid, seed), more = other[0], len(other) - 1
+        raise HardwareTrialError(
+            f"run folder {str(out)!r}: its record of {eid}{f' (and {more} more)' if more else ''} was made with seed "
+            f"{seed}, not the seed `tools trials --seed {config.seed}` gives that episode "
+            f"({episode_seed(config.seed, eid)}): made before --fake --episode seeded episodes as trials do "
+            f"(2026-12-06), its perception draws differ; use another --name or --out")
 
 
 def hardware_record(result: EpisodeResult, metrics: EpisodeMetrics, fingerprint: str, *, setting: str,

@@ -295,3 +295,36 @@ def test_swapped_weight_folders_are_refused_naming_the_flag_before_any_robot(tin
     assert rc == 2 and err.count("\n") == 1, err
     assert "holds a 'clip' model, not 'owlv2': set --detector-weights (or detector_weights in the --models file)" in err
     assert "connecting" not in out and not (tmp_path / "run").exists()
+
+
+def test_a_fake_episode_folder_seeded_the_old_way_is_refused_not_mixed(tmp_path):
+    """Until 2026-12-06 `tools spot --fake --episode --seed S` gave the episode seed S itself; now
+    `episode_seed(S, id)`, as `tools trials` does. The configuration is the same, so the folder's
+    fingerprint cannot tell them apart: a record of the old seeding is refused, one of the new is not."""
+    from tasks.hardware import HardwareConfig, HardwareTrialError, prepare_hardware_folder
+    from tasks.run_folder import scan_results
+    from tasks.trial_config import episode_seed
+
+    config = HardwareConfig(agent="helios", setting="fake", seed=0)
+    out = tmp_path / "fake"
+    fingerprint = prepare_hardware_folder(out, config)
+
+    def holding(seed):
+        record = {"episode_id": "smoke-00001", "seed": seed, "config_fingerprint": fingerprint, "sim_time": 30.0,
+                  "wall_time": 1.0, "success": False}
+        (out / "episodes.jsonl").write_text(json.dumps(record) + "\n")
+
+    holding(episode_seed(0, "smoke-00001"))
+    assert prepare_hardware_folder(out, config, dry_run=True) == fingerprint
+    holding(0)
+    with pytest.raises(HardwareTrialError, match=r"its record of smoke-00001 was made with seed 0, not the seed "
+                                                 rf"`tools trials --seed 0` gives that episode \({episode_seed(0, 'smoke-00001')}\)"):
+        prepare_hardware_folder(out, config, dry_run=True)
+    # a robot's folder keeps its own seeds (a robot task's seed is the one given)
+    robot = HardwareConfig(agent="helios", setting="hardware", seed=0)
+    prepare_hardware_folder(tmp_path / "robot", robot)
+    (tmp_path / "robot" / "episodes.jsonl").write_text(json.dumps(
+        {"episode_id": "hw-1", "seed": 0, "sim_time": 30.0, "wall_time": 1.0, "success": False,
+         "config_fingerprint": prepare_hardware_folder(tmp_path / "robot", robot, dry_run=True)}) + "\n")
+    prepare_hardware_folder(tmp_path / "robot", robot, dry_run=True)
+    assert list(scan_results(tmp_path / "robot" / "episodes.jsonl").records) == ["hw-1"]    # read, not set aside
