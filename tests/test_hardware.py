@@ -201,12 +201,6 @@ def observer(robot_config):
     obs.close()
 
 
-class Session:
-    """What a stage's session left to check: how long its close() took."""
-
-    close_seconds: float | None = None
-
-
 @contextlib.contextmanager
 def robot_session(config, observer: Observer, close_within: float):
     """Connect ``SdkSpotBackend(config)`` (the bring-up ``tools spot`` does), yield it, close it;
@@ -219,7 +213,6 @@ def robot_session(config, observer: Observer, close_within: float):
 
     endpoints_before = observer.estop_endpoints()
     before = python_threads()
-    session = Session()
     backend = SdkSpotBackend(config)           # a failed bring-up closes what it had brought up, then raises
     try:
         ours = observer.body_lease_owner()
@@ -230,16 +223,16 @@ def robot_session(config, observer: Observer, close_within: float):
             assert len(added) == 1 and next(iter(added.values())).startswith(config.client_name + "-estop-"), added
         else:
             assert not added, f"e-stop endpoints appeared with an external e-stop: {added}"
-        yield backend, session
+        yield backend
     except BaseException:
         backend.close()
         raise
     t0 = time.monotonic()
     backend.close()
-    session.close_seconds = time.monotonic() - t0
-    print(f"close() took {session.close_seconds:.2f} s")
+    took = time.monotonic() - t0
+    print(f"close() took {took:.2f} s")
     assert backend.close_problem is None, backend.close_problem
-    assert session.close_seconds <= close_within, f"close() took {session.close_seconds:.1f} s (> {close_within} s)"
+    assert took <= close_within, f"close() took {took:.1f} s (> {close_within} s)"
     owner = observer.body_lease_owner()
     assert owner != ours, f"the body lease is still ours after close(): {owner!r}"
     left = {k: v for k, v in observer.estop_endpoints().items() if k not in endpoints_before}
@@ -286,7 +279,7 @@ def test_a_connect_only(robot_config, observer):
     from bosdyn.api import estop_pb2
 
     power_before = observer.motor_power()
-    with robot_session(_unpowered(robot_config), observer, CLOSE_UNPOWERED_S) as (backend, _):
+    with robot_session(_unpowered(robot_config), observer, CLOSE_UNPOWERED_S) as backend:
         rid = backend.robot_id
         print(f"connected to {rid.nickname or 'robot'} (serial {rid.serial_number}, software "
               f"{rid.software_release.version.major_version}.{rid.software_release.version.minor_version})")
@@ -308,7 +301,7 @@ def test_a_connect_only(robot_config, observer):
 
 @pytest.mark.timeout(180)
 def test_b_power_stand_sit(robot_config, observer):
-    with robot_session(_powered(robot_config), observer, CLOSE_POWERED_S) as (backend, session):
+    with robot_session(_powered(robot_config), observer, CLOSE_POWERED_S) as backend:
         assert observer.motor_power() == "on"
         res = backend.stop()
         assert res.success, res.message
@@ -317,7 +310,7 @@ def test_b_power_stand_sit(robot_config, observer):
 
 @pytest.mark.timeout(120)
 def test_c_hand_camera(robot_config, observer):
-    with robot_session(_unpowered(robot_config), observer, CLOSE_UNPOWERED_S) as (backend, _):
+    with robot_session(_unpowered(robot_config), observer, CLOSE_UNPOWERED_S) as backend:
         t0 = time.time()
         obs = backend.observe()
         t1 = time.time()
@@ -351,7 +344,7 @@ def test_d_arm_gaze_and_stow(robot_config, observer):
 
     from robots.spot import model
 
-    with robot_session(_powered(robot_config), observer, CLOSE_POWERED_S) as (backend, _):
+    with robot_session(_powered(robot_config), observer, CLOSE_POWERED_S) as backend:
         T_body = backend.observe().T_world_body
         heading = T_body[:2, 0] / np.linalg.norm(T_body[:2, 0])
         floor = T_body[2, 3] - model.stand_body_height()

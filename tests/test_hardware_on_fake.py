@@ -34,9 +34,10 @@ def _env(**extra: str) -> dict[str, str]:
     return env
 
 
-def _run_stages(tmp_path: Path, env: dict, *args: str) -> dict[str, tuple[str, str]]:
+def _run_stages(tmp_path: Path, env: dict, *args: str) -> tuple[dict[str, tuple[str, str]],
+                                                                subprocess.CompletedProcess]:
     """``pytest -m hardware tests/test_hardware.py`` in a process of its own: stage -> (outcome,
-    message) from its JUnit report."""
+    message) from its JUnit report, and the finished process."""
     report = tmp_path / "hardware.xml"
     proc = subprocess.run([sys.executable, "-m", "pytest", "tests/test_hardware.py", "-p", "no:cacheprovider",
                            "-q", "-rA", f"--junitxml={report}", *args], cwd=ROOT, env=env, capture_output=True,

@@ -584,28 +584,25 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
                                            duration=time.monotonic() - t0)
                 else:
                     at_edge_since = None
-                now, state = time.monotonic(), None
-                if fb.current_state == M.MANIP_STATE_MOVING_TO_GRASP:
+                now = time.monotonic()
+                if fb.current_state != M.MANIP_STATE_MOVING_TO_GRASP:
+                    reach = None
+                elif reach is None:
                     # The reach must move: a pick whose arm is blocked mid-reach goes on reporting
                     # MOVING_TO_GRASP (the feedback has no state for a stall), and was left pushing
                     # for the whole grasp_timeout (20 s) before it was stopped (audit 2026-12-06).
                     # Twice the stall time: the reach may pause briefly between its phases.
-                    if reach is None:
-                        reach = StallWatch((self._pick_progress, None, lambda _state: False), 2 * cfg.stall_time,
-                                           cfg.grasp_timeout)
-                    if reach.due(now):
-                        state = self._state("grasping")
-                        self._fault_in_state(state, "grasping")     # a power cut is no stall
+                    reach = StallWatch((self._pick_progress, None, lambda _state: False), 2 * cfg.stall_time,
+                                       cfg.grasp_timeout)
+                stall_due = reach is not None and reach.due(now)
+                if stall_due or now >= next_check:        # one state read serves both checks
+                    state = self._state("grasping")
+                    next_check = now + _GRASP_STATE_PERIOD
+                    self._fault_in_state(state, "grasping")     # a power cut is no stall
+                    if stall_due:
                         self._end_if_stalled(reach, now - t0, state,
                                              f"while grasping ({reach.window:.1f} s without motion of the arm, "
                                              f"claw or base while it reports moving to the grasp)")
-                else:
-                    reach = None
-                if state is None and now >= next_check:
-                    state = self._state("grasping")
-                    self._fault_in_state(state, "grasping")
-                if state is not None:
-                    next_check = now + _GRASP_STATE_PERIOD
                 self._guard()                 # a sticky fault (the keep-alive's lost lease, ...)
                 if time.monotonic() > deadline:
                     self._unresponsive = True

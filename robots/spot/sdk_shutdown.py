@@ -233,8 +233,7 @@ class SdkShutdown:
         """Healthy robot: stop, stow, sit and power off, return the lease, deregister the e-stop.
 
         Each step waits for the one it depends on, and no longer (on a slow link every round trip
-        counts: a link answering each RPC just within ``rpc_timeout`` took 5.6 s on the fake with
-        0.8 s replies, seven round trips one after another; now four, 3.2 s):
+        counts: the module docstring has the measured times):
 
         * the stop, and the robot state that decides the stow, go out together (the state no
           longer waits for the stop's reply); the stow is skipped only when both this state and the
