@@ -423,3 +423,56 @@ def test_a_body_turns_in_place_to_face_the_unseen_side_of_a_frontier_and_looks_t
         robot.calls.clear()
         assert body.turn_to(robot, float(wrap_angle(body.pose.yaw + math.pi))) is False
         assert not robot.calls
+
+
+def _carrying(drop: bool):
+    """The E2E episode up to its place phase (the grasp done); if ``drop``, the claw lets go of the
+    object and one frame is taken on the way. Returns the simulation (the caller closes it), the
+    agent and the recording robot."""
+    ep = _episode(E2E_EPISODE)
+    sim = SimEpisode.create(ep)
+    agent = make_agent("helios", sim)
+    agent.reset(ep.spec, np.random.default_rng(0))
+    robot = _Recorder(sim.backend)
+    for _ in range(100):
+        agent.act(robot)
+        if agent.phase is Phase.PLACE:
+            break
+    assert agent.phase is Phase.PLACE and sim.backend.holding
+    if drop:
+        sim.backend.set_claw(-1.0)                # the object drops out of the claw
+        assert not sim.backend.holding and not agent.body.observe(robot).holding     # a frame on the way
+    else:                                         # the latest frame is the grasp's, taken before the claw closed
+        assert not agent.observer.last_obs.holding
+    robot.sent.clear()
+    return sim, agent, robot
+
+
+@pytest.mark.parametrize("drop", [False, True])
+def test_an_object_that_slips_out_of_the_claw_on_the_way_is_searched_for_again(drop):
+    """The claw lets go while the robot carries the object to the goal (a slip; on a real Spot the
+    state's is_gripper_holding_item turns false). The agent used to go on searching for the goal
+    receptacle with an empty claw until its place failed, and then try the next goal candidate,
+    until the time ran out. Now, at its next decision after a frame that says so, it goes back to
+    the pick phase, sends no place, and tries a grasp again. Without a drop it places (the grasp's
+    own frame, taken before the claw closed, is no sign of a drop: the first version of this change
+    took it for one and went back to the pick phase after every grasp)."""
+    sim, agent, robot = _carrying(drop)
+    try:
+        attempts = agent.pick_attempts
+        agent.act(robot)
+        sent = [name for name, _ in robot.sent]
+        if not drop:
+            assert agent.phase is Phase.DONE and agent.log[-1] == "done: placed", agent.log[-3:]
+            assert "place" in sent and "the claw no longer holds the object: searching for it again" not in agent.log
+            return
+        assert agent.phase is Phase.PICK and agent.log[-1] == "the claw no longer holds the object: searching for it again"
+        for _ in range(100):
+            agent.act(robot)
+            if agent.pick_attempts > attempts:
+                break
+        assert agent.pick_attempts == attempts + 1, "no new grasp within 100 decisions"
+        sent = [name for name, _ in robot.sent]
+        assert "grasp" in sent and "place" not in sent, sent
+    finally:
+        sim.close()

@@ -14,21 +14,19 @@ Each ``act`` call makes one decision and carries it out through the HAL:
    towards the best frontier and look around.
 3. **Place phase** (holding the object): the same rule for goal-receptacle candidates (tau_b)
    and the place skill (:mod:`helios.agents.place`); otherwise the frontier with the highest
-   value for the goal receptacle.
+   value for the goal receptacle. A claw that no longer holds the object (it slipped out on the
+   way; the paper is silent) is back in the pick phase: search for the object again.
 
-The rooms: :mod:`~helios.agents.observer` (what the agent sees and the map),
-:mod:`~helios.agents.body` (pose, arm, planning, walking, looking), :mod:`~helios.agents.pick`
-and :mod:`~helios.agents.place` (the skills, which return a
-:class:`~helios.agents.skill.SkillOutcome`), and this module (the decision).
+The rooms: :mod:`~helios.agents.observer` (what the agent sees and the map), :mod:`~helios.agents.body`
+(pose, arm, planning, walking, looking), :mod:`~helios.agents.pick` and :mod:`~helios.agents.place`
+(the skills, returning a :class:`~helios.agents.skill.SkillOutcome`), and this module (the decision).
 
-Variants (``AgentConfig.variant``, read as :class:`~helios.agents.config.VariantFlags`):
-``helios``; ``no_global`` (candidates always before frontiers); ``trusting`` (no Gaussian
-layer, no gaze points, no objective: the highest-value frontier until the detector reports the
-object, which it then grasps; likewise for the goal receptacle). The 50-50 IG ablation is
-``HeliosConfig.search.information_gain``; ground-truth semantics is a property of the
-detector/scorer passed in.
-
-The agent sees the world only through ``observe()`` and the detector/scorer it was given.
+Variants (``AgentConfig.variant``, read as :class:`~helios.agents.config.VariantFlags`): ``helios``;
+``no_global`` (candidates always before frontiers); ``trusting`` (no Gaussian layer, no gaze points,
+no objective: the highest-value frontier until the detector reports the object, which it then grasps;
+likewise for the goal receptacle). The 50-50 IG ablation is ``HeliosConfig.search.information_gain``;
+ground-truth semantics is a property of the detector/scorer passed in. The agent sees the world only
+through ``observe()`` and the detector/scorer it was given.
 """
 
 from __future__ import annotations
@@ -111,7 +109,7 @@ class HeliosAgent:
         self.pick_objective = GlobalObjective(self.method.search, cell, self.config.flags.pick_objective)
         self.place_objective = GlobalObjective(self.method.search, cell, "frontiers_only")
         self.phase = Phase.START
-        self.pick_attempts = 0
+        self.pick_attempts, self.grasp_frame = 0, None
         self.visited: set[int] = set()
         self.local: _LocalSearch | None = None
         self.viewed: defaultdict[tuple, list] = defaultdict(list)   # per candidate: where its extra views were taken
@@ -164,13 +162,12 @@ class HeliosAgent:
         self._logged = len(self.log)
 
     def decision_stats(self) -> dict:
-        """What the agent decided this episode, for the trial report: global decisions made with
-        open candidates and how many chose a candidate or a frontier before / after F0 was
-        calibrated on a chosen frontier, extra views the Psi' rule asked for, the gaze points of
-        each local search (planned), visited and those that took their view, frontiers given up
-        (``AgentConfig.stall_steps``), and ``global_choices``: per decision with open candidates,
-        those offered (``[id, x, y]``, world metres), the one chosen (None: a frontier) and its
-        search's ``views``, which the runner checks and then drops."""
+        """What the agent decided this episode, for the trial report: global decisions made with open
+        candidates and how many chose a candidate or a frontier before / after F0 was calibrated on a
+        chosen frontier, extra views the Psi' rule asked for, the gaze points of each local search
+        (planned), visited and those that took their view, frontiers given up (``stall_steps``), and
+        ``global_choices``: per decision with open candidates, those offered (``[id, x, y]``, world
+        metres), the one chosen (None: a frontier) and its search's ``views`` (checked, then dropped)."""
         out = {k: int(self.stats.get(k, 0)) for k in DECISION_COUNTS}
         out["local_search_sizes"] = list(self.local_search_sizes)
         if self.config.flags.object_map:      # agents without candidates (trusting) have nothing to check
@@ -188,8 +185,8 @@ class HeliosAgent:
             self.activity = "pick"
             outcome = pick(robot, self.body, self.observer, target, self.config)
             self.pick_attempts += outcome.attempted
-            if outcome.ok:
-                self.phase = Phase.PLACE
+            if outcome.ok:           # the frames after the grasp frame say whether the claw still holds it
+                self.phase, self.grasp_frame = Phase.PLACE, self.observer.last_obs
             else:
                 self._fail(target, outcome.reason)
             return
@@ -216,6 +213,10 @@ class HeliosAgent:
             self._explore(robot, frontiers[choice.index], self.pick_objective)
 
     def _place_step(self, robot: RobotBackend) -> None:
+        if self.observer.last_obs is not self.grasp_frame and not self.observer.last_obs.holding:
+            self.log.append("the claw no longer holds the object: searching for it again")
+            self.phase = Phase.PICK
+            return
         target, verdict, view = self._judge_targets(self.goal_class)
         self.activity = "carry"
         if verdict is Verdict.ACT:
@@ -277,8 +278,7 @@ class HeliosAgent:
         return (None if i is None else views[i]), psi
 
     def _gaze_points_of(self, instance_id: int) -> list[GazePoint]:
-        """The instance's gaze points on seen floor, away from goals found unreachable (cached
-        until the next frame)."""
+        """The instance's gaze points on seen floor, away from goals found unreachable (cached per frame)."""
         cache = self.observer.cache
         key = ("gaze", instance_id)
         if key not in cache:
