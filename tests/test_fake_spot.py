@@ -210,7 +210,7 @@ def test_the_fake_refuses_what_a_robot_refuses(demo):
 def test_fault_switchboard_names():
     assert set(FAULTS) == {"estop", "lease_revoked", "connection_drop", "command_timeout", "grasp_failure",
                            "time_sync_loss", "slow", "power_off_stalls", "power_loss", "behavior_fault",
-                           "lease_retains_lost", "battery_critical", "manip_feedback_stale"}
+                           "lease_retains_lost", "battery_critical", "manip_feedback_stale", "object_dropped"}
 
 
 def test_a_behavior_fault_is_in_the_robot_state_refuses_motion_and_clears_only_when_clearable(demo):

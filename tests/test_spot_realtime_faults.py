@@ -554,6 +554,42 @@ def test_fault_mid_grasp_or_carry_is_typed_fast_and_leaves_the_robot_safe(fault,
     _check_after_close(fake, fault, before, backend)
 
 
+def test_an_object_that_slips_out_mid_carry_is_seen_in_the_state_and_place_sends_nothing():
+    """The mug drops out of the claw while the robot walks with it (the fake's ``object_dropped``,
+    mid-walk): no robot fault (the walk ends, arrived or stopped by the falling mug), the next
+    observation says the claw holds nothing (the agent then searches for the object again:
+    tests/test_helios_agent.py), the mug falls, place() answers NOT_HOLDING without sending a
+    command, and close() is bounded with the robot off, the lease returned, no threads."""
+    from robots.hal import Reason
+
+    before, demo, backend, fake = _real_time_session()
+    try:
+        obs, pixel = _grasp_setup(demo, backend)
+        assert backend.grasp(obs, pixel).success and backend.observe().holding
+        with fake.sim_lock:
+            mug = fake.sim.held_body
+            held_at = fake.sim.world.position(mug)[2]
+        start = _base(fake)
+        fake.inject_at(0.3, "object_dropped")
+        walk = backend.navigate_to(SE2Pose(start.x - 0.4, start.y, start.yaw))
+        assert walk.success or walk.reason is Reason.COLLISION, walk
+        assert not backend.observe().holding
+        time.sleep(1.0)                              # the mug falls as real time runs on
+        with fake.sim_lock:
+            assert not fake.sim.holding and fake.sim.last_release is None
+            assert fake.sim.world.position(mug)[2] < held_at - 0.1, "the mug did not fall"
+        sent = len(fake.commands)
+        res = backend.place(demo.facts["mug_position"])
+        assert not res.success and res.reason is Reason.NOT_HOLDING, res
+        assert len(fake.commands) == sent, "place() sent a command with an empty claw"
+        assert "object_dropped" not in fake.faults, "the fault is one slip, not a claw that never holds"
+    finally:
+        took = _timed_close(backend)
+    # close() stows the arm now that the claw is empty (it stays out while holding), within its budget
+    assert took < CLOSE_WITHIN + backend.config.arm_move_timeout + backend.config.command_margin, took
+    _check_after_close(fake, "object_dropped", before, backend)
+
+
 def test_a_grasp_ended_by_a_slow_link_stops_the_pick():
     """(QA 2026-12-04) A grasp that ends in an error sends a stop first, like every other command:
     a pick left running would finish on its own once the link recovers (it did: the claw held the

@@ -118,6 +118,9 @@ FAULTS: dict[str, str] = {
                         "'battery' fault 'likely means the robot is going to shutdown immediately'): running commands "
                         "end, motor power goes off, and power-on is refused with STATUS_FAULTED (the SDK's "
                         "FaultedError) until the battery is swapped (`clear`)",
+    "object_dropped": "the claw loses the held object, mid-motion at the next control step or at once when the "
+                      "robot is idle: the claw opens, the object falls (it may strike the robot) and the state's "
+                      "is_gripper_holding_item turns false; once (a later grasp holds)",
     "lease_retains_lost": "the lease owner's RetainLease requests never reach the robot (its keep-alive thread is "
                           "wedged, or the link loses just those; each call goes unanswered until its deadline), "
                           "everything else gets through: `comms_loss_timeout` s after the last retain the robot's "
@@ -378,6 +381,8 @@ class FakeSpot:
                 self._comms.unwatched()        # the fake plays the tablet, which keeps its lease alive
                 self._end_commands("overridden", "lease taken by another client")
                 self._jobs.put(self._sim_stop)
+            elif fault == "object_dropped":
+                self._jobs.put(self._drop_if_slipping)    # at once if idle, else at the motion's next step
             elif fault == "time_sync_loss":
                 self.time_sync.forget()        # old identifiers become invalid
             elif fault == "command_timeout":
@@ -607,6 +612,13 @@ class FakeSpot:
     def _sim_stop(self) -> None:
         self.sim.stop()
 
+    def _drop_if_slipping(self) -> None:
+        """The ``object_dropped`` fault, on the simulator's thread (a job, or the pacer mid-motion)."""
+        with self._lock:
+            if self.faults.pop("object_dropped", None) is None:
+                return
+        self.sim.drop_held_object()
+
     # ---------------------------------------------------------------- lease
     @property
     def lease_stale(self) -> bool:
@@ -773,6 +785,8 @@ class FakeSpot:
         if self._pace_sim + 1e-9 < self._pace_next_check:
             return
         self._pace_next_check = self._pace_sim + _CONTROL_DT
+        if "object_dropped" in self.faults:
+            self._drop_if_slipping()
         self._check_motion(cmd)
         if self.time_scale is None:
             return
