@@ -234,6 +234,8 @@ def test_extra_views_are_counted_for_the_phase_that_asked_for_them(monkeypatch):
     ``extra_views_goal`` while placing."""
     agent = _bare_agent()
     agent.pick_attempts, agent.object_class, agent.goal_class, agent.local = 0, "mug", "bed", None
+    agent.observer = SimpleNamespace(last_obs=None)      # no frame since the grasp's
+    agent.grasp_frame = None
     monkeypatch.setattr(agent, "_judge_targets", lambda cls: ("t", Verdict.LOOK, "v"), raising=False)
     monkeypatch.setattr(agent, "_take_view", lambda robot, t, v: None, raising=False)
     agent._pick_step(None)
