@@ -238,14 +238,14 @@ def test_a_lease_taken_by_another_client_during_the_shutdown_is_said_not_hidden(
     fake = demo.fake
     try:
         assert backend.move_arm_joints(model.ARM_READY).success      # the arm out: the shutdown stows it
-        real_stow = SdkSpotBackend.stow_arm
+        real_stow = SdkSpotBackend._stow_or_carry          # close()'s stow (the claw's state already read)
 
-        def stow_then_taken(self):
-            result = real_stow(self)
+        def stow_then_taken(self, holding):
+            result = real_stow(self, holding)
             take_lease_as_another_client(self)
             return result
 
-        monkeypatch.setattr(SdkSpotBackend, "stow_arm", stow_then_taken)
+        monkeypatch.setattr(SdkSpotBackend, "_stow_or_carry", stow_then_taken)
         t0 = time.monotonic()
         backend.close()
         assert time.monotonic() - t0 < CLOSE_WITHIN

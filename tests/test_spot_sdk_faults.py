@@ -371,6 +371,9 @@ def test_close_on_a_slow_link_waits_only_for_the_steps_the_next_one_needs(arm):
     rpcs = fake.rpc_log[n_rpcs:]
     last_command = max(i for i, name in enumerate(rpcs) if name == "RobotCommand")
     assert rpcs.index("ReturnLease") > last_command and rpcs.index("DeregisterEstopEndpoint") > last_command, rpcs
+    if arm == "arm out":      # the stow goes out on the state read with the stop (one more read before it cost
+        stow = [i for i, name in enumerate(rpcs) if name == "RobotCommand"][1]     # a round trip)
+        assert rpcs[:stow].count("GetRobotState") == 2, rpcs[:stow]   # close()'s first look, the one with the stop
     off_seen = [i for i, name in enumerate(rpcs) if name == "GetRobotState" and i > last_command]
     assert off_seen and off_seen[0] < rpcs.index("ReturnLease"), rpcs   # the motors-off was asked first
     leaked = wait_for_threads_to_end(before)

@@ -499,8 +499,12 @@ class SdkSpotBackend(SdkBringUp, SdkCommands, SdkShutdown):
     def stow_arm(self) -> CommandResult:
         """Stow; with an object in the claw, go to the carry pose instead (Spot refuses to stow it)."""
         self._guard()
+        return self._stow_or_carry(bool(self._state("checking the gripper").manipulator_state.is_gripper_holding_item))
+
+    def _stow_or_carry(self, holding: bool) -> CommandResult:
+        """:meth:`stow_arm` once the claw's state is known: ``close()`` has just read it with its
+        stop, and reading it again cost one more round trip on a slow link."""
         bd = self._bd
-        holding = bool(self._state("checking the gripper").manipulator_state.is_gripper_holding_item)
         command = bd.Builder.arm_carry_command() if holding else bd.Builder.arm_stow_command()
         S = bd.arm.NamedArmPositionsCommand.Feedback
 

@@ -268,7 +268,8 @@ class SdkShutdown:
             before.manipulator_state.stow_state == before.manipulator_state.STOWSTATE_STOWED
         if motors == PS.MOTOR_POWER_STATE_ON and not MS.is_gripper_holding_item and not stowed:
             try:
-                self.stow_arm()
+                self._guard()
+                self._stow_or_carry(holding=False)        # the state just read says the claw is empty
             except HalError as exc:
                 _LOG.warning("could not stow the arm at shutdown: %s", exc)
                 if self._fault is not None or self._unresponsive:
