@@ -581,6 +581,7 @@ CASES: list[tuple[str, list[str], str]] = [
     ("override-float-tag", [*T, "runner.max_sim_time=!!float abc"], "cannot parse value"),
     ("override-int-tag", [*T, "runner.max_commands=!!int abc"], "cannot parse value"),
     ("override-nested", [*T, "seed=" + "[" * 50_000], "cannot parse value"),
+    ("override-nested-closed", [*T, "seed=" + "[" * 1500 + "]" * 1500], "cannot parse value"),
     # explicitly tagged text PyYAML's constructors crashed on (IndexError, KeyError, AttributeError)
     ("override-float-tag-empty", [*T, 'seed=!!float ""'], "cannot parse value ('' is not a number"),
     ("override-bool-tag", [*T, "seed=!!bool maybe"], "cannot parse value ('maybe' is not true or false)"),

@@ -105,7 +105,7 @@ def test_numbers_read_as_yaml_1_2_not_as_octal_hex_or_base_60(tmp_path):
         assert load_config(Outer, path) == cfg, (name, dump_yaml(cfg))
 
 
-def test_configs_read_through_libyaml_exactly_as_through_the_python_loader():
+def test_configs_read_through_libyaml_exactly_as_through_the_python_loader(monkeypatch):
     """Every run folder's config.yaml, and every shipped scenario, is read by libyaml's parser when
     the text allows (7x faster; every resume, report and diff reads one): the same values as
     PyYAML's pure-Python loader, and a run folder's config.yaml does take that path."""
@@ -113,6 +113,7 @@ def test_configs_read_through_libyaml_exactly_as_through_the_python_loader():
 
     import yaml
 
+    import helios.schema
     from helios.schema import _LIBYAML_SAFE, UniqueKeyLoader, _CParser, load_yaml
     from tasks.trial_config import TrialConfig
 
@@ -127,6 +128,13 @@ def test_configs_read_through_libyaml_exactly_as_through_the_python_loader():
     # a duplicate key is refused on the fast path too, in the same words
     with pytest.raises(yaml.YAMLError, match=r"found duplicate key 'seed' \(first on line 1\)"):
         load_yaml("seed: 1\nagent: oracle\nseed: 2\n")
+    # and libyaml did read it: with the pure-Python loader broken, the run folder's config still loads
+    class Broken(UniqueKeyLoader):
+        def __init__(self, stream):
+            raise AssertionError("the pure-Python loader was used")
+
+    monkeypatch.setattr(helios.schema, "UniqueKeyLoader", Broken)
+    assert load_yaml(dumped)["agent"] == "helios"
 
 
 @pytest.mark.parametrize("text", [
@@ -134,6 +142,9 @@ def test_configs_read_through_libyaml_exactly_as_through_the_python_loader():
     "split:\tval\n",
     "|# a block scalar header libyaml reads differently\n",
     "8ee+d: 0\n\n\ufeff",             # a byte-order mark mid-text
+    "[a?b]",                          # libyaml reads a '?' in a flow collection as part of the word
+    "x: [1, 2?3]\n",
+    "seed: " + "[" * 600 + "]" * 600,  # libyaml nests where the Python loader's recursion ends
 ])
 def test_text_libyaml_reads_differently_gets_the_python_loaders_answer(text):
     """A differential fuzz (150,000 mutated configs) found libyaml taking text the pure-Python
@@ -142,11 +153,11 @@ def test_text_libyaml_reads_differently_gets_the_python_loaders_answer(text):
 
     from helios.schema import UniqueKeyLoader, load_yaml
 
-    with pytest.raises(yaml.YAMLError) as python:
+    with pytest.raises((yaml.YAMLError, RecursionError)) as python:
         yaml.load(text, Loader=UniqueKeyLoader)
-    with pytest.raises(yaml.YAMLError) as ours:
+    with pytest.raises((yaml.YAMLError, RecursionError)) as ours:
         load_yaml(text)
-    assert str(ours.value) == str(python.value)
+    assert type(ours.value) is type(python.value) and str(ours.value) == str(python.value)
 
 
 def test_deep_nesting_is_a_config_error_not_a_crash(tmp_path):
