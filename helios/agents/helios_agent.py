@@ -215,7 +215,7 @@ class HeliosAgent:
     def _place_step(self, robot: RobotBackend) -> None:
         if self.observer.last_obs is not self.grasp_frame and not self.observer.last_obs.holding:
             self.log.append("the claw no longer holds the object: searching for it again")
-            self.phase = Phase.PICK
+            self.phase, self.local = Phase.PICK, None      # not the local search the grasp interrupted
             return
         target, verdict, view = self._judge_targets(self.goal_class)
         self.activity = "carry"

@@ -226,8 +226,9 @@ class SimManipulation:
     def drop_held_object(self) -> None:
         """The claw loses the held object (the fake Spot's ``object_dropped`` fault): the hold lets
         go as a slip does (``SimSpotBackend._check_slip``) and the claw's drive opens it, so the
-        object falls as the simulation runs on (the jaws alone would go on pinching it). It only
-        sets targets, so the pacer may call it mid-motion. Not a release: no place is recorded."""
+        object falls at the next :meth:`settle_loose_objects` (the jaws alone would go on pinching
+        it). Between motions only: a motion's rigid carry would put it back on the wrist. Not a
+        release: no place is recorded."""
         if self._held is None:
             return
         grasping.detach(self.world, self._held.constraint_id, self.spot.id, self._held.body_id)

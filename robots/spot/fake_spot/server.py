@@ -118,9 +118,10 @@ FAULTS: dict[str, str] = {
                         "'battery' fault 'likely means the robot is going to shutdown immediately'): running commands "
                         "end, motor power goes off, and power-on is refused with STATUS_FAULTED (the SDK's "
                         "FaultedError) until the battery is swapped (`clear`)",
-    "object_dropped": "the claw loses the held object, mid-motion at the next control step or at once when the "
-                      "robot is idle: the claw opens, the object falls (it may strike the robot) and the state's "
-                      "is_gripper_holding_item turns false; once (a later grasp holds)",
+    "object_dropped": "the claw loses the held object as soon as the robot is idle (a command in progress ends "
+                      "first: the simulated carry holds the object rigidly mid-motion, and letting go there "
+                      "made the falling object a collision that stopped the walk): the claw opens, the object "
+                      "falls and the state's is_gripper_holding_item turns false; once (a later grasp holds)",
     "lease_retains_lost": "the lease owner's RetainLease requests never reach the robot (its keep-alive thread is "
                           "wedged, or the link loses just those; each call goes unanswered until its deadline), "
                           "everything else gets through: `comms_loss_timeout` s after the last retain the robot's "
@@ -382,7 +383,7 @@ class FakeSpot:
                 self._end_commands("overridden", "lease taken by another client")
                 self._jobs.put(self._sim_stop)
             elif fault == "object_dropped":
-                self._jobs.put(self._drop_if_slipping)    # at once if idle, else at the motion's next step
+                self._jobs.put(self._drop_if_slipping)    # at once if idle, else after the command in progress
             elif fault == "time_sync_loss":
                 self.time_sync.forget()        # old identifiers become invalid
             elif fault == "command_timeout":
@@ -613,11 +614,13 @@ class FakeSpot:
         self.sim.stop()
 
     def _drop_if_slipping(self) -> None:
-        """The ``object_dropped`` fault, on the simulator's thread (a job, or the pacer mid-motion)."""
+        """The ``object_dropped`` fault: a job on the simulator's thread; the object falls at once."""
         with self._lock:
             if self.faults.pop("object_dropped", None) is None:
                 return
         self.sim.drop_held_object()
+        self.sim.settle_loose_objects()
+        self._state_cache = None
 
     # ---------------------------------------------------------------- lease
     @property
@@ -785,8 +788,6 @@ class FakeSpot:
         if self._pace_sim + 1e-9 < self._pace_next_check:
             return
         self._pace_next_check = self._pace_sim + _CONTROL_DT
-        if "object_dropped" in self.faults:
-            self._drop_if_slipping()
         self._check_motion(cmd)
         if self.time_scale is None:
             return
