@@ -165,7 +165,6 @@ class SimSpotBackend(SimArm, SimManipulation):
         self.last_grasp_hand_pose: np.ndarray | None = None   # T_world_hand when the jaws started closing
         self._active_contacts: set[int] = set()
         self._held: _Held | None = None
-        self._dropped = False          # drop_held_object() let go: the next settle lets the object fall out first
         self._frame_id = 0
         self._segmentations: OrderedDict[int, np.ndarray] = OrderedDict()
         self._recent: OrderedDict[int, Observation] = OrderedDict()

@@ -4,7 +4,7 @@ back out; on a place, turn the hand to the release point, open, retreat; drive t
 loose objects come to rest.
 
 A mixin of :class:`robots.spot.sim_backend.SimSpotBackend` (the state it reads and sets is set up by
-that class's ``__init__``: ``world``, ``spot``, ``config``, ``_held``, ``_dropped``, ``last_release``,
+that class's ``__init__``: ``world``, ``spot``, ``config``, ``_held``, ``last_release``,
 ``last_grasp_hand_pose``). It moves the arm through :class:`robots.spot.sim_arm.SimArm`
 (``_move_arm``, ``_move_hand_linear``) and steps physics through the main class (``_step``). What
 a hold leaves in ``_held`` is a :class:`_Held`; every motion then checks it for slip
@@ -225,25 +225,21 @@ class SimManipulation:
 
     def drop_held_object(self) -> None:
         """The claw loses the held object (the fake Spot's ``object_dropped`` fault): the hold lets
-        go as a slip does (``SimSpotBackend._check_slip``) and the claw's drive opens it, so the
-        object falls at the next :meth:`settle_loose_objects` (the jaws alone would go on pinching
-        it). Between motions only: a motion's rigid carry would put it back on the wrist. Not a
-        release: no place is recorded."""
+        go as a slip does (``SimSpotBackend._check_slip``) and the claw opens (the jaws alone would
+        go on pinching it), so the object falls; :meth:`settle_loose_objects` lets it land. Between
+        motions only: a motion's rigid carry would put it back on the wrist. Not a release: no place
+        is recorded."""
         if self._held is None:
             return
         grasping.detach(self.world, self._held.constraint_id, self.spot.id, self._held.body_id)
         self._held = None
-        self._dropped = True
-        self.spot.command_gripper(self.config.grasp.open_angle, self.config.grasp.close_force, 4.0)
+        self._gripper_to(self.config.grasp.open_angle, self.config.grasp.close_force, 4.0, 0.3)
 
     def settle_loose_objects(self, max_time: float = 2.0) -> None:
         """Let objects still moving (e.g. just dropped) come to rest: real time runs on between a
         robot's commands, while the simulation only runs while asked to."""
         if self._held is not None:
             return
-        if self._dropped:      # still between the opening jaws, at rest: give the claw time to open
-            self._dropped = False
-            self._step(max(1, int(0.3 / self.world.timestep)))
         moving = [b.body_id for b in self.world.bodies_of_kind(OBJECT) if not self.world.is_at_rest(b.body_id)]
         if moving:
             self.world.settle(moving, max_time=max_time)

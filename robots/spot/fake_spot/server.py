@@ -383,7 +383,7 @@ class FakeSpot:
                 self._end_commands("overridden", "lease taken by another client")
                 self._jobs.put(self._sim_stop)
             elif fault == "object_dropped":
-                self._jobs.put(self._drop_if_slipping)    # at once if idle, else after the command in progress
+                self._jobs.put(self._drop_held_object_if_due)    # at once if idle, else after the command in progress
             elif fault == "time_sync_loss":
                 self.time_sync.forget()        # old identifiers become invalid
             elif fault == "command_timeout":
@@ -613,8 +613,8 @@ class FakeSpot:
     def _sim_stop(self) -> None:
         self.sim.stop()
 
-    def _drop_if_slipping(self) -> None:
-        """The ``object_dropped`` fault: a job on the simulator's thread; the object falls at once."""
+    def _drop_held_object_if_due(self) -> None:
+        """The ``object_dropped`` fault, a job on the simulator's thread: the claw lets go, the object lands."""
         with self._lock:
             if self.faults.pop("object_dropped", None) is None:
                 return
