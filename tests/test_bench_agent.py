@@ -207,9 +207,10 @@ def test_a_repeated_episode_adds_no_second_replan_map():
     assert 0 < first["camera"]["seconds"] < first["phases"]["simulator (HAL commands)"]
 
 
-def test_the_bench_times_the_tables_episodes_with_their_trial_seeds():
+def test_the_bench_times_the_tables_episodes_with_their_trial_seeds(monkeypatch):
     """By default an episode gets the agent seed ``tools trials --seed 0`` gives it, so the bench
-    times the very episodes of the tables: same simulated time, outcome and end as the record."""
+    times the very episodes of the tables: same simulated time, outcome and end as the record.
+    With ``--agent-seed own`` the perception and the runner get the episode's own seed instead."""
     from tasks.episodes import load_split
     from tasks.trial_config import TrialConfig, episode_seed
     from tasks.trials import run_one
@@ -227,8 +228,28 @@ def test_the_bench_times_the_tables_episodes_with_their_trial_seeds():
     record = run_one(TrialConfig(agent="helios", split="val", episodes=11), episodes[10])
     assert timed["seed"] == record["seed"] == ten["seed"]
     assert (timed["sim"], timed["success"]) == (record["sim_time"], record["success"])
+    # The episode's own seed: another course. Its first 20 s show the seeds it was given (the whole
+    # course took 17 s of test time: 439 s of robot time against the trial seed's 74 s).
+    import sim.perception as sim_perception
+    import tasks.runner as runner
+
+    seen = {}
+    real_perception, real_run = sim_perception.make_sim_perception, runner.run_sim_episode
+
+    def perception(*args, seed, **kwargs):
+        seen["perception"] = seed
+        return real_perception(*args, seed=seed, **kwargs)
+
+    def first_seconds(make, episode, seed=None):
+        result = real_run(make, episode, runner.RunnerConfig(max_sim_time=20.0), seed=seed)
+        seen["runner"] = result.seed
+        return result
+
+    monkeypatch.setattr(sim_perception, "make_sim_perception", perception)
+    monkeypatch.setattr(runner, "run_sim_episode", first_seconds)
     own = worker.episode(10)
-    assert own["seed"] is None and own["sim"] != timed["sim"]      # the episode's own seed: another course
+    assert own["seed"] is None and own["sim"] < 30.0
+    assert seen == {"perception": episodes[10].seed, "runner": episodes[10].seed} and episodes[10].seed != ten["seed"]
     with pytest.raises(ValueError, match="splits differ"):
         worker.episode(1, 5, "val-09999")
 
