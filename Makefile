@@ -40,7 +40,7 @@ compare: setup
 	$(PY) -m tools report $(addprefix runs/val/,$(COMPARE)) --common --pick-limits "$(PICK_LIMITS)" --out runs/val/report
 
 # Fast test suite (what CI runs): headless, deterministic. Tests run in TEST_WORKERS pytest-xdist
-# processes: by default two more than cores, at most 4 (a test process's memory peaks near 2 GB;
+# processes: by default two per core, at most 4 (a test process's memory peaks near 2 GB;
 # each test is single-threaded, and two fifths of the tests' time is waiting, not computing: the
 # fake Spot's real-time clock, subprocesses, bounded waits; so processes beyond the cores keep the
 # cores busy: on a 2-core AMD EPYC 6 min 33 s with 2, 5 min 17 s with 3 (1,533 tests), and, same
@@ -49,7 +49,7 @@ compare: setup
 # `-s`). Idle processes take tests queued for busy ones (--dist worksteal): the last long tests no
 # longer run on one process while the others wait (same tree, back to back: 4 min 57 s with
 # --dist load, 4 min 38 s).
-DEFAULT_TEST_WORKERS := $(shell n=$$(nproc 2>/dev/null || echo 1); n=$$((n + 2)); [ $$n -gt 4 ] && n=4; echo $$n)
+DEFAULT_TEST_WORKERS := $(shell n=$$(nproc 2>/dev/null || echo 1); n=$$((n * 2)); [ $$n -gt 4 ] && n=4; echo $$n)
 TEST_WORKERS ?= $(DEFAULT_TEST_WORKERS)
 XDIST = -n $(TEST_WORKERS) --maxprocesses 4 --dist worksteal
 test: test-workers setup
