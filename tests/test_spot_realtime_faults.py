@@ -554,6 +554,15 @@ def test_fault_mid_grasp_or_carry_is_typed_fast_and_leaves_the_robot_safe(fault,
     _check_after_close(fake, fault, before, backend)
 
 
+def _hold_the_mug(demo, backend) -> tuple[int, float]:
+    """Grasp the demo's mug; its body and the height the claw holds it at."""
+    obs, pixel = _grasp_setup(demo, backend)
+    assert backend.grasp(obs, pixel).success and backend.observe().holding
+    with demo.fake.sim_lock:
+        mug = demo.fake.sim.held_body
+        return mug, demo.fake.sim.world.position(mug)[2]
+
+
 def test_an_object_that_slips_out_mid_carry_is_seen_in_the_state_and_place_sends_nothing():
     """The mug drops out of the claw while the robot walks with it (the fake's ``object_dropped``,
     injected mid-walk, carried out once the walk ends): no robot fault, the walk arrives, the next
@@ -565,11 +574,7 @@ def test_an_object_that_slips_out_mid_carry_is_seen_in_the_state_and_place_sends
 
     before, demo, backend, fake = _real_time_session()
     try:
-        obs, pixel = _grasp_setup(demo, backend)
-        assert backend.grasp(obs, pixel).success and backend.observe().holding
-        with fake.sim_lock:
-            mug = fake.sim.held_body
-            held_at = fake.sim.world.position(mug)[2]
+        mug, held_at = _hold_the_mug(demo, backend)
         start = _base(fake)
         fake.inject_at(0.3, "object_dropped")
         walk = backend.navigate_to(SE2Pose(start.x - 0.4, start.y, start.yaw))
@@ -592,11 +597,7 @@ def test_an_object_that_slips_out_mid_carry_is_seen_in_the_state_and_place_sends
     # idle: the claw lets go and the mug falls at once
     before, demo, backend, fake = _real_time_session()
     try:
-        obs, pixel = _grasp_setup(demo, backend)
-        assert backend.grasp(obs, pixel).success
-        with fake.sim_lock:
-            mug = fake.sim.held_body
-            held_at = fake.sim.world.position(mug)[2]
+        mug, held_at = _hold_the_mug(demo, backend)
         fake.inject("object_dropped")
         deadline = time.monotonic() + 2.0
         while backend.observe().holding and time.monotonic() < deadline:
