@@ -21,6 +21,10 @@ and the scripted demo do not, and their runs read "n/a"):
     ``frontiers_given_up``: frontiers marked unreachable because the steps towards them got
     nowhere (``AgentConfig.stall_steps``: the robot ended each where the last one ended and saw no
     new floor); counted since 2026-12-04, None for a run with an older record.
+    ``claw_drops``: times the object left the claw between a grasp and the place (it slipped out
+    while carried, or fell as the arm stowed; the agent then searches for it again), as the agent
+    saw it in the frames after the grasp; counted since 2026-12-06, None for a run with an older
+    record.
     ``local_search_sizes``: per candidate pick location searched, the gaze points planned for it.
 ``extra["start_receptacle"]`` (the runner's ground-truth check, ``EpisodeJudge.start_receptacle_truth``)
     Of the global decisions with open candidates (``decisions``), in how many the start receptacle
@@ -53,8 +57,8 @@ from typing import Iterable
 
 from helios.agents.activities import ACTIVITIES, DECISION_COUNTS
 
-COUNTED_LATER = ("gaze_point_views", "frontiers_given_up")
-"""Decision counts that records made before 2026-12-03 / -04 lack: a run with such a record
+COUNTED_LATER = ("gaze_point_views", "frontiers_given_up", "claw_drops")
+"""Decision counts that records made before 2026-12-03 / -04 / -06 lack: a run with such a record
 totals None for them (unknown), never a 0 that would read as "none"."""
 
 # ACTIVITIES: table order; activities not in it follow in the order they appear.

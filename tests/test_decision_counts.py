@@ -160,7 +160,7 @@ def test_report_on_real_runs_shows_helios_numbers_and_oracle_na(real_runs, tmp_p
     lines = result["text"].splitlines()
     row = lambda title, name: next(line for line in lines[next(i for i, x in enumerate(lines)  # noqa: E731
                                                                 if x.startswith(title)):] if line.startswith(name))
-    assert "n/a" not in row("Decisions", "helios") and row("Decisions", "oracle").count("n/a") == 14
+    assert "n/a" not in row("Decisions", "helios") and row("Decisions", "oracle").count("n/a") == 15
     assert "start_scan" in result["text"] and row("Simulated time per phase", "oracle").count("n/a") == 7
     report = json.loads((tmp_path / "rep" / "report.json").read_text())
     assert report["oracle"]["decisions"] is None and report["helios"]["activity_time"]["episodes"] == 1
@@ -264,7 +264,7 @@ NEW = [
     _record(0, {"activity_time": {"start_scan": 40.0, "local_search": 50.0, "pick": 10.0},
                 "decisions": _decisions(global_with_candidates=3, chose_candidate_before_f0=2,
                                         chose_frontier_after_f0=1, extra_views_object=1, gaze_point_visits=14,
-                                        gaze_point_views=9, frontiers_given_up=1, sizes=[8, 10])}),
+                                        gaze_point_views=9, frontiers_given_up=1, claw_drops=1, sizes=[8, 10])}),
     _record(1, {"activity_time": {"start_scan": 40.0, "exploration": 60.0},
                 "decisions": _decisions(global_with_candidates=1, chose_candidate_after_f0=1, extra_views_goal=2,
                                         gaze_point_visits=3, gaze_point_views=3, sizes=[12])}),
@@ -278,7 +278,7 @@ def test_aggregation_of_hand_written_records():
     assert d["totals"] == {"global_with_candidates": 4, "chose_candidate_before_f0": 2, "chose_frontier_before_f0": 0,
                            "chose_candidate_after_f0": 1, "chose_frontier_after_f0": 1, "extra_views_object": 1,
                            "extra_views_goal": 2, "gaze_point_visits": 17, "gaze_point_views": 12,
-                           "frontiers_given_up": 1}
+                           "frontiers_given_up": 1, "claw_drops": 1}
     assert d["per_episode"]["global_with_candidates"] == 2.0 and d["per_episode"]["gaze_point_visits"] == 8.5
     assert d["per_episode"]["gaze_point_views"] == 6.0 and d["per_episode"]["frontiers_given_up"] == 0.5
     assert d["local_searches"] == 3 and d["local_searches_per_episode"] == 1.5
@@ -305,14 +305,14 @@ def test_report_prints_the_sections_with_na_for_old_runs(tmp_path):
     text, md, page = result["text"], result["markdown"], result["html"].read_text()
     assert "Decisions: totals over the episodes shown" in text and "Simulated time per phase" in text
     assert ("| new | 2/3 | 4 (2.0) | 2 (1.0) | 0 (0.0) | 1 (0.5) | 1 (0.5) | 1 (0.5) | 2 (1.0) | 3 (1.5) "
-            "| 10.0 | 10 | 12 | 17 (8.5) | 12 (6.0) | 1 (0.5) |") in md
+            "| 10.0 | 10 | 12 | 17 (8.5) | 12 (6.0) | 1 (0.5) | 1 (0.5) |") in md
     assert "| old | 0/1 | n/a | n/a |" in md
     assert ("| new | 2/3 | 100 | 40.0 (40 s) | 30.0 (30 s) | 25.0 (25 s) | 5.0 (5 s) | 0.0 (0 s) | 0.0 (0 s) |"
             in md)
     assert "**Decisions: totals" in md and "**Simulated time per phase" in md
     assert "<h2>Decisions: totals" in page and "<h2>Simulated time per phase" in page
-    # n/a: decisions 14 + phase times 7, and the search-speed table's 3 + 5 (these records keep no phase times)
-    assert "<td>40.0 (40 s)</td>" in page and page.count("<td>n/a</td>") == 14 + 7 + 8 + 2 * 3 * 5   # + the budget table: no phase times
+    # n/a: decisions 15 + phase times 7, and the search-speed table's 3 + 5 (these records keep no phase times)
+    assert "<td>40.0 (40 s)</td>" in page and page.count("<td>n/a</td>") == 15 + 7 + 8 + 2 * 3 * 5   # + the budget table: no phase times
 
 
 def test_the_phase_share_is_weighted_by_time_not_averaged_over_episodes():
@@ -330,10 +330,11 @@ def test_report_decisions_row_puts_each_count_in_its_own_column(tmp_path):
     prepare_run_folder(run, TrialConfig(agent="helios", split="val", episodes=1))
     append_result(run / "episodes.jsonl", _record(0, {"decisions": _decisions(
         global_with_candidates=28, chose_candidate_before_f0=1, chose_frontier_before_f0=2,
-        chose_candidate_after_f0=3, chose_frontier_after_f0=4, extra_views_object=5, extra_views_goal=6)}))
+        chose_candidate_after_f0=3, chose_frontier_after_f0=4, extra_views_object=5, extra_views_goal=6,
+        gaze_point_visits=7, gaze_point_views=8, frontiers_given_up=9, claw_drops=10)}))
     md = make_report([run], tmp_path / "rep", episode_pages=False)["markdown"].splitlines()
     assert ("| distinct | 1/1 | 28 (28.0) | 1 (1.0) | 2 (2.0) | 3 (3.0) | 4 (4.0) | 5 (5.0) | 6 (6.0) | 0 (0.0) "
-            "| - | - | - | 0 (0.0) | 0 (0.0) | 0 (0.0) |") in md
+            "| - | - | - | 7 (7.0) | 8 (8.0) | 9 (9.0) | 10 (10.0) |") in md
 
 
 def test_gaze_point_views_unknown_when_a_record_predates_them(tmp_path):
@@ -349,16 +350,17 @@ def test_gaze_point_views_unknown_when_a_record_predates_them(tmp_path):
     for r in NEW + [before]:
         append_result(run / "episodes.jsonl", r)
     md = make_report([run], tmp_path / "rep")["markdown"]
-    assert "| 22 (7.3) | - | 1 (0.3) |" in md
+    assert "| 22 (7.3) | - | 1 (0.3) | 1 (0.3) |" in md
 
 
-def test_frontiers_given_up_unknown_when_a_record_predates_them():
-    """``frontiers_given_up`` (``AgentConfig.stall_steps``) is counted since 2026-12-04: a run with
-    an older record reports None for it, not 0."""
-    before = _record(5, {"decisions": {k: v for k, v in _decisions().items() if k != "frontiers_given_up"}})
+@pytest.mark.parametrize("key", ["frontiers_given_up", "claw_drops"])
+def test_counts_added_later_are_unknown_when_a_record_predates_them(key):
+    """``frontiers_given_up`` (``AgentConfig.stall_steps``) is counted since 2026-12-04 and
+    ``claw_drops`` since 2026-12-06: a run with an older record reports None for them, not 0."""
+    before = _record(5, {"decisions": {k: v for k, v in _decisions().items() if k != key}})
     d = summarize_decisions(NEW + [before])
-    assert d["totals"]["frontiers_given_up"] is None and d["per_episode"]["frontiers_given_up"] is None
-    assert summarize_decisions(NEW)["totals"]["frontiers_given_up"] == 1
+    assert d["totals"][key] is None and d["per_episode"][key] is None
+    assert summarize_decisions(NEW)["totals"][key] == 1
 
 
 def _timed_out(i: int, reached: tuple[str, ...], extra: dict) -> dict:

@@ -465,8 +465,10 @@ def test_an_object_that_slips_out_of_the_claw_on_the_way_is_searched_for_again(d
         if not drop:
             assert agent.phase is Phase.DONE and agent.log[-1] == "done: placed", agent.log[-3:]
             assert "place" in sent and "the claw no longer holds the object: searching for it again" not in agent.log
+            assert agent.decision_stats()["claw_drops"] == 0
             return
         assert agent.phase is Phase.PICK and agent.log[-1] == "the claw no longer holds the object: searching for it again"
+        assert agent.decision_stats()["claw_drops"] == 1        # the report's "claw drops" column
         for _ in range(100):
             agent.act(robot)
             if agent.pick_attempts > attempts:

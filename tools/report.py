@@ -115,7 +115,8 @@ def decision_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
             "chose_candidate_after_f0", "chose_frontier_after_f0", "extra_views_object", "extra_views_goal")
     headers = ["run", "episodes", "with candidates", "cand. before F0", "frontier before F0", "cand. after F0",
                "frontier after F0", "extra views obj", "extra views goal", "local searches",
-               "gaze pts/search mean", "median", "max", "gaze pt visits", "with a view", "frontiers given up"]
+               "gaze pts/search mean", "median", "max", "gaze pt visits", "with a view", "frontiers given up",
+               "claw drops"]
     rows = []
     for r in runs:
         d = summarize_decisions(r.records)

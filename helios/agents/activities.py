@@ -8,5 +8,6 @@ carrying the object while searching for the goal receptacle (its extra views too
 
 DECISION_COUNTS = ("global_with_candidates", "chose_candidate_before_f0", "chose_frontier_before_f0",
                    "chose_candidate_after_f0", "chose_frontier_after_f0", "extra_views_object",
-                   "extra_views_goal", "gaze_point_visits", "gaze_point_views", "frontiers_given_up")
+                   "extra_views_goal", "gaze_point_visits", "gaze_point_views", "frontiers_given_up",
+                   "claw_drops")
 """The integer counts of ``HeliosAgent.decision_stats()`` (besides ``local_search_sizes``)."""

@@ -17,9 +17,9 @@ Each ``act`` call makes one decision and carries it out through the HAL:
    value for the goal receptacle. A claw that no longer holds the object (it slipped out on the
    way; the paper is silent) is back in the pick phase: search for the object again.
 
-The rooms: :mod:`~helios.agents.observer` (what the agent sees and the map), :mod:`~helios.agents.body`
-(pose, arm, planning, walking, looking), :mod:`~helios.agents.pick` and :mod:`~helios.agents.place`
-(the skills, returning a :class:`~helios.agents.skill.SkillOutcome`), and this module (the decision).
+The rooms: :mod:`~helios.agents.observer` (what the agent sees, the map), :mod:`~helios.agents.body` (pose,
+arm, planning, walking, looking), :mod:`~helios.agents.pick`/:mod:`~helios.agents.place` (the skills, returning a
+:class:`~helios.agents.skill.SkillOutcome`), and this module (the decision).
 
 Variants (``AgentConfig.variant``, read as :class:`~helios.agents.config.VariantFlags`): ``helios``;
 ``no_global`` (candidates always before frontiers); ``trusting`` (no Gaussian layer, no gaze points,
@@ -162,12 +162,10 @@ class HeliosAgent:
         self._logged = len(self.log)
 
     def decision_stats(self) -> dict:
-        """What the agent decided this episode, for the trial report: global decisions made with open
-        candidates and how many chose a candidate or a frontier before / after F0 was calibrated on a
-        chosen frontier, extra views the Psi' rule asked for, the gaze points of each local search
-        (planned), visited and those that took their view, frontiers given up (``stall_steps``), and
-        ``global_choices``: per decision with open candidates, those offered (``[id, x, y]``, world
-        metres), the one chosen (None: a frontier) and its search's ``views`` (checked, then dropped)."""
+        """What the agent decided this episode, for the trial report (``DECISION_COUNTS``; their meaning:
+        ``tasks.decisions``), the gaze points planned per local search, and ``global_choices``: per
+        decision with open candidates, those offered (``[id, x, y]``, world metres), the one chosen
+        (None: a frontier) and its search's ``views`` (checked, then dropped)."""
         out = {k: int(self.stats.get(k, 0)) for k in DECISION_COUNTS}
         out["local_search_sizes"] = list(self.local_search_sizes)
         if self.config.flags.object_map:      # agents without candidates (trusting) have nothing to check
@@ -215,6 +213,7 @@ class HeliosAgent:
     def _place_step(self, robot: RobotBackend) -> None:
         if self.observer.last_obs is not self.grasp_frame and not self.observer.last_obs.holding:
             self.log.append("the claw no longer holds the object: searching for it again")
+            self.stats["claw_drops"] += 1
             self.phase, self.local = Phase.PICK, None      # not the local search the grasp interrupted
             return
         target, verdict, view = self._judge_targets(self.goal_class)
