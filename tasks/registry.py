@@ -2,6 +2,9 @@
 fake robot and a real one). Each entry builds a fresh agent for one run from an
 :class:`AgentContext`; unknown names get one error listing the valid ones.
 
+Agents of your own run as ``FILE.py:FACTORY`` or ``package.module:FACTORY`` instead of a name
+(:mod:`tasks.plugin_agents`): task episodes only, never on a robot.
+
 An entry runs on one kind of run (``runs_on``):
 
 * ``EPISODE``: a task episode (``tools trials``; ``tools spot --fake --episode``). The agent
@@ -114,10 +117,11 @@ def _helios_factory(variant: str, ground_truth: bool) -> Callable:
     """Factory of one HELIOS variant with simulated (noisy or ground-truth) perception."""
 
     def factory(context: AgentContext, agent_config=None, method_config=None, perception_config=None,
-                perception=None):
+                perception=None, search_policy=None):
         """``perception``: a (detector, scorer) pair (e.g. ``tasks.hardware.load_robot_perception``:
         OWLv2 and CLIP from local weights) used instead of the simulated detector; the only way
-        to run on a real robot."""
+        to run on a real robot. ``search_policy``: the pick phase's choice between candidates and
+        frontiers (``HeliosAgent``; None: the paper's objective), for agents of your own."""
         from dataclasses import replace
 
         from helios.agents.config import AgentConfig
@@ -127,6 +131,7 @@ def _helios_factory(variant: str, ground_truth: bool) -> Callable:
         from sim.perception import SimPerceptionConfig, make_sim_perception, role_classes_of
 
         agent_fields, search_fields, _ = VARIANTS[variant]
+        policy = {"search_policy": search_policy} if search_policy is not None else {}
         agent_config = agent_config or AgentConfig()
         agent_fields = {k: replace(getattr(agent_config, k), **v) if isinstance(v, dict) else v
                         for k, v in agent_fields.items()}
@@ -139,7 +144,7 @@ def _helios_factory(variant: str, ground_truth: bool) -> Callable:
             if ground_truth:
                 raise UnknownAgentError(f"{name} uses ground-truth semantics; with real perception run {variant}")
             detector, scorer = perception
-            return HeliosAgent(detector, scorer, agent_config, method_config, name=name)
+            return HeliosAgent(detector, scorer, agent_config, method_config, name=name, **policy)
         if context.backend is None or context.scene is None:
             raise UnknownAgentError(f"{name} with simulated perception needs the simulator (a task episode); on a "
                                     f"real robot give it real perception")
@@ -147,7 +152,7 @@ def _helios_factory(variant: str, ground_truth: bool) -> Callable:
         roles = role_classes_of(context.episode) if context.episode is not None else None   # for gt_roles
         detector, scorer = make_sim_perception(context.backend, seed=context.seed, config=perception_config,
                                                rooms=context.scene.layout.rooms, role_classes=roles)
-        return HeliosAgent(detector, scorer, agent_config, method_config, name=name)
+        return HeliosAgent(detector, scorer, agent_config, method_config, name=name, **policy)
 
     return factory
 
@@ -205,8 +210,16 @@ def check_robot_agent(name: str) -> AgentEntry:
 
 def check_agent(name: str, runs_on: str | None = EPISODE) -> AgentEntry:
     """The entry of ``name``; an :class:`UnknownAgentError` listing the valid names unless it is
-    registered and runs on ``runs_on`` (``None``: anywhere)."""
+    registered and runs on ``runs_on`` (``None``: anywhere). A plugin (``FILE.py:FACTORY``,
+    :mod:`tasks.plugin_agents`) is imported and checked here, and runs on task episodes."""
     valid = ", ".join(agent_names(runs_on))
+    if name not in AGENTS and _is_plugin(name):
+        from tasks.plugin_agents import make_plugin_factory
+
+        if runs_on not in (None, EPISODE):
+            raise UnknownAgentError(f"agent {short_repr(name, 80)}: agents of your own run on task episodes, not on "
+                                    f"{RUNS_ON[runs_on]}; valid agents: {valid}")
+        return AgentEntry(make_plugin_factory(name), f"your own agent ({short_repr(name, 80)})")
     if name not in AGENTS:
         raise UnknownAgentError(f"unknown agent {short_repr(name, 80)}; valid agents: {valid}")
     entry = AGENTS[name]
@@ -235,13 +248,25 @@ IGNORED = "ignored"
 _ORACLE_IGNORES = ("agent_config", "helios", "perception")
 
 
+def _is_plugin(name: str) -> bool:
+    from tasks.plugin_agents import is_plugin_spec
+
+    return is_plugin_spec(name)
+
+
 def replaced_settings(name: str) -> dict[str, object]:
     """TrialConfig settings (dotted keys, or whole sections) that agent ``name`` does not take from
     the run's config: the value its factory forces (a HELIOS variant's fields, ``perception.mode``
-    of a ``-gt`` agent), or :data:`IGNORED` for a section it never reads (the oracle's). A run
-    setting one of them otherwise would record in config.yaml a setting that changed nothing."""
+    of a ``-gt`` agent), or :data:`IGNORED` for a section it never reads (the oracle's; a plugin's
+    that its ``reads`` does not name). A run setting one of them otherwise would record in
+    config.yaml a setting that changed nothing."""
     if name == "oracle":
         return {section: IGNORED for section in _ORACLE_IGNORES}
+    if name not in AGENTS and _is_plugin(name):
+        from tasks.plugin_agents import SECTION_OPTIONS, plugin_reads
+
+        reads = plugin_reads(name)
+        return {section: IGNORED for section in SECTION_OPTIONS if section not in reads}
     from helios.agents.variants import VARIANTS
 
     variant = name.removesuffix("-gt")
@@ -367,8 +392,8 @@ def unread_settings(config) -> dict[str, str]:
     from sim.perception.config import GT_MODE_READS, NOISY_ONLY_WITH_ROLES, SimPerceptionConfig
 
     out: dict[str, str] = {}
-    if not reads_section(config.agent, "perception"):
-        return out                                    # replaced_settings refuses the whole section
+    if not reads_section(config.agent, "perception") or (config.agent not in AGENTS and _is_plugin(config.agent)):
+        return out            # replaced_settings refuses the whole section; what a plugin reads, it knows
     perception = [f.name for f in dataclasses.fields(SimPerceptionConfig)]
     never = {key.removeprefix("perception.") for key in NO_AGENT_READS}
     if config.agent.endswith("-gt") or config.perception.mode == "gt":
@@ -414,6 +439,10 @@ def check_agent_settings(config, explicit: Iterable[str] = ()) -> None:
         agent = short_repr(config.agent, 40)
         if forced is IGNORED:
             where = given[0] if given else f"{key}.*"
+            if config.agent not in AGENTS and _is_plugin(config.agent):
+                raise ConfigError(f"{where}: agent {agent} reads no {key}.* settings (its factory's reads does not "
+                                  f"name {key!r}), so this would change nothing; leave it out, or add {key!r} to "
+                                  f"its reads and take the option it brings")
             raise ConfigError(f"{where}: agent {agent} reads no {key}.* settings (it acts on ground truth, with no map "
                               f"or detector), so this would change nothing; leave it out or run a HELIOS agent")
         if value != forced:

@@ -145,7 +145,28 @@ def stale_results(out: Path, config: TrialConfig, commit: str | None = None) -> 
     made, now = header.get("git_commit"), commit if commit is not None else git_commit()
     if differs(made, now):
         return f"results of commit {made[:10]} (this checkout is {now[:10]})"
+    changed = agent_source_changed(out, config.agent)
+    if changed:
+        return f"results of other source of agent {config.agent} ({changed}; now {plugin_source(config.agent)})"
     return None
+
+
+def plugin_source(agent: str) -> str | None:
+    """The source digest of a plugin agent (:mod:`tasks.plugin_agents`); None for a registered one."""
+    from tasks.plugin_agents import is_plugin_spec, source_digest
+    from tasks.registry import AGENTS
+
+    return source_digest(agent) if agent not in AGENTS and is_plugin_spec(agent) else None
+
+
+def agent_source_changed(out: Path, agent: str) -> str | None:
+    """The earlier source digests of a plugin agent whose episodes a run folder holds, when they
+    are not this source's (a resume would mix two versions of the agent); else None."""
+    now = plugin_source(agent)
+    if now is None:
+        return None
+    other = [d for d in run_agent_sources(out) if d != now]
+    return ", ".join(other) if other else None
 
 
 def move_aside(out: Path, stamp: str | None = None) -> Path:
@@ -776,10 +797,22 @@ def _distinct(values) -> list[str]:
     return list(dict.fromkeys(values))
 
 
-def log_invocation(out: Path, workers: int, executor: str, address: str, todo: int, commit: str) -> None:
+def run_agent_sources(out: Path) -> list[str]:
+    """The distinct source digests of a plugin agent (``agent_source``, :mod:`tasks.plugin_agents`)
+    that the invocations which ran episodes in a run folder logged, in the order first seen; empty
+    for a registered agent (its code is the commit's)."""
+    return _distinct(e["agent_source"] for e in _episode_invocations(out) if isinstance(e.get("agent_source"), str))
+
+
+def log_invocation(out: Path, workers: int, executor: str, address: str, todo: int, commit: str,
+                   agent_source: str | None = None) -> None:
+    """One line of ``invocations.jsonl``: who ran how many episodes where, with which code (the
+    commit, the CPU code paths, and a plugin agent's source digest, ``agent_source``)."""
     entry = {"time": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "host": socket.gethostname(), "pid": os.getpid(),
              "argv": sys.argv, "workers": workers, "executor": executor,
              "address": address if executor == "ray" else None, "episodes_to_run": todo,
              "helios_version": package_version(), "git_commit": commit, "cpu": cpu_dispatch(),
              "cpu_model": cpu_model()}
+    if agent_source is not None:
+        entry["agent_source"] = agent_source
     append_result(out / "invocations.jsonl", entry)

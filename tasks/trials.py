@@ -26,9 +26,9 @@ from tasks.executors import WORKER_EPISODES
 from tasks.episodes import Episode
 from tasks.provenance import git_commit
 from tasks.registry import RunContext, make_agent
-from tasks.run_folder import (FolderLock, RunFolderError, append_result, check_folder_layout, cpu_paths_now,
-                              episode_digest, log_invocation, prepare_run_folder, run_cpu_paths, write_atomic,
-                              write_bytes_atomic)
+from tasks.run_folder import (FolderLock, RunFolderError, agent_source_changed, append_result, check_folder_layout,
+                              cpu_paths_now, episode_digest, log_invocation, plugin_source, prepare_run_folder,
+                              run_cpu_paths, write_atomic, write_bytes_atomic)
 from tasks.runner import run_sim_episode
 from tasks.trial_config import FINGERPRINT_FIELD, TrialConfig, episode_seed, run_episode_ids
 from tasks.trial_summary import METRIC_KEYS, METRIC_NAMES, summarize
@@ -188,6 +188,7 @@ class BatchReport:
     wall_seconds: float = 0.0
     commit_changed: str | None = None
     cpu_changed: str | None = None   # the other CPU code paths earlier episodes of the folder ran on
+    agent_source_changed: str | None = None   # a plugin agent's earlier source digests, when not this one's
     fingerprint: str = ""            # config_fingerprint stamped on the records this call writes
     saved_commit: str | None = None  # git commit in the folder's config.yaml before this call
     notes: list[str] = field(default_factory=list)   # what opening the folder repaired
@@ -249,7 +250,8 @@ def run_batch(config: TrialConfig, episodes: list[Episode], out: Path,
                 now = cpu_paths_now()
                 other = [p for p in run_cpu_paths(out) if p != now]
                 report.cpu_changed = "; ".join(other) if other else None
-            log_invocation(out, workers, executor, address, len(jobs), commit)
+                report.agent_source_changed = agent_source_changed(out, config.agent)
+            log_invocation(out, workers, executor, address, len(jobs), commit, plugin_source(config.agent))
             pool = make_executor(executor, min(workers, len(jobs)) if executor == "local" else workers, address,
                                  jobs=len(jobs), jobs_per_worker=worker_episodes)
             try:

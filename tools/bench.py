@@ -140,6 +140,10 @@ def _check_agents(args: argparse.Namespace) -> None:
 
     for flag in ("trials_agent", "agent_name"):
         name = getattr(args, flag, None)
+        if name is not None and ":" in name:       # tasks.plugin_agents: `tools trials` only
+            raise CliError(f"--{flag.replace('_', '-')} {name!r}: the benchmarks time registered agents (the "
+                           f"baseline side runs a commit's tree, without your file); time your own agent with "
+                           f"`tools trials --agent FILE.py:FACTORY` (wall s per episode in its summary)")
         if name is not None:
             try:
                 check_agent(name)

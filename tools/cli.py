@@ -45,6 +45,7 @@ def user_error_types() -> tuple[type[BaseException], ...]:
     from robots.spot.urdf import UrdfError
     from tasks.episodes import DatasetError
     from tasks.executors import ExecutorError
+    from tasks.plugin_agents import PluginAgentError
     from tasks.registry import UnknownAgentError
     from tasks.spec import TaskSpecError
     from tasks.run_folder import RunFolderError
@@ -52,7 +53,7 @@ def user_error_types() -> tuple[type[BaseException], ...]:
     # HalError covers the Spot SDK backend's errors too (robots.spot.sdk_backend: CredentialsError,
     # SpotConnectError, SpotSdkMissingError and the HAL's RobotFault subclasses).
     return (ConfigError, HalError, UrdfError, CliError, FileNotFoundError, DatasetError, TaskSpecError,
-            UnknownAgentError, RunFolderError, PerceptionError, ExecutorError)
+            UnknownAgentError, PluginAgentError, RunFolderError, PerceptionError, ExecutorError)
 
 
 def is_robot_fault(exc: BaseException) -> bool:

@@ -234,6 +234,12 @@ def _validate(args: argparse.Namespace):
 
         raise CliError(f"hostname {short_repr(args.hostname, 80)} looks like a setting; pass settings with "
                        f"--set KEY=VALUE")
+    if args.agent is not None and ":" in args.agent:         # tasks.plugin_agents: trials only
+        from helios.schema import short_repr
+
+        raise CliError(f"--agent {short_repr(args.agent, 80)}: agents of your own run in simulated trials (`tools "
+                       f"trials --agent FILE.py:FACTORY`), not on a robot or the fake one; agents here: "
+                       f"{', '.join(agent_names(None))}")
     if args.episode is not None:
         if not args.fake:
             raise CliError("--episode needs --fake: an episode's scene exists only in the simulator")

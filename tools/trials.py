@@ -39,7 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", default=None, metavar="FILE.yaml",
                         help="scenario file: a trial config (e.g. configs/smoke.yaml, or a run folder's config.yaml); "
                              "the flags below and KEY=VALUE override it")
-    parser.add_argument("--agent", default=None, help=f"agent (default oracle): {', '.join(agent_names())}")
+    parser.add_argument("--agent", default=None,
+                        help=f"agent (default oracle): {', '.join(agent_names())}; or your own, FILE.py:FACTORY or "
+                             f"package.module:FACTORY (README, \"Your own agent\")")
     parser.add_argument("--split", default=None, help=f"episode split (default smoke): {', '.join(SPLITS)}")
     parser.add_argument("--episodes-file", default=None,
                         help="JSONL episode file, instead of --split (it replaces a scenario file's split)")
@@ -80,7 +82,8 @@ def resolve_config(args: argparse.Namespace):
     Settings the agent would not use (``tasks.registry.check_agent_settings``) are refused."""
     from helios.schema import ConfigError, short_repr, with_overrides
     from tasks.episodes import SPLITS
-    from tasks.registry import check_agent_settings
+    from tasks.plugin_agents import canonical_spec, is_plugin_spec
+    from tasks.registry import AGENTS, check_agent_settings
     from tasks.trial_config import TrialConfig, canonical_episodes_file, load_trial_config
 
     base = TrialConfig()
@@ -107,8 +110,9 @@ def resolve_config(args: argparse.Namespace):
     check_agent_settings(config, explicit=[o.partition("=")[0] for o in args.overrides])
     # one spelling of the episode file however it was named (relative or absolute, from a flag, an
     # override or a --config file), so that the same file gives the same configuration fingerprint
-    # (tasks.trial_config.canonical_episodes_file)
-    return dataclasses.replace(config, episodes_file=canonical_episodes_file(config.episodes_file))
+    # (tasks.trial_config.canonical_episodes_file); the same for the file of an agent of your own
+    agent = canonical_spec(config.agent) if config.agent not in AGENTS and is_plugin_spec(config.agent) else config.agent
+    return dataclasses.replace(config, episodes_file=canonical_episodes_file(config.episodes_file), agent=agent)
 
 
 def _check_map_covers_homes(config, episodes) -> None:
@@ -180,8 +184,17 @@ def select_episodes(config):
 
 
 def default_out(config) -> Path:
+    """``runs/<agent>_<split or episode file>_s<seed>``; an agent of your own is named by its file
+    (or module) and factory: ``my_agent.py:make`` -> ``my_agent-make``."""
+    from tasks.plugin_agents import is_plugin_spec, parse_spec
+    from tasks.registry import AGENTS
+
     source = Path(config.episodes_file).stem if config.episodes_file else config.split
-    return Path(f"runs/{config.agent}_{source}_s{config.seed}")
+    agent = config.agent
+    if agent not in AGENTS and is_plugin_spec(agent):
+        module, factory, is_file = parse_spec(agent)
+        agent = f"{Path(module).stem if is_file else module}-{factory}"
+    return Path(f"runs/{agent}_{source}_s{config.seed}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -189,7 +202,8 @@ def run(args: argparse.Namespace) -> int:
 
     from robots.spot.signals import handling_signals
     from tasks.executors import check_address
-    from tasks.registry import check_agent
+    from tasks.plugin_agents import is_plugin_spec
+    from tasks.registry import AGENTS, check_agent
     from tasks.run_folder import (FolderLock, RunFolderError, check_folder_layout, move_aside, prepare_run_folder,
                                   read_results, stale_results)
     from tasks.trial_config import check_devices
@@ -199,6 +213,9 @@ def run(args: argparse.Namespace) -> int:
 
     config = resolve_config(args)
     check_agent(config.agent)
+    if args.executor == "ray" and config.agent not in AGENTS and is_plugin_spec(config.agent):
+        raise CliError(f"--agent {config.agent}: an agent of your own runs on local workers (--executor local); Ray "
+                       f"workers may run on machines without its file")
     if args.workers < 1:
         raise CliError(f"--workers must be >= 1, got {args.workers}")
     if args.workers > 1024:
@@ -292,6 +309,10 @@ def _print_summary(args, out: Path, records: list, report) -> int:
     if report.commit_changed:
         print(f"warning: this run folder was started at commit {report.commit_changed[:10]}; episodes from "
               f"different code versions are mixed", file=sys.stderr)
+    if report.agent_source_changed:
+        print(f"warning: earlier episodes of this run folder were made by another version of its agent's source "
+              f"file (sha256 {report.agent_source_changed}, invocations.jsonl): episodes from different versions of "
+              f"the agent are mixed; --replace-stale starts afresh", file=sys.stderr)
     if report.cpu_changed:
         print(f"warning: earlier episodes of this run folder ran on other CPU code paths ({report.cpu_changed}); "
               f"episodes from different code paths can differ in outcome (README, \"One CPU code path\")",

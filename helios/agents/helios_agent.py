@@ -77,15 +77,16 @@ class _LocalSearch:
 
 
 class HeliosAgent:
-    """HELIOS (and its ablations) behind the runner's Agent protocol (``reset``, ``act``)."""
+    """HELIOS (and its ablations) behind the runner's Agent protocol (``reset``, ``act``).
+
+    ``search_policy``: the pick phase's choice between candidates and frontiers, made per episode as
+    ``search_policy(method.search, cell_size, mode)`` (default: the paper's :class:`GlobalObjective`);
+    a policy of your own has its interface (``choose``, ``calibrated``, ``note_frontier_chosen``)."""
 
     def __init__(self, detector: Detector, scorer: ImageTextScorer, config: AgentConfig = AgentConfig(),
-                 method: HeliosConfig = HeliosConfig(), name: str = "helios"):
-        self.detector = detector
-        self.scorer = scorer
-        self.config = config
-        self.method = method
-        self.name = name
+                 method: HeliosConfig = HeliosConfig(), name: str = "helios", search_policy=GlobalObjective):
+        self.detector, self.scorer, self.config, self.method = detector, scorer, config, method
+        self.name, self.search_policy = name, search_policy
         self.planner = FMMPlanner(config.planner)
         self.log: list[str] = []
         self.observer: Observer | None = None
@@ -106,7 +107,7 @@ class HeliosAgent:
         self.observer = Observer(self.detector, self.scorer, self.config, self.method, task, self.timings)
         self.body = Body(self.config, self.planner, self.observer, self.log, self.timings)
         cell = self.map.geometry.cell_size
-        self.pick_objective = GlobalObjective(self.method.search, cell, self.config.flags.pick_objective)
+        self.pick_objective = self.search_policy(self.method.search, cell, self.config.flags.pick_objective)
         self.place_objective = GlobalObjective(self.method.search, cell, "frontiers_only")
         self.phase = Phase.START
         self.pick_attempts, self.grasp_frame = 0, None
