@@ -33,6 +33,7 @@ Not on a robot: ``tools spot`` takes registered agents only.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib
 import importlib.util
@@ -120,6 +121,18 @@ def _import_error(spec: str, where: str, exc: BaseException, doing: str = "impor
                             f"{': ' + short_repr(message, 120) if message else ''}")
 
 
+@contextlib.contextmanager
+def _no_bytecode():
+    """Import the agent's code without writing ``__pycache__`` next to it: the command that checks
+    (and refuses) an agent leaves the user's folder as it was."""
+    before = sys.dont_write_bytecode
+    sys.dont_write_bytecode = True
+    try:
+        yield
+    finally:
+        sys.dont_write_bytecode = before
+
+
 def _import(spec: str):
     source, attr, is_file = parse_spec(spec)
     shown = short_repr(spec, 80)
@@ -136,7 +149,8 @@ def _import(spec: str):
         module = importlib.util.module_from_spec(module_spec)
         sys.modules[name] = module          # dataclasses and pickling look their module up by name
         try:
-            module_spec.loader.exec_module(module)
+            with _no_bytecode():
+                module_spec.loader.exec_module(module)
         except BaseException as exc:  # noqa: BLE001 - whatever the file raises, one line
             sys.modules.pop(name, None)
             if isinstance(exc, KeyboardInterrupt):
@@ -147,7 +161,8 @@ def _import(spec: str):
             raise PluginAgentError(f"agent {shown}: no module {short_repr(source, 60)} on the Python path (run from the "
                                    f"folder that holds it, set PYTHONPATH, or give FILE.py:FACTORY)")
         try:
-            module = importlib.import_module(source)
+            with _no_bytecode():
+                module = importlib.import_module(source)
         except BaseException as exc:  # noqa: BLE001
             if isinstance(exc, KeyboardInterrupt):
                 raise
@@ -159,8 +174,8 @@ def _import(spec: str):
         raise PluginAgentError(f"agent {shown}: {short_repr(source, 60)} has no {attr!r}"
                                + (f"; its functions and classes: {', '.join(names[:12])}" if names else ""))
     if not callable(factory):
-        raise PluginAgentError(f"agent {shown}: {attr!r} in {short_repr(source, 60)} is a {type(factory).__name__}, "
-                               f"not a factory function")
+        raise PluginAgentError(f"agent {shown}: {attr!r} in {short_repr(source, 60)} is a value of type "
+                               f"{type(factory).__name__}, not a factory function")
     plugin_reads(spec, factory)         # checked now, not at the first episode
     return factory
 

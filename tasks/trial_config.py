@@ -72,11 +72,13 @@ class TrialConfig:
 
 def check_devices(config: TrialConfig) -> None:
     """ConfigError, before any work, when ``config`` asks for a torch device this machine lacks:
-    ``helios.device=cuda`` for a HELIOS agent (the oracle ignores ``helios``) without a CUDA
-    device. Its episodes would otherwise each end on that ConfigError, counted as failures."""
+    ``helios.device=cuda`` for a HELIOS agent (the oracle ignores ``helios``) or an agent of your
+    own (``FILE.py:FACTORY``; one that does not read ``helios`` was refused the setting already)
+    without a CUDA device. Its episodes would otherwise each end on that ConfigError, counted as
+    failures."""
     from helios.agents.variants import VARIANTS
 
-    if config.helios.device != "cuda" or config.agent.removesuffix("-gt") not in VARIANTS:
+    if config.helios.device != "cuda" or (config.agent.removesuffix("-gt") not in VARIANTS and ":" not in config.agent):
         return
     from helios.maps.hierarchical import resolve_device
 

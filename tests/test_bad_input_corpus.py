@@ -142,6 +142,11 @@ def ws(tmp_path_factory):
     for name, data in configs.items():
         (cfg / name).write_bytes(data)
     (cfg / "dir.yaml").mkdir()
+    agents = root / "agents"                  # agents of your own (tasks.plugin_agents)
+    agents.mkdir()
+    for name, data in PLUGIN_FILES.items():
+        (agents / name).write_bytes(data)
+    (agents / "dir.py").mkdir()
     runs = root / "runs"
     _synthetic_run(runs / "valid", TrialConfig(agent="oracle", episodes=2))
     _synthetic_run(runs / "nocfg", TrialConfig(agent="oracle", episodes=2, seed=7), config_yaml=False)
@@ -180,6 +185,17 @@ C = "{ws}/cfg/"
 R = "{ws}/runs/"
 SPOT = ["spot", "--fake", "--task", TASK]
 REPORT = ["report", R + "valid"]
+A = "{ws}/agents/"
+PLUGIN_FILES = {
+    "good.py": b"class Agent:\n    name = 'mine'\n    def reset(self, task, rng): pass\n"
+               b"    def act(self, robot): return True\n\n\ndef make(context, **options):\n    return Agent()\n\n\n"
+               b"LIMIT = 3\n",
+    "syntax.py": b"def make(context:\n",
+    "raises.py": b"import math\nx = 1 / 0\n",
+    "reads_str.py": b"def make(context, **options):\n    pass\n\n\nmake.reads = 'perception'\n",
+    "reads_sim.py": b"def make(context, **options):\n    pass\n\n\nmake.reads = ('perception', 'sim')\n",
+    "reads_helios.py": b"def make(context, **options):\n    pass\n\n\nmake.reads = ('helios',)\n",
+}
 
 CASES: list[tuple[str, list[str], str]] = [
     # --- output paths: an existing file, a path inside a file, an unwritable folder (every command) ---
@@ -528,6 +544,27 @@ CASES: list[tuple[str, list[str], str]] = [
      "no episode 'smoke-00003' in split 'val'"),
     ("view-empty", ["view", ""], "recording path must not be empty"),
     ("bench-unknown", ["bench", "simulator"], "unknown benchmark suite"),
+    # agents of your own (tasks.plugin_agents): checked before any work, the user's folder untouched
+    ("agent-plugin-no-file", [*T, "--agent", A + "nope.py:make"], "no such file"),
+    ("agent-plugin-folder", [*T, "--agent", A + "dir.py:make"], "(it is a folder)"),
+    ("agent-plugin-syntax", [*T, "--agent", A + "syntax.py:make"], "raised SyntaxError (line 1)"),
+    ("agent-plugin-raises", [*T, "--agent", A + "raises.py:make"], "raised ZeroDivisionError (line 2)"),
+    ("agent-plugin-no-factory", [*T, "--agent", A + "good.py:mk"], "has no 'mk'; its functions and classes: Agent, make"),
+    ("agent-plugin-not-callable", [*T, "--agent", A + "good.py:LIMIT"], "is a value of type int, not a factory"),
+    ("agent-plugin-not-a-name", [*T, "--agent", A + "good.py:1x"], "is not a Python name"),
+    ("agent-plugin-not-a-module", [*T, "--agent", "my agent:make"], "is neither a .py file nor a module name"),
+    ("agent-plugin-no-module", [*T, "--agent", "no_such_pkg.agents:make"], "no module 'no_such_pkg.agents'"),
+    ("agent-plugin-no-source", [*T, "--agent", ":make"], "give your own agent as FILE.py:FACTORY"),
+    ("agent-plugin-no-factory-name", [*T, "--agent", A + "good.py:"], "give your own agent as FILE.py:FACTORY"),
+    ("agent-plugin-reads-str", [*T, "--agent", A + "reads_str.py:make"], "its reads must be a tuple"),
+    ("agent-plugin-reads-sim", [*T, "--agent", A + "reads_sim.py:make"], "its reads names 'sim'"),
+    ("agent-plugin-unread-section", [*T, "--agent", A + "good.py:make", "perception.mode=gt"],
+     "perception.mode: agent"),
+    ("agent-plugin-ray", [*T, "--agent", A + "good.py:make", "--executor", "ray"], "runs on local workers"),
+    ("agent-plugin-cuda", [*T, "--agent", A + "reads_helios.py:make", "helios.device=cuda"], "helios.device=cuda: "),
+    ("spot-agent-plugin", ["spot", "--fake", "--episode", "smoke-00001", "--agent", A + "good.py:make", "--out",
+                           "{ws}/new_spot"], "agents of your own run in simulated trials"),
+    ("bench-agent-plugin", ["bench", "agent", "--agent-name", A + "good.py:make"], "the benchmarks time registered"),
     ("bench-seed", ["bench", "sim", "--seed", "-1"], "--seed must be"),
     ("bench-trials-workers", ["bench", "trials", "--trials-workers", "1,x"], "--trials-workers"),
     ("bench-trials-workers-zero", ["bench", "trials", "--trials-workers", "0"], "--trials-workers"),
@@ -883,7 +920,7 @@ def test_the_corpus_is_big_and_covers_every_command():
 @pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])
 def test_bad_input_is_one_clear_line_and_changes_nothing(case, in_ws):
     name, argv, fragment = case
-    if name == "bench-maps-device":
+    if name in ("bench-maps-device", "agent-plugin-cuda"):
         import torch
 
         if torch.cuda.is_available():
