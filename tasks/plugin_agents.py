@@ -99,9 +99,11 @@ def _source_path(spec: str) -> Path | None:
 
 
 def _module_findable(name: str) -> bool:
+    """Whether module ``name`` can be imported (finding ``pkg.mod`` imports ``pkg``)."""
     try:
-        return importlib.util.find_spec(name) is not None
-    except (ImportError, ValueError):
+        with _no_bytecode():
+            return importlib.util.find_spec(name) is not None
+    except Exception:  # noqa: BLE001 - ImportError, or whatever the package's __init__ raises
         return False
 
 

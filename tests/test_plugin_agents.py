@@ -186,3 +186,18 @@ def test_the_example_builds_helios_with_its_policy_and_the_default_keeps_the_pap
         assert type(paper.pick_objective) is GlobalObjective and paper.name == "helios"
     finally:
         sim.close()
+
+
+def test_a_module_on_the_python_path_is_an_agent_too(tmp_path, monkeypatch):
+    """``package.module:FACTORY``: a module the command's Python path reaches (the folder it runs
+    from, PYTHONPATH); its source file's digest is what a run logs."""
+    from tasks.plugin_agents import source_digest
+
+    pkg = tmp_path / "lab_agents"
+    pkg.mkdir()
+    _write(pkg / "__init__.py", "")
+    policy = _write(pkg / "policy.py", QUICK_AGENT)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    agent = make_agent("lab_agents.policy:make", RunContext(task="t", seed=0))
+    assert agent.name == "lab_agents.policy:make" and agent.act(None) is True
+    assert source_digest("lab_agents.policy:make") == hashlib.sha256(policy.read_bytes()).hexdigest()[:16]
