@@ -256,8 +256,8 @@ def _is_plugin(name: str) -> bool:
 
 def replaced_settings(name: str) -> dict[str, object]:
     """TrialConfig settings (dotted keys, or whole sections) that agent ``name`` does not take from
-    the run's config: the value its factory forces (a HELIOS variant's fields, ``perception.mode``
-    of a ``-gt`` agent), or :data:`IGNORED` for a section it never reads (the oracle's; a plugin's
+    the run's config: the value its factory forces (a HELIOS variant's fields, ``perception.mode``:
+    ``gt`` for a ``-gt`` agent, ``noisy`` otherwise), or :data:`IGNORED` for a section it never reads (the oracle's; a plugin's
     that its ``reads`` does not name). A run setting one of them otherwise would record in
     config.yaml a setting that changed nothing."""
     if name == "oracle":
@@ -280,8 +280,9 @@ def replaced_settings(name: str) -> dict[str, object]:
         else:
             out[f"agent_config.{key}"] = value
     out.update({f"helios.search.{key}": value for key, value in search_fields.items()})
-    if name.endswith("-gt"):
-        out["perception.mode"] = "gt"
+    # the factory sets the detector's mode from the name (_helios_factory): `helios perception.mode=gt`
+    # once ran the noisy detector while config.yaml said gt (audit 2026-12-06)
+    out["perception.mode"] = "gt" if name.endswith("-gt") else "noisy"
     return out
 
 
@@ -446,7 +447,10 @@ def check_agent_settings(config, explicit: Iterable[str] = ()) -> None:
             raise ConfigError(f"{where}: agent {agent} reads no {key}.* settings (it acts on ground truth, with no map "
                               f"or detector), so this would change nothing; leave it out or run a HELIOS agent")
         if value != forced:
-            other = config.agent.removesuffix("-gt") if key == "perception.mode" else "helios"
+            if key == "perception.mode":
+                other = config.agent.removesuffix("-gt") if config.agent.endswith("-gt") else config.agent + "-gt"
+            else:
+                other = "helios"
             raise ConfigError(f"{key}={value!r} with agent {agent}, which sets {key}={forced!r} itself; leave it out, "
                               f"or run agent {short_repr(other, 40)} with it")
     for key, why in unread_settings(config).items():

@@ -109,11 +109,11 @@ def test_replaced_settings_name_what_each_agent_forces_or_never_reads():
     from tasks.registry import IGNORED, replaced_settings
 
     assert replaced_settings("oracle") == {"agent_config": IGNORED, "helios": IGNORED, "perception": IGNORED}
-    assert replaced_settings("helios") == {}
+    assert replaced_settings("helios") == {"perception.mode": "noisy"}
     assert replaced_settings("helios-gt") == {"perception.mode": "gt"}
-    assert replaced_settings("helios-5050") == {"helios.search.information_gain": "fifty_fifty"}
+    assert replaced_settings("helios-5050") == {"helios.search.information_gain": "fifty_fifty", "perception.mode": "noisy"}
     assert replaced_settings("helios-place-gt") == {"agent_config.place.mode": "improved", "perception.mode": "gt"}
-    assert replaced_settings("trusting") == {"agent_config.variant": "trusting"}
+    assert replaced_settings("trusting") == {"agent_config.variant": "trusting", "perception.mode": "noisy"}
     assert replaced_settings("no-such-agent") == {}
     for variant in VARIANTS:      # each forced key exists in TrialConfig (a renamed field would slip past)
         for key in replaced_settings(variant + "-gt"):
@@ -135,7 +135,14 @@ def test_check_agent_settings_refuses_what_would_change_nothing_and_allows_the_r
     check("oracle", "runner.max_sim_time=100", "sim.camera.width=160")       # the oracle's robot and budget
     check("helios-gt", "perception.mode=gt")                  # what the agent forces anyway: harmless
     check("helios-5050", "helios.search.information_gain=fifty_fifty", "helios.search.cs_start_receptacle=0.4")
-    check("helios", "agent_config.variant=trusting", "perception.mode=gt")     # helios reads them
+    check("helios", "agent_config.variant=trusting", "perception.mode=noisy")  # helios reads them
+    # the name sets the detector's mode: `helios perception.mode=gt` once ran the noisy detector while
+    # config.yaml said gt (audit 2026-12-06); the -gt twin is the run asked for
+    with pytest.raises(ConfigError, match="which sets perception.mode='noisy' itself; leave it out, or run agent "
+                                          "'helios-gt'"):
+        check("helios", "perception.mode=gt")
+    with pytest.raises(ConfigError, match="run agent 'trusting-gt'"):
+        check("trusting", "perception.mode=gt", explicit=False)              # from a scenario file
     with pytest.raises(ConfigError, match=r"agent_config.max_pick_attempts: agent 'oracle' reads no agent_config"):
         check("oracle", "agent_config.max_pick_attempts=3")     # even at its default: it was asked for
     with pytest.raises(ConfigError, match=r"perception.\*: agent 'oracle' reads no perception"):
@@ -160,7 +167,7 @@ def test_settings_the_agents_mode_never_reads_are_refused():
 
     for agent, setting in (("helios-gt", "perception.p_detect_object=0.01"),
                            ("trusting-gt", "perception.bad_view_object=0.9"),
-                           ("helios", "perception.mode=gt perception.score_logit_std=2")):
+                           ("helios-no-global-gt", "perception.score_logit_std=2")):
         with pytest.raises(ConfigError, match=r"would change nothing .* ground-truth semantics"):
             check(agent, *setting.split())
     with pytest.raises(ConfigError, match=r"perception.p_detect_object \(set in the scenario file\) would change"):

@@ -545,6 +545,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("view-empty", ["view", ""], "recording path must not be empty"),
     ("bench-unknown", ["bench", "simulator"], "unknown benchmark suite"),
     # agents of your own (tasks.plugin_agents): checked before any work, the user's folder untouched
+    ("trials-helios-mode-gt", [*T, "--agent", "helios", "perception.mode=gt"],
+     "which sets perception.mode='noisy' itself; leave it out, or run agent 'helios-gt'"),
     ("agent-plugin-no-file", [*T, "--agent", A + "nope.py:make"], "no such file"),
     ("agent-plugin-folder", [*T, "--agent", A + "dir.py:make"], "(it is a folder)"),
     ("agent-plugin-syntax", [*T, "--agent", A + "syntax.py:make"], "raised SyntaxError (line 1)"),
