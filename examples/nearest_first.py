@@ -59,10 +59,14 @@ class NearestFirst:
         return None
 
 
-def make(context, **options):
+def make(context, perception_config=None, **options):
     """The factory ``tools trials --agent examples/nearest_first.py:make`` calls once per episode:
-    HELIOS (the registered ``helios`` agent, with the run's settings) searching nearest first."""
-    return make_agent("helios", context, search_policy=NearestFirst, **options)
+    HELIOS (the registered ``helios`` agent, with the run's settings) searching nearest first;
+    with ``perception.mode=gt`` its ground-truth twin ``helios-gt`` (the registered agents take
+    the detector's mode from their name, so the factory picks the name)."""
+    gt = perception_config is not None and perception_config.mode == "gt"
+    return make_agent("helios-gt" if gt else "helios", context, search_policy=NearestFirst,
+                      perception_config=perception_config, **options)
 
 
 make.reads = ("agent_config", "helios", "perception")

@@ -184,6 +184,13 @@ def test_the_example_builds_helios_with_its_policy_and_the_default_keeps_the_pap
         paper = make_agent("helios", sim)
         paper.reset(task, np.random.default_rng(0))
         assert type(paper.pick_objective) is GlobalObjective and paper.name == "helios"
+        assert type(mine.detector) is type(paper.detector)
+        # perception.mode=gt: the ground-truth twin (the registered name sets the detector's mode)
+        from sim.perception import SimPerceptionConfig
+
+        gt = check_agent(f"{EXAMPLE}:make").factory(RunContext.for_episode(sim),
+                                                   perception_config=SimPerceptionConfig(mode="gt"))
+        assert type(gt.detector).__name__ == "GroundTruthDetector" and type(mine.detector).__name__ != "GroundTruthDetector"
     finally:
         sim.close()
 
