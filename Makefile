@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 ARGS   ?=
 
-.PHONY: setup run demo compare test test-all test-workers test-hardware test-hardware-env bench lint clean
+.PHONY: setup run demo compare test test-all test-workers test-hardware test-hardware-env bench clean
 
 setup: $(STAMP)
 
