@@ -164,7 +164,8 @@ def _import(spec: str):
                                    f"folder that holds it, set PYTHONPATH, or give FILE.py:FACTORY)")
         try:
             with _no_bytecode():
-                module = importlib.import_module(source)
+                loaded = sys.modules.get(source)       # imported before: its file changed since (load_factory)
+                module = importlib.reload(loaded) if loaded is not None else importlib.import_module(source)
         except BaseException as exc:  # noqa: BLE001
             if isinstance(exc, KeyboardInterrupt):
                 raise

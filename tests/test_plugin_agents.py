@@ -208,3 +208,17 @@ def test_a_module_on_the_python_path_is_an_agent_too(tmp_path, monkeypatch):
     agent = make_agent("lab_agents.policy:make", RunContext(task="t", seed=0))
     assert agent.name == "lab_agents.policy:make" and agent.act(None) is True
     assert source_digest("lab_agents.policy:make") == hashlib.sha256(policy.read_bytes()).hexdigest()[:16]
+
+
+def test_a_changed_module_is_imported_again(tmp_path, monkeypatch):
+    import os
+
+    pkg = tmp_path / "lab_agents_v"
+    pkg.mkdir()
+    _write(pkg / "__init__.py", "")
+    policy = _write(pkg / "policy.py", "def make(context, **options):\n    return 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert load_factory("lab_agents_v.policy:make")(None) == 1
+    _write(policy, "def make(context, **options):\n    return 2\n")
+    os.utime(policy, ns=(policy.stat().st_atime_ns, policy.stat().st_mtime_ns + 10**9))
+    assert load_factory("lab_agents_v.policy:make")(None) == 2
