@@ -54,7 +54,8 @@ class PluginAgentError(ValueError):
 
 
 def is_plugin_spec(name: str) -> bool:
-    """Whether an agent name is a plugin (``SOURCE:FACTORY``); registered names hold no colon."""
+    """Whether an agent name is a plugin (``SOURCE:FACTORY``); registered names hold no colon (the
+    one test for it: every command asks this)."""
     return ":" in str(name)
 
 
@@ -229,8 +230,9 @@ def make_plugin_factory(spec: str) -> Callable:
 
     def factory(context, **options):
         user = load_factory(spec)
+        reads = plugin_reads(spec, user)
         given = {option: options[option] for section, option in SECTION_OPTIONS.items()
-                 if section in plugin_reads(spec, user) and options.get(option) is not None}
+                 if section in reads and options.get(option) is not None}
         try:
             agent = user(context, **given)
         except Exception as exc:  # noqa: BLE001 - the batch stops on it with one line naming the file's line

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Callable, Iterable, NamedTuple, Protocol, runtime_checkable
 
 from helios.schema import short_repr
+from tasks.plugin_agents import is_plugin_spec
 
 EPISODE = "episode"
 DEMO = "demo"
@@ -213,7 +214,7 @@ def check_agent(name: str, runs_on: str | None = EPISODE) -> AgentEntry:
     registered and runs on ``runs_on`` (``None``: anywhere). A plugin (``FILE.py:FACTORY``,
     :mod:`tasks.plugin_agents`) is imported and checked here, and runs on task episodes."""
     valid = ", ".join(agent_names(runs_on))
-    if name not in AGENTS and _is_plugin(name):
+    if is_plugin_spec(name):
         from tasks.plugin_agents import make_plugin_factory
 
         if runs_on not in (None, EPISODE):
@@ -248,12 +249,6 @@ IGNORED = "ignored"
 _ORACLE_IGNORES = ("agent_config", "helios", "perception")
 
 
-def _is_plugin(name: str) -> bool:
-    from tasks.plugin_agents import is_plugin_spec
-
-    return is_plugin_spec(name)
-
-
 def replaced_settings(name: str) -> dict[str, object]:
     """TrialConfig settings (dotted keys, or whole sections) that agent ``name`` does not take from
     the run's config: the value its factory forces (a HELIOS variant's fields, ``perception.mode``:
@@ -262,7 +257,7 @@ def replaced_settings(name: str) -> dict[str, object]:
     config.yaml a setting that changed nothing."""
     if name == "oracle":
         return {section: IGNORED for section in _ORACLE_IGNORES}
-    if name not in AGENTS and _is_plugin(name):
+    if is_plugin_spec(name):
         from tasks.plugin_agents import SECTION_OPTIONS, plugin_reads
 
         reads = plugin_reads(name)
@@ -393,7 +388,7 @@ def unread_settings(config) -> dict[str, str]:
     from sim.perception.config import GT_MODE_READS, NOISY_ONLY_WITH_ROLES, SimPerceptionConfig
 
     out: dict[str, str] = {}
-    if not reads_section(config.agent, "perception") or (config.agent not in AGENTS and _is_plugin(config.agent)):
+    if not reads_section(config.agent, "perception") or (is_plugin_spec(config.agent)):
         return out            # replaced_settings refuses the whole section; what a plugin reads, it knows
     perception = [f.name for f in dataclasses.fields(SimPerceptionConfig)]
     never = {key.removeprefix("perception.") for key in NO_AGENT_READS}
@@ -440,7 +435,7 @@ def check_agent_settings(config, explicit: Iterable[str] = ()) -> None:
         agent = short_repr(config.agent, 40)
         if forced is IGNORED:
             where = given[0] if given else f"{key}.*"
-            if config.agent not in AGENTS and _is_plugin(config.agent):
+            if is_plugin_spec(config.agent):
                 raise ConfigError(f"{where}: agent {agent} reads no {key}.* settings (its factory's reads does not "
                                   f"name {key!r}), so this would change nothing; leave it out, or add {key!r} to "
                                   f"its reads and take the option it brings")

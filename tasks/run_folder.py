@@ -154,9 +154,8 @@ def stale_results(out: Path, config: TrialConfig, commit: str | None = None) -> 
 def plugin_source(agent: str) -> str | None:
     """The source digest of a plugin agent (:mod:`tasks.plugin_agents`); None for a registered one."""
     from tasks.plugin_agents import is_plugin_spec, source_digest
-    from tasks.registry import AGENTS
 
-    return source_digest(agent) if agent not in AGENTS and is_plugin_spec(agent) else None
+    return source_digest(agent) if is_plugin_spec(agent) else None
 
 
 def agent_source_changed(out: Path, agent: str) -> str | None:

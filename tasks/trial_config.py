@@ -78,7 +78,8 @@ def check_devices(config: TrialConfig) -> None:
     failures."""
     from helios.agents.variants import VARIANTS
 
-    if config.helios.device != "cuda" or (config.agent.removesuffix("-gt") not in VARIANTS and ":" not in config.agent):
+    own = ":" in config.agent          # tasks.plugin_agents.is_plugin_spec (it imports this module)
+    if config.helios.device != "cuda" or (config.agent.removesuffix("-gt") not in VARIANTS and not own):
         return
     from helios.maps.hierarchical import resolve_device
 

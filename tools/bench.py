@@ -136,11 +136,12 @@ def _first_repeat(values):
 
 def _check_agents(args: argparse.Namespace) -> None:
     """The agents the trials and agent suites would run are registered episode agents."""
+    from tasks.plugin_agents import is_plugin_spec
     from tasks.registry import UnknownAgentError, check_agent
 
     for flag in ("trials_agent", "agent_name"):
         name = getattr(args, flag, None)
-        if name is not None and ":" in name:       # tasks.plugin_agents: `tools trials` only
+        if name is not None and is_plugin_spec(name):       # `tools trials` only
             raise CliError(f"--{flag.replace('_', '-')} {name!r}: the benchmarks time registered agents (the "
                            f"baseline side runs a commit's tree, without your file); time your own agent with "
                            f"`tools trials --agent FILE.py:FACTORY` (wall s per episode in its summary)")

@@ -234,7 +234,9 @@ def _validate(args: argparse.Namespace):
 
         raise CliError(f"hostname {short_repr(args.hostname, 80)} looks like a setting; pass settings with "
                        f"--set KEY=VALUE")
-    if args.agent is not None and ":" in args.agent:         # tasks.plugin_agents: trials only
+    from tasks.plugin_agents import is_plugin_spec
+
+    if args.agent is not None and is_plugin_spec(args.agent):         # `tools trials` only
         from helios.schema import short_repr
 
         raise CliError(f"--agent {short_repr(args.agent, 80)}: agents of your own run in simulated trials (`tools "

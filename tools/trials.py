@@ -83,7 +83,7 @@ def resolve_config(args: argparse.Namespace):
     from helios.schema import ConfigError, short_repr, with_overrides
     from tasks.episodes import SPLITS
     from tasks.plugin_agents import canonical_spec, is_plugin_spec
-    from tasks.registry import AGENTS, check_agent_settings
+    from tasks.registry import check_agent_settings
     from tasks.trial_config import TrialConfig, canonical_episodes_file, load_trial_config
 
     base = TrialConfig()
@@ -111,7 +111,7 @@ def resolve_config(args: argparse.Namespace):
     # one spelling of the episode file however it was named (relative or absolute, from a flag, an
     # override or a --config file), so that the same file gives the same configuration fingerprint
     # (tasks.trial_config.canonical_episodes_file); the same for the file of an agent of your own
-    agent = canonical_spec(config.agent) if config.agent not in AGENTS and is_plugin_spec(config.agent) else config.agent
+    agent = canonical_spec(config.agent) if is_plugin_spec(config.agent) else config.agent
     return dataclasses.replace(config, episodes_file=canonical_episodes_file(config.episodes_file), agent=agent)
 
 
@@ -187,11 +187,10 @@ def default_out(config) -> Path:
     """``runs/<agent>_<split or episode file>_s<seed>``; an agent of your own is named by its file
     (or module) and factory: ``my_agent.py:make`` -> ``my_agent-make``."""
     from tasks.plugin_agents import is_plugin_spec, parse_spec
-    from tasks.registry import AGENTS
 
     source = Path(config.episodes_file).stem if config.episodes_file else config.split
     agent = config.agent
-    if agent not in AGENTS and is_plugin_spec(agent):
+    if is_plugin_spec(agent):
         module, factory, is_file = parse_spec(agent)
         agent = f"{Path(module).stem if is_file else module}-{factory}"
     return Path(f"runs/{agent}_{source}_s{config.seed}")
@@ -203,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
     from robots.spot.signals import handling_signals
     from tasks.executors import check_address
     from tasks.plugin_agents import is_plugin_spec
-    from tasks.registry import AGENTS, check_agent
+    from tasks.registry import check_agent
     from tasks.run_folder import (FolderLock, RunFolderError, check_folder_layout, move_aside, prepare_run_folder,
                                   read_results, stale_results)
     from tasks.trial_config import check_devices
@@ -213,7 +212,7 @@ def run(args: argparse.Namespace) -> int:
 
     config = resolve_config(args)
     check_agent(config.agent)
-    if args.executor == "ray" and config.agent not in AGENTS and is_plugin_spec(config.agent):
+    if args.executor == "ray" and is_plugin_spec(config.agent):
         raise CliError(f"--agent {config.agent}: an agent of your own runs on local workers (--executor local); Ray "
                        f"workers may run on machines without its file")
     if args.workers < 1:
