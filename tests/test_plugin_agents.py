@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -14,6 +15,7 @@ import numpy as np
 import pytest
 
 from cli_helpers import run_cli
+from helios.config import SearchConfig
 from helios.search.objective import CandidateLocation, FrontierOption, GlobalObjective
 from tasks.plugin_agents import PluginAgentError, load_factory
 from tasks.registry import RunContext, check_agent, make_agent
@@ -38,6 +40,11 @@ def make(context, **options):
 def _write(path: Path, text: str) -> Path:
     path.write_text(text, encoding="utf-8")
     return path
+
+
+def _module(spec: str):
+    """The module a plugin's factory was imported as."""
+    return sys.modules[load_factory(spec).__module__]
 
 
 def _records(run: Path) -> list[dict]:
@@ -104,7 +111,7 @@ def test_the_factory_gets_the_options_of_the_sections_it_reads_and_no_others(tmp
     spec = f"{path}:make"
     factory = check_agent(spec).factory
     agent = factory(SimpleNamespace(), agent_config="a", method_config="m", perception_config="p", perception=None)
-    module = __import__("sys").modules[load_factory(spec).__module__]
+    module = _module(spec)
     assert module.SEEN == [sorted(given)]
     assert agent.name == spec                      # the records name the run's agent
 
@@ -144,7 +151,7 @@ def test_a_changed_file_is_imported_again():
 # The example: HomeRobot's nearest-first order as HELIOS's pick-phase search policy
 # ------------------------------------------------------------------------------------------------
 def _example():
-    return __import__("sys").modules[load_factory(f"{EXAMPLE}:make").__module__]
+    return _module(f"{EXAMPLE}:make")
 
 
 def _cand(i: int, x: float, y: float, score: float = 0.5, gain: float = 1.0) -> CandidateLocation:
@@ -166,7 +173,7 @@ def test_nearest_first_takes_the_nearest_candidate_before_any_frontier_then_the_
     only = _example().NearestFirst(None, 0.025, "frontiers_only")
     assert only.choose(np.zeros(2), [near_unlikely], [far_frontier]).kind == "frontier"
     # the "w/o global objective" ablation, also candidates first, weighs score and information gain instead
-    paper = GlobalObjective(__import__("helios.config", fromlist=["SearchConfig"]).SearchConfig(), 0.025,
+    paper = GlobalObjective(SearchConfig(), 0.025,
                             "prefer_candidates")
     assert paper.choose(np.zeros(2), [far_likely, near_unlikely], [near_frontier, far_frontier]).index == 1
 
