@@ -28,16 +28,20 @@ demo: setup
 # resumable, and a larger N extends the runs), then one report on the episodes all runs share
 # (one scenario file per run: configs/val_<run>.yaml; more runs: COMPARE="helios helios-place ...").
 # About 4-10 min per run for N=200 on the 2-core machine (2026-12-05; trusting runs are the quickest).
+# SPLIT=large runs the same scenarios on the split of large homes (18-24 m), where search policies
+# rank (README, "Large homes"): make compare SPLIT=large N=500 COMPARE="helios helios-no-global ..."
+# (about 45 min per run); the runs go to runs/<SPLIT>/<run>.
 COMPARE ?= helios helios-no-global trusting helios-5050 helios-gt trusting-gt helios-earlier
 N ?= 200
+SPLIT ?= val
 # The paper's "1 pick" and "5 picks" rows besides the unlimited one (tools report --pick-limits).
 PICK_LIMITS ?= 1,5
 compare: setup
-	$(PY) -m tools.compare_check "$(COMPARE)" "$(PICK_LIMITS)"
+	$(PY) -m tools.compare_check "$(COMPARE)" "$(PICK_LIMITS)" "$(SPLIT)"
 	for a in $(COMPARE); do \
-	  $(PY) -m tools trials --config configs/val_$$a.yaml --episodes $(N) --workers 2 --out runs/val/$$a --progress lines || exit 1; \
+	  $(PY) -m tools trials --config configs/val_$$a.yaml --split $(SPLIT) --episodes $(N) --workers 2 --out runs/$(SPLIT)/$$a --progress lines || exit 1; \
 	done
-	$(PY) -m tools report $(addprefix runs/val/,$(COMPARE)) --common --pick-limits "$(PICK_LIMITS)" --out runs/val/report
+	$(PY) -m tools report $(addprefix runs/$(SPLIT)/,$(COMPARE)) --common --pick-limits "$(PICK_LIMITS)" --out runs/$(SPLIT)/report
 
 # Fast test suite (what CI runs): headless, deterministic. Tests run in TEST_WORKERS pytest-xdist
 # processes: by default two per core, at most 4 (a test process's memory peaks near 2 GB;

@@ -4,10 +4,11 @@ An episode pins everything needed to reproduce it: the home (seed and layout set
 string and its categories, the target object instance and the receptacle it starts on, the valid
 goal receptacle instances, and the robot's start pose. Loading validates every field and reports
 ``FILE:LINE`` for the first bad record. Datasets are generated deterministically from a seed:
-the committed splits (``tasks/data/{smoke,val,train}.jsonl``) come out of
+the committed splits (``tasks/data/{smoke,val,train,large}.jsonl``) come out of
 ``python -m tools episodes generate`` with the seeds and counts of ``SPLIT_RECIPES`` (smoke: seed
-0, 20 easy episodes; val: seed 1, 1000; train: seed 2, 1200), and a test regenerates a sample to
-check they still match. ``SCHEMA_VERSION`` changes whenever the homes a seed builds change.
+0, 20 easy episodes; val: seed 1, 1000; train: seed 2, 1200; large: seed 4040, 500 homes of 18-24
+m sides, where the order of the search costs time and search policies rank), and a test
+regenerates a sample to check they still match. ``SCHEMA_VERSION`` changes whenever the homes a seed builds change.
 """
 
 from __future__ import annotations
@@ -36,9 +37,11 @@ SCHEMA_CHANGES = {
        "chairs drawn up to tables), so version-1 episodes name instances that moved or no longer exist",
 }
 DATA_DIR = Path(__file__).with_name("data")
-SPLITS = ("smoke", "val", "train")
-# How the committed splits are made: name -> (seed, count, difficulty) of `python -m tools episodes generate`.
-SPLIT_RECIPES = {"smoke": (0, 20, "easy"), "val": (1, 1000, "normal"), "train": (2, 1200, "normal")}
+SPLITS = ("smoke", "val", "train", "large")
+# How the committed splits are made: name -> (seed, count, difficulty, home sides (min, max) m or
+# None for the difficulty's) of `python -m tools episodes generate [--home-size MIN MAX]`.
+SPLIT_RECIPES = {"smoke": (0, 20, "easy", None), "val": (1, 1000, "normal", None),
+                 "train": (2, 1200, "normal", None), "large": (4040, 500, "normal", (18.0, 24.0))}
 
 
 class DatasetError(ValueError):

@@ -23,17 +23,20 @@ def test_committed_splits_load_with_the_promised_sizes():
     assert len(smoke) == 20 and all(e.difficulty == "easy" for e in smoke)
     assert len(val) >= 1000 and len(train) >= 1000
     assert not {e.scene.seed for e in val} & {e.scene.seed for e in train}, "val and train share homes"
+    large = load_split("large")         # the split where search policies rank: large homes only
+    assert len(large) == 500 and all((e.scene.min_size, e.scene.max_size) == (18.0, 24.0) for e in large)
+    assert not {e.scene.seed for e in large} & {e.scene.seed for e in val + train}, "large shares homes"
     for e in smoke + val[:50]:
         assert e.target_object.startswith(e.object_category.replace(" ", "_"))
         assert e.goal_receptacles and all(g.startswith(e.goal_receptacle_category.replace(" ", "_"))
                                           for g in e.goal_receptacles)
 
 
-@pytest.mark.parametrize("split,n", [("smoke", 3), ("val", 6)])
+@pytest.mark.parametrize("split,n", [("smoke", 3), ("val", 6), ("large", 2)])
 def test_committed_splits_regenerate_bit_for_bit(split, n):
-    seed, count, difficulty = SPLIT_RECIPES[split]
+    seed, count, difficulty, home_size = SPLIT_RECIPES[split]
     assert len(load_split(split)) == count
-    regenerated = generate_episodes(split, seed, n, difficulty)
+    regenerated = generate_episodes(split, seed, n, difficulty, home_size=home_size)
     committed = split_path(split).read_text().splitlines()[:n]
     assert [e.to_json() for e in regenerated] == committed
 
@@ -96,7 +99,7 @@ def test_duplicates_missing_and_empty_files(tmp_path):
     empty.write_text("\n")
     with pytest.raises(DatasetError, match="holds no episodes"):
         load_episodes(empty)
-    with pytest.raises(DatasetError, match="unknown split 'vall'; valid splits: smoke, val, train"):
+    with pytest.raises(DatasetError, match="unknown split 'vall'; valid splits: smoke, val, train, large"):
         load_split("vall")
     assert SCHEMA_VERSION == 2
 

@@ -283,7 +283,7 @@ def _cli(*args):
 
 @pytest.mark.parametrize("args,message", [
     (["trials", "--agent", "helio"], "error: unknown agent 'helio'; valid agents: "),
-    (["trials", "--split", "vall"], "error: unknown split 'vall'; valid splits: smoke, val, train"),
+    (["trials", "--split", "vall"], "error: unknown split 'vall'; valid splits: smoke, val, train, large"),
     (["trials", "--episodes", "21"], "error: split 'smoke' has 20 episodes, fewer than the 21 requested"),
     (["trials", "runner.max_sim_tme=3"], "error: unknown config key 'runner.max_sim_tme'"),
     (["trials", "--episodes-file", "nope.jsonl"], "error: episode file 'nope.jsonl' does not exist"),

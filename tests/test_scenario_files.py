@@ -198,6 +198,11 @@ def test_make_compare_checks_its_variables_before_the_first_run(tmp_path, capsys
     assert check_main(["helios typo", "1"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: COMPARE names 'typo'") and "helios-gt" in err
+    # SPLIT=large runs the scenarios on the split of large homes; a misspelt split fails first
+    assert "--split $(SPLIT)" in recipe and "--out runs/$(SPLIT)/$$a" in recipe
+    assert check("helios trusting", "1", "large") == ["helios", "trusting"]
+    assert check_main(["helios", "1", "larg"]) == 2
+    assert capsys.readouterr().err == "error: SPLIT 'larg' is not a split; valid splits: smoke, val, train, large\n"
 
 
 @pytest.mark.parametrize("workers, ok", [("auto", True), ("logical", True), ("0", True), ("2", True),

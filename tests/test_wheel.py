@@ -74,13 +74,13 @@ def wheel(tmp_path_factory) -> zipfile.ZipFile:
 def test_the_wheel_holds_every_runtime_data_file(wheel):
     names = set(wheel.namelist())
     modules, data = _source_files()
-    assert {"tasks/data/smoke.jsonl", "tasks/data/val.jsonl", "tasks/data/train.jsonl",
+    assert {"tasks/data/smoke.jsonl", "tasks/data/val.jsonl", "tasks/data/train.jsonl", "tasks/data/large.jsonl",
             "robots/spot/spot_arm.urdf", "robots/spot/spot_arm_sim.urdf"} <= data      # the derivation sees them
     assert not data - names, f"data files missing from the wheel (add them to setup.cfg package_data): " \
                              f"{sorted(data - names)}"
     assert not modules - names, f"modules missing from the wheel (a folder without __init__.py?): " \
                                 f"{sorted(modules - names)}"
-    for split in ("smoke", "val", "train"):        # whole files, not empty placeholders
+    for split in ("smoke", "val", "train", "large"):        # whole files, not empty placeholders
         assert wheel.read(f"tasks/data/{split}.jsonl") == (ROOT / "tasks" / "data" / f"{split}.jsonl").read_bytes()
 
 

@@ -1,8 +1,8 @@
 """The checks `make compare` runs before its first episode: the Makefile's variables (COMPARE,
-PICK_LIMITS) are otherwise first read by `tools report`, after every run has finished (7 runs of
-200 episodes: an hour and more on 2 cores), and a misspelt run name only when its turn comes.
+PICK_LIMITS, SPLIT) are otherwise first read by `tools report`, after every run has finished (7
+runs of 200 episodes: an hour and more on 2 cores), and a misspelt run name only when its turn comes.
 
-    python -m tools.compare_check "$(COMPARE)" "$(PICK_LIMITS)"     # one error line, exit 2
+    python -m tools.compare_check "$(COMPARE)" "$(PICK_LIMITS)" "$(SPLIT)"    # one error line, exit 2
 """
 
 from __future__ import annotations
@@ -13,12 +13,18 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def check(compare: str, pick_limits: str, configs: Path = ROOT / "configs") -> list[str]:
+def check(compare: str, pick_limits: str, split: str = "val", configs: Path = ROOT / "configs") -> list[str]:
     """The run names of ``compare`` (space-separated); CliError naming the first problem: none
     given, one named twice (the report would pair a run with itself), one without its scenario file
-    ``configs/val_<run>.yaml``, or ``pick_limits`` that `tools report --pick-limits` refuses."""
+    ``configs/val_<run>.yaml``, ``pick_limits`` that `tools report --pick-limits` refuses, or a
+    ``split`` that is not one of the committed splits (the first run would say so only after the
+    set-up; a later one never, were the runs given another way)."""
+    from tasks.episodes import SPLITS
     from tools.cli import CliError
     from tools.report import parse_pick_limits
+
+    if split not in SPLITS:
+        raise CliError(f"SPLIT {split!r} is not a split; valid splits: {', '.join(SPLITS)}")
 
     runs = compare.split()
     if not runs:
@@ -42,8 +48,8 @@ def check(compare: str, pick_limits: str, configs: Path = ROOT / "configs") -> l
 def main(argv: list[str]) -> int:
     from tools.cli import CliError
 
-    if len(argv) != 2:
-        print('usage: python -m tools.compare_check "COMPARE" "PICK_LIMITS"', file=sys.stderr)
+    if len(argv) not in (2, 3):
+        print('usage: python -m tools.compare_check "COMPARE" "PICK_LIMITS" ["SPLIT"]', file=sys.stderr)
         return 2
     try:
         check(*argv)
