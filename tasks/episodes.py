@@ -8,7 +8,8 @@ the committed splits (``tasks/data/{smoke,val,train,large}.jsonl``) come out of
 ``python -m tools episodes generate`` with the seeds and counts of ``SPLIT_RECIPES`` (smoke: seed
 0, 20 easy episodes; val: seed 1, 1000; train: seed 2, 1200; large: seed 4040, 500 homes of 18-24
 m sides, where the order of the search costs time and search policies rank), and a test
-regenerates a sample to check they still match. ``SCHEMA_VERSION`` changes whenever the homes a seed builds change.
+regenerates a sample to check they still match. ``SCHEMA_VERSION`` changes whenever the homes a
+seed builds change.
 """
 
 from __future__ import annotations

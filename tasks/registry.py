@@ -252,9 +252,9 @@ _ORACLE_IGNORES = ("agent_config", "helios", "perception")
 def replaced_settings(name: str) -> dict[str, object]:
     """TrialConfig settings (dotted keys, or whole sections) that agent ``name`` does not take from
     the run's config: the value its factory forces (a HELIOS variant's fields, ``perception.mode``:
-    ``gt`` for a ``-gt`` agent, ``noisy`` otherwise), or :data:`IGNORED` for a section it never reads (the oracle's; a plugin's
-    that its ``reads`` does not name). A run setting one of them otherwise would record in
-    config.yaml a setting that changed nothing."""
+    ``gt`` for a ``-gt`` agent, ``noisy`` otherwise), or :data:`IGNORED` for a section it never
+    reads (the oracle's; a plugin's that its ``reads`` does not name). A run setting one of them
+    otherwise would record in config.yaml a setting that changed nothing."""
     if name == "oracle":
         return {section: IGNORED for section in _ORACLE_IGNORES}
     if is_plugin_spec(name):
@@ -388,7 +388,7 @@ def unread_settings(config) -> dict[str, str]:
     from sim.perception.config import GT_MODE_READS, NOISY_ONLY_WITH_ROLES, SimPerceptionConfig
 
     out: dict[str, str] = {}
-    if not reads_section(config.agent, "perception") or (is_plugin_spec(config.agent)):
+    if not reads_section(config.agent, "perception") or is_plugin_spec(config.agent):
         return out            # replaced_settings refuses the whole section; what a plugin reads, it knows
     perception = [f.name for f in dataclasses.fields(SimPerceptionConfig)]
     never = {key.removeprefix("perception.") for key in NO_AGENT_READS}

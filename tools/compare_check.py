@@ -17,15 +17,13 @@ def check(compare: str, pick_limits: str, split: str = "val", configs: Path = RO
     """The run names of ``compare`` (space-separated); CliError naming the first problem: none
     given, one named twice (the report would pair a run with itself), one without its scenario file
     ``configs/val_<run>.yaml``, ``pick_limits`` that `tools report --pick-limits` refuses, or a
-    ``split`` that is not one of the committed splits (the first run would say so only after the
-    set-up; a later one never, were the runs given another way)."""
+    ``split`` that is not one of the committed splits."""
     from tasks.episodes import SPLITS
     from tools.cli import CliError
     from tools.report import parse_pick_limits
 
     if split not in SPLITS:
         raise CliError(f"SPLIT {split!r} is not a split; valid splits: {', '.join(SPLITS)}")
-
     runs = compare.split()
     if not runs:
         raise CliError('COMPARE is empty: name the runs, e.g. COMPARE="helios trusting"')
