@@ -64,10 +64,15 @@ def start_fake(seed: int = 0, **kwargs):
 
 
 def fast_config(port: int, **overrides) -> SdkBackendConfig:
-    """Backend settings for loopback tests: short timeouts so every fault surfaces well within 2 s."""
+    """Backend settings for loopback tests: short timeouts so every fault surfaces well within 2 s.
+
+    The arm's budget is the exception: the fake's stow from the carry pose takes about 5.4 s of
+    robot time (the hand retracts, then the joints fold), so a 3 s budget turned every close()
+    after a carry into a failed stow and the shutdown for a silent robot. Tests of a stow that
+    runs out its time pass a shorter ``arm_move_timeout`` themselves."""
     base = dict(hostname="127.0.0.1", port=port, cert_path=str(session_pki().ca_cert), estop_mode="endpoint",
                 rpc_timeout=1.0, image_rpc_timeout=2.0, connect_timeout=3.0, command_margin=0.6,
-                arm_move_timeout=3.0, grasp_timeout=8.0, feedback_period=0.02, stand_timeout=3.0,
+                arm_move_timeout=8.0, grasp_timeout=8.0, feedback_period=0.02, stand_timeout=3.0,
                 power_on_timeout=3.0)
     base.update(overrides)
     return SdkBackendConfig(**base)

@@ -1116,7 +1116,7 @@ def test_a_lease_taken_while_close_stows_the_arm_is_said_and_kept_as_the_fault()
 
     demo = start_fake(seed=0, time_scale=1.0, comms_loss_timeout=QUIET_TABLET_COMMS_LOSS_TIMEOUT)
     fake = demo.fake
-    backend = connect(demo, stop_fake_on_close=False)
+    backend = connect(demo, stop_fake_on_close=False, arm_move_timeout=3.0)
     try:
         assert backend.move_arm_joints(model.ARM_READY).success           # the arm out: close() stows it
 
