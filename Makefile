@@ -30,7 +30,7 @@ demo: setup
 # About 4-10 min per run for N=200 on the 2-core machine (2026-12-05; trusting runs are the quickest).
 # SPLIT=large runs the same scenarios on the split of large homes (18-24 m), where search policies
 # rank (README, "Large homes"): make compare SPLIT=large N=500 COMPARE="helios helios-no-global ..."
-# (about 45 min per run); the runs go to runs/<SPLIT>/<run>.
+# (about 30-55 min per run, trusting the quickest); the runs go to runs/<SPLIT>/<run>.
 COMPARE ?= helios helios-no-global trusting helios-5050 helios-gt trusting-gt helios-earlier
 N ?= 200
 SPLIT ?= val
