@@ -104,6 +104,35 @@ def test_report_common_compares_runs_on_the_episodes_they_share(tmp_path):
     assert "| long | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 |" in other_way["markdown"]
 
 
+def test_report_names_what_each_run_changes_against_the_first(tmp_path):
+    """A sensitivity sweep's rows (make sensitivity) are labelled by the setting each changed, read
+    from the run folders; a row that changed more than meant shows every change."""
+    from helios.schema import with_overrides
+    from tools.report import SETTINGS_TITLE
+
+    base = TrialConfig(agent="helios", split="val", episodes=2)
+    paths = []
+    for name, settings in (("paper", []), ("tau_g", ["helios.decision.tau_object=0.3"]), ("same", []),
+                           ("two", ["helios.scoring.alpha_cs=2", "seed=3"]), ("no-config", [])):
+        path = tmp_path / name
+        prepare_run_folder(path, with_overrides(base, settings))
+        for i, (phases, reason) in enumerate([(5, None), (0, "not_found")]):
+            append_result(path / "episodes.jsonl", _record(i, phases, reason, False))
+        paths.append(path)
+    (tmp_path / "no-config" / "config.yaml").unlink()       # its agent is then the records' ("x")
+    text = make_report(paths, tmp_path / "rep", episode_pages=False)["text"]
+    table = text[text.index(SETTINGS_TITLE):].split("\n\n")[0].splitlines()
+    rows = {line.split()[0]: line for line in table[3:]}
+    assert list(rows) == ["paper", "tau_g", "same", "two", "no-config"]
+    assert "(the first run" in rows["paper"] and [r.split()[1] for r in rows.values()] == ["helios"] * 4 + ["x"]
+    assert rows["tau_g"].endswith("helios.decision.tau_object: 0.5 -> 0.3")
+    assert rows["same"].endswith("nothing (the same configuration)")
+    assert rows["two"].endswith("helios.scoring.alpha_cs: 1.0 -> 2.0; seed: 0 -> 3")
+    assert rows["no-config"].endswith("unknown (a run folder without a readable config.yaml)")
+    one = make_report(paths[:1], tmp_path / "one", episode_pages=False)["text"]
+    assert SETTINGS_TITLE not in one, "one run: nothing to read it against"
+
+
 def test_report_says_when_runs_share_no_episode_and_when_a_run_is_unfinished(tmp_path):
     a = _make_run(tmp_path / "a", [(5, None)] * 4)                                     # val-00000..3
     b = tmp_path / "b"

@@ -205,6 +205,39 @@ def test_make_compare_checks_its_variables_before_the_first_run(tmp_path, capsys
     assert capsys.readouterr().err == "error: SPLIT 'larg' is not a split; valid splits: smoke, val, train, large\n"
 
 
+def test_make_sensitivity_checks_its_settings_before_the_first_run(capsys):
+    """The paper's sensitivity grid (appendix): one run per setting, each checked as `tools trials`
+    would check it before any episode runs, and the report reads every run against the paper's."""
+    from tools.cli import CliError
+    from tools.compare_check import check_sensitivity, main as check_main
+
+    text = (ROOT / "Makefile").read_text()
+    recipe = text[text.index("\nsensitivity: setup"):].split("\n\n")[0]
+    assert recipe.index("tools.compare_check") < recipe.index("tools trials"), "the check runs first"
+    assert '"$(SENSITIVITY)"' in recipe.splitlines()[2]
+    # the paper's values first (the report pairs every run with the first), then one run per setting
+    assert recipe.index("--out runs/$(SPLIT)/helios ") < recipe.index('--out "runs/$(SPLIT)/sensitivity/$$s"')
+    assert "tools report runs/$(SPLIT)/helios $(addprefix runs/$(SPLIT)/sensitivity/,$(SENSITIVITY))" in recipe
+    default = text[text.index("SENSITIVITY ?="):text.index("\nsensitivity: setup")]
+    settings = default.partition("?=")[2].replace("\\\n", " ").split()
+    # the paper's grid (Tables "Sensitivity analysis"): alpha_cs 0.1, 2; alpha_d 1e-4, 1e-2; tau_g 0.3, 0.7; tau_inc 0.1
+    assert check_sensitivity(" ".join(settings)) == settings and len(settings) == 7
+    for given, message in [("", "SENSITIVITY is empty"),
+                           ("helios.decision.tau_object=0.3 helios.decision.tau_object=0.3", "names 'helios.decision.tau_object=0.3' twice"),
+                           ("helios.decision.tau_objet=0.3", "unknown config key 'helios.decision.tau_objet'"),
+                           ("helios.decision.tau_object=3", "tau_object must be in [0, 1], got 3"),
+                           ("episodes=10", "sets episodes, which is the same for every run (N= gives it)"),
+                           ("split=train", "sets split, which is the same for every run (SPLIT= gives it)"),
+                           ("agent=trusting", "(every run is HELIOS; make compare compares agents)"),
+                           ("perception.gt_roles=[object/x]", "holds a '/'")]:
+        with pytest.raises(CliError, match=re.escape(message)):
+            check_sensitivity(given)
+    assert check_main(["helios", "1,5", "train", "helios.scoring.alpha_c=2"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: SENSITIVITY: unknown config key 'helios.scoring.alpha_c'")
+    assert check_main(["helios", "1,5", "train", "helios.scoring.alpha_cs=2"]) == 0
+
+
 @pytest.mark.parametrize("workers, ok", [("auto", True), ("logical", True), ("0", True), ("2", True),
                                          ("-1", False), ("two", False), ("", False), ("1.5", False)])
 def test_make_test_checks_test_workers_before_set_up(workers, ok):

@@ -1,8 +1,9 @@
-"""The checks `make compare` runs before its first episode: the Makefile's variables (COMPARE,
-PICK_LIMITS, SPLIT) are otherwise first read by `tools report`, after every run has finished (7
-runs of 200 episodes: an hour and more on 2 cores), and a misspelt run name only when its turn comes.
+"""The checks `make compare` and `make sensitivity` run before their first episode: the
+Makefile's variables (COMPARE, PICK_LIMITS, SPLIT, SENSITIVITY) are otherwise first read by
+`tools report`, after every run has finished (7 runs of 200 episodes: an hour and more on 2
+cores), and a misspelt run name or setting only when its turn comes.
 
-    python -m tools.compare_check "$(COMPARE)" "$(PICK_LIMITS)" "$(SPLIT)"    # one error line, exit 2
+    python -m tools.compare_check "$(COMPARE)" "$(PICK_LIMITS)" "$(SPLIT)" ["$(SENSITIVITY)"]   # one error line, exit 2
 """
 
 from __future__ import annotations
@@ -43,14 +44,57 @@ def check(compare: str, pick_limits: str, split: str = "val", configs: Path = RO
     return runs
 
 
+# settings every run of `make sensitivity` shares, and what gives them
+RUN_SHAPE_KEYS = {"split": "SPLIT= gives it", "episodes_file": "SPLIT= names the episodes", "episodes": "N= gives it",
+                  "agent": "every run is HELIOS; make compare compares agents"}
+
+
+def check_sensitivity(sensitivity: str, scenario: Path = ROOT / "configs" / "val_helios.yaml") -> list[str]:
+    """The settings of ``sensitivity`` (space-separated ``KEY=VALUE``, one run each), each checked as
+    `tools trials --config <scenario> KEY=VALUE` checks it (a known key, a valid value, a setting
+    the agent reads); CliError naming the first problem: none given, one given twice, one that sets
+    the runs' split, length or agent (those are the Makefile's SPLIT, N and COMPARE: a setting
+    would make one run incomparable with the rest), or one with a "/" (each setting names its run
+    folder, runs/<SPLIT>/sensitivity/KEY=VALUE)."""
+    import argparse
+
+    from helios.schema import ConfigError, short_repr
+    from tools.cli import CliError
+    from tools.trials import resolve_config
+
+    settings = sensitivity.split()
+    if not settings:
+        raise CliError("SENSITIVITY is empty: name the settings, e.g. SENSITIVITY=\"helios.decision.tau_object=0.3\"")
+    twice = next((s for i, s in enumerate(settings) if s in settings[:i]), None)
+    if twice is not None:
+        raise CliError(f"SENSITIVITY names {short_repr(twice, 80)} twice")
+    for setting in settings:
+        key = setting.partition("=")[0].strip()
+        if key in RUN_SHAPE_KEYS:
+            raise CliError(f"SENSITIVITY: {short_repr(setting, 80)} sets {key}, which is the same for every run "
+                           f"({RUN_SHAPE_KEYS[key]})")
+        if "/" in setting:
+            raise CliError(f"SENSITIVITY: {short_repr(setting, 80)} holds a '/', but each setting names its run "
+                           f"folder (runs/<SPLIT>/sensitivity/KEY=VALUE)")
+        args = argparse.Namespace(config=str(scenario), agent=None, split=None, episodes_file=None, episodes=None,
+                                  seed=None, overrides=[setting])
+        try:
+            resolve_config(args)
+        except ConfigError as exc:
+            raise CliError(f"SENSITIVITY: {exc}") from None
+    return settings
+
+
 def main(argv: list[str]) -> int:
     from tools.cli import CliError
 
-    if len(argv) not in (2, 3):
-        print('usage: python -m tools.compare_check "COMPARE" "PICK_LIMITS" ["SPLIT"]', file=sys.stderr)
+    if len(argv) not in (2, 3, 4):
+        print('usage: python -m tools.compare_check "COMPARE" "PICK_LIMITS" ["SPLIT" ["SENSITIVITY"]]', file=sys.stderr)
         return 2
     try:
-        check(*argv)
+        check(*argv[:3])
+        if len(argv) == 4:
+            check_sensitivity(argv[3])
     except CliError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -258,7 +258,7 @@ def _span(ids: list[str]) -> str:
                                                                    f", {ids[0]} .. {ids[-1]}")
 
 
-def _shown_pair(x, y) -> tuple[str, str]:
+def shown_pair(x, y) -> tuple[str, str]:
     """Both values as :func:`show_value` prints them; two long texts that shorten alike (the
     difference in the elided middle) are shown from a little before where they first differ."""
     sx, sy = show_value(x), show_value(y)
@@ -271,7 +271,7 @@ def _shown_pair(x, y) -> tuple[str, str]:
 
 
 def _fields(diffs: list[tuple[str, object, object]], limit: int = MAX_FIELDS_LISTED) -> str:
-    shown = "; ".join("{}: {} / {}".format(p, *_shown_pair(x, y)) for p, x, y in diffs[:limit])
+    shown = "; ".join("{}: {} / {}".format(p, *shown_pair(x, y)) for p, x, y in diffs[:limit])
     more = f"; and {len(diffs) - limit} more" if len(diffs) > limit else ""
     return shown + more
 

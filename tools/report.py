@@ -85,6 +85,40 @@ def detail_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     return headers, rows
 
 
+SETTINGS_TITLE = ("Settings each run changes against the first run (config.yaml; commit, version and episode count "
+                  "aside): setting: first run's value -> this run's")
+MAX_SETTINGS_LISTED = 8       # changed settings named per run; the rest are counted
+
+
+def settings_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
+    """Per run, the settings in which its configuration differs from the first run's, read from the
+    run folders: an ablation or a sensitivity sweep (``make sensitivity``) labels its rows by what
+    was changed, and a row that differs in more than was meant (another detector setting, another
+    split) shows it before its numbers are read. An agent name stands for its preset (the
+    settings it implies are not in config.yaml)."""
+    from tools.diff_runs import CONFIG_ASIDE, shown_pair, differences
+
+    def settings(r: Run) -> dict:
+        return {k: v for k, v in r.config.items() if k not in CONFIG_ASIDE}
+
+    first = runs[0]
+    rows = []
+    for i, r in enumerate(runs):
+        agent = r.config.get("agent") or (r.records[0].get("agent") if r.records else None) or "?"
+        if i == 0:
+            cell = "(the first run: the others are read against it)"
+        elif not (first.config and r.config):
+            cell = "unknown (a run folder without a readable config.yaml)"
+        else:
+            changed = differences(settings(first), settings(r))
+            cell = "; ".join("{}: {} -> {}".format(path, *shown_pair(x, y))
+                             for path, x, y in changed[:MAX_SETTINGS_LISTED]) or "nothing (the same configuration)"
+            if len(changed) > MAX_SETTINGS_LISTED:
+                cell += f"; and {len(changed) - MAX_SETTINGS_LISTED} more"
+        rows.append([r.name, agent, cell])
+    return ["run", "agent", "settings changed"], rows
+
+
 def failure_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     """Counts of success and each failure reason per run, and of the unscored episodes (an episode
     that ended on an exception has no metrics) when there are any: the row adds up to the run's
@@ -486,7 +520,10 @@ def make_report(run_paths: list[str | Path], out: str | Path, names: list[str] |
     if len(runs) > 1 and pick_limits:       # the unlimited comparison next to its table, then the limits
         tables.append(_paired_table(runs, unlimited))
     tables += pick_limit_tables(runs, pick_limits)
-    tables += [("Runs", d_headers, d_rows), ("How episodes ended (counts)", f_headers, f_rows)]
+    tables += [("Runs", d_headers, d_rows)]
+    if len(runs) > 1:
+        tables.append((SETTINGS_TITLE, *settings_rows(runs)))
+    tables.append(("How episodes ended (counts)", f_headers, f_rows))
     if len(runs) > 1:
         if not pick_limits:
             tables.append(_paired_table(runs, unlimited))
