@@ -46,8 +46,8 @@ compare: setup
 # The paper's sensitivity analysis (its appendix: one hyper-parameter of its table changed at a
 # time): HELIOS once per setting of SENSITIVITY (KEY=VALUE, as `tools trials` takes them) on the
 # first N episodes of SPLIT, into runs/<SPLIT>/sensitivity/KEY=VALUE, against HELIOS with the
-# paper's values (runs/<SPLIT>/helios, the run `make compare` makes; made here if missing); then one
-# report (tools report: a "settings changed" table names each row's setting, paired sign tests
+# paper's values (runs/<SPLIT>/sensitivity/helios: its own run, as `make compare`'s may be longer,
+# and a run is never shortened); then one report (tools report: a "settings changed" table names each row's setting, paired sign tests
 # against the paper's values, 1-pick and 5-picks rows). Resumable and extendable as compare is.
 # Tune on train only: make sensitivity SPLIT=train N=100 (7-9 min per run on 2 cores, 2026-12-06).
 SENSITIVITY ?= helios.scoring.alpha_cs=0.1 helios.scoring.alpha_cs=2 helios.search.alpha_d=0.0001 \
@@ -55,11 +55,11 @@ SENSITIVITY ?= helios.scoring.alpha_cs=0.1 helios.scoring.alpha_cs=2 helios.sear
   helios.decision.tau_increase=0.1
 sensitivity: setup
 	$(PY) -m tools.compare_check helios "$(PICK_LIMITS)" "$(SPLIT)" "$(SENSITIVITY)"
-	$(PY) -m tools trials --config configs/val_helios.yaml --split $(SPLIT) --episodes $(N) --workers 2 --out runs/$(SPLIT)/helios --progress lines
+	$(PY) -m tools trials --config configs/val_helios.yaml --split $(SPLIT) --episodes $(N) --workers 2 --out runs/$(SPLIT)/sensitivity/helios --progress lines
 	for s in $(SENSITIVITY); do \
 	  $(PY) -m tools trials --config configs/val_helios.yaml --split $(SPLIT) --episodes $(N) --workers 2 --out "runs/$(SPLIT)/sensitivity/$$s" --progress lines "$$s" || exit 1; \
 	done
-	$(PY) -m tools report runs/$(SPLIT)/helios $(addprefix runs/$(SPLIT)/sensitivity/,$(SENSITIVITY)) --common --pick-limits "$(PICK_LIMITS)" --out runs/$(SPLIT)/sensitivity/report
+	$(PY) -m tools report $(addprefix runs/$(SPLIT)/sensitivity/,helios $(SENSITIVITY)) --common --pick-limits "$(PICK_LIMITS)" --out runs/$(SPLIT)/sensitivity/report
 
 # Fast test suite (what CI runs): headless, deterministic. Tests run in TEST_WORKERS pytest-xdist
 # processes: by default two per core, at most 4 (a test process's memory peaks near 2 GB;
