@@ -47,8 +47,9 @@ compare: setup
 # time): HELIOS once per setting of SENSITIVITY (KEY=VALUE, as `tools trials` takes them) on the
 # first N episodes of SPLIT, into runs/<SPLIT>/sensitivity/KEY=VALUE, against HELIOS with the
 # paper's values (runs/<SPLIT>/sensitivity/helios: its own run, as `make compare`'s may be longer,
-# and a run is never shortened); then one report (tools report: a "settings changed" table names each row's setting, paired sign tests
-# against the paper's values, 1-pick and 5-picks rows). Resumable and extendable as compare is.
+# and a run is never shortened); then one report (tools report: a "settings changed" table names
+# each row's setting, paired sign tests against the paper's values, 1-pick and 5-picks rows).
+# Resumable and extendable as compare is.
 # Tune on train only: make sensitivity SPLIT=train N=100 (7-9 min per run on 2 cores, 2026-12-06).
 SENSITIVITY ?= helios.scoring.alpha_cs=0.1 helios.scoring.alpha_cs=2 helios.search.alpha_d=0.0001 \
   helios.search.alpha_d=0.01 helios.decision.tau_object=0.3 helios.decision.tau_object=0.7 \

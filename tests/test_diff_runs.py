@@ -229,14 +229,14 @@ def test_two_real_runs_of_the_same_config_are_identical(tmp_path):
 def test_two_long_values_that_differ_in_the_middle_are_shown_where_they_differ():
     """(determinism audit 2026-12-05) Shortened in the middle, two different texts of one length
     printed as the same value."""
-    from tools.diff_runs import shown_pair, show_value
+    from tools.diff_runs import _shown_pair, show_value
 
     x = "A" * 100 + "path/one" + "B" * 100
     y = "A" * 100 + "path/two" + "B" * 100
     assert show_value(x) == show_value(y)
-    sx, sy = shown_pair(x, y)
+    sx, sy = _shown_pair(x, y)
     assert sx != sy and "one" in sx and "two" in sy and "from character 90" in sx
-    assert shown_pair(1, 2) == ("1", "2")
+    assert _shown_pair(1, 2) == ("1", "2")
 
 
 def test_records_that_differ_only_below_the_errors_first_line_are_identical(tmp_path):

@@ -258,7 +258,7 @@ def _span(ids: list[str]) -> str:
                                                                    f", {ids[0]} .. {ids[-1]}")
 
 
-def shown_pair(x, y) -> tuple[str, str]:
+def _shown_pair(x, y) -> tuple[str, str]:
     """Both values as :func:`show_value` prints them; two long texts that shorten alike (the
     difference in the elided middle) are shown from a little before where they first differ."""
     sx, sy = show_value(x), show_value(y)
@@ -270,8 +270,10 @@ def shown_pair(x, y) -> tuple[str, str]:
     return tuple(f"{lead}{show_value(v[start:start + VALUE_CHARS - 10])} (from character {start})" for v in (x, y))
 
 
-def _fields(diffs: list[tuple[str, object, object]], limit: int = MAX_FIELDS_LISTED) -> str:
-    shown = "; ".join("{}: {} / {}".format(p, *shown_pair(x, y)) for p, x, y in diffs[:limit])
+def fields_text(diffs: list[tuple[str, object, object]], limit: int = MAX_FIELDS_LISTED, between: str = " / ") -> str:
+    """``path: a / b; ...`` for the first ``limit`` differences, then how many more (``between``:
+    what stands between the two values; `tools report`'s settings table writes " -> ")."""
+    shown = "; ".join(f"{p}: {between.join(_shown_pair(x, y))}" for p, x, y in diffs[:limit])
     more = f"; and {len(diffs) - limit} more" if len(diffs) > limit else ""
     return shown + more
 
@@ -291,7 +293,7 @@ def report_lines(a, b, diff: RunDiff, show: int = MAX_EPISODES_LISTED) -> list[s
     if not (a.config and b.config):
         lines.append("configurations: not compared (a run folder has no readable config.yaml)")
     elif diff.config:
-        lines.append(f"configurations differ in {len(diff.config)} field(s) (A / B): {_fields(diff.config, 8)}")
+        lines.append(f"configurations differ in {len(diff.config)} field(s) (A / B): {fields_text(diff.config, 8)}")
     else:
         lines.append("configurations: the same (the number of episodes, version and commit aside)")
     if diff.cpu[0] and diff.cpu[1] and diff.cpu[0] != diff.cpu[1]:
@@ -312,7 +314,7 @@ def report_lines(a, b, diff: RunDiff, show: int = MAX_EPISODES_LISTED) -> list[s
         lines.append(f"different: {len(diff.differing)} (A / B)")
         for eid in list(diff.differing)[:show]:
             d = diff.differing[eid]
-            lines.append(f"  {eid}: {len(d)} field(s) differ: {_fields(d)}")
+            lines.append(f"  {eid}: {len(d)} field(s) differ: {fields_text(d)}")
         if len(diff.differing) > show:
             lines.append(f"  ... and {len(diff.differing) - show} more episode(s) (--show to list them)")
         counts: dict[str, int] = {}

@@ -96,7 +96,7 @@ def settings_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
     was changed, and a row that differs in more than was meant (another detector setting, another
     split) shows it before its numbers are read. An agent name stands for its preset (the
     settings it implies are not in config.yaml)."""
-    from tools.diff_runs import CONFIG_ASIDE, shown_pair, differences
+    from tools.diff_runs import CONFIG_ASIDE, differences, fields_text
 
     def settings(r: Run) -> dict:
         return {k: v for k, v in r.config.items() if k not in CONFIG_ASIDE}
@@ -111,10 +111,7 @@ def settings_rows(runs: list[Run]) -> tuple[list[str], list[list]]:
             cell = "unknown (a run folder without a readable config.yaml)"
         else:
             changed = differences(settings(first), settings(r))
-            cell = "; ".join("{}: {} -> {}".format(path, *shown_pair(x, y))
-                             for path, x, y in changed[:MAX_SETTINGS_LISTED]) or "nothing (the same configuration)"
-            if len(changed) > MAX_SETTINGS_LISTED:
-                cell += f"; and {len(changed) - MAX_SETTINGS_LISTED} more"
+            cell = fields_text(changed, MAX_SETTINGS_LISTED, " -> ") or "nothing (the same configuration)"
         rows.append([r.name, agent, cell])
     return ["run", "agent", "settings changed"], rows
 
