@@ -14,6 +14,20 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _distinct_words(text: str, variable: str, noun: str, example: str, shown=repr) -> list[str]:
+    """The space-separated words of the Makefile variable ``variable``; CliError when there are
+    none or one comes twice (``shown`` writes it in the message)."""
+    from tools.cli import CliError
+
+    words = text.split()
+    if not words:
+        raise CliError(f"{variable} is empty: name the {noun}, e.g. {example}")
+    twice = next((w for i, w in enumerate(words) if w in words[:i]), None)
+    if twice is not None:
+        raise CliError(f"{variable} names {shown(twice)} twice")
+    return words
+
+
 def check(compare: str, pick_limits: str, split: str = "val", configs: Path = ROOT / "configs") -> list[str]:
     """The run names of ``compare`` (space-separated); CliError naming the first problem: none
     given, one named twice (the report would pair a run with itself), one without its scenario file
@@ -25,12 +39,7 @@ def check(compare: str, pick_limits: str, split: str = "val", configs: Path = RO
 
     if split not in SPLITS:
         raise CliError(f"SPLIT {split!r} is not a split; valid splits: {', '.join(SPLITS)}")
-    runs = compare.split()
-    if not runs:
-        raise CliError('COMPARE is empty: name the runs, e.g. COMPARE="helios trusting"')
-    twice = next((r for i, r in enumerate(runs) if r in runs[:i]), None)
-    if twice is not None:
-        raise CliError(f"COMPARE names {twice!r} twice")
+    runs = _distinct_words(compare, "COMPARE", "runs", 'COMPARE="helios trusting"')
     known = sorted(p.stem.removeprefix("val_") for p in configs.glob("val_*.yaml"))
     for run in runs:
         if not (configs / f"val_{run}.yaml").is_file():
@@ -62,12 +71,8 @@ def check_sensitivity(sensitivity: str, scenario: Path = ROOT / "configs" / "val
     from tools.cli import CliError
     from tools.trials import resolve_config
 
-    settings = sensitivity.split()
-    if not settings:
-        raise CliError("SENSITIVITY is empty: name the settings, e.g. SENSITIVITY=\"helios.decision.tau_object=0.3\"")
-    twice = next((s for i, s in enumerate(settings) if s in settings[:i]), None)
-    if twice is not None:
-        raise CliError(f"SENSITIVITY names {short_repr(twice, 80)} twice")
+    settings = _distinct_words(sensitivity, "SENSITIVITY", "settings", 'SENSITIVITY="helios.decision.tau_object=0.3"',
+                               shown=lambda s: short_repr(s, 80))
     for setting in settings:
         key = setting.partition("=")[0].strip()
         if key in RUN_SHAPE_KEYS:
