@@ -196,13 +196,6 @@ class GaussianConfig:
     reobservation_depth_error: float = 0.5
     """*paper* Pixels whose measured depth is within 0.5 m of the rendered depth re-observe the map
     and update it (detected or not: non-detections are negative evidence)."""
-    evidence_depth_gate: float = 0.0
-    """0 (the paper's update): every pixel of the re-observation mask adds evidence to every
-    Gaussian whose splat covers it. > 0 (ours, an option): a pixel adds evidence to a Gaussian
-    only where its measured depth lies within this many metres of the Gaussian's centre depth, so
-    a splat on an object's rim that overhangs the surface behind it (the table under a cup, the
-    wall behind it) is not told that it is that surface. Stands in for what the paper's rendering
-    loss would do to such a splat (shrink it or move it), which our fixed Gaussians cannot."""
     reobservation_closing_px: int = 5
     """Square kernel (pixels, working image) of the morphological closing of the re-observation
     mask (paper: 'close small holes', size not given); 5 px fills depth dropouts on objects."""
@@ -224,7 +217,6 @@ class GaussianConfig:
         require(0 < self.creation_silhouette <= 1, "creation_silhouette must be in (0, 1]")
         require(self.creation_depth_error > 0, "creation_depth_error must be > 0")
         require(self.reobservation_depth_error > 0, "reobservation_depth_error must be > 0")
-        require(self.evidence_depth_gate >= 0, "evidence_depth_gate must be >= 0 (0 = off)")
         require(self.reobservation_closing_px >= 1, "reobservation_closing_px must be >= 1 (1 = none)")
         require(0 < self.min_silhouette_for_depth < 1, "min_silhouette_for_depth must be in (0, 1)")
         require_range(self, "alpha_cpa scale_factor", 0.0, 1000.0, lo_open=True)
@@ -236,7 +228,6 @@ class GaussianConfig:
         require_range(self, "creation_stride", 1, 64)
         require_range(self, "creation_erosion_px reobservation_closing_px", 1, 100)
         require_range(self, "creation_depth_error reobservation_depth_error", 0.0, 10.0, lo_open=True)
-        require_range(self, "evidence_depth_gate", 0.0, 10.0)
 
 
 @dataclass(frozen=True)

@@ -193,37 +193,3 @@ def test_score_thresholds_drop_weak_detections_and_overlaps_go_to_the_most_confi
     assert lab.objects.all()
     with pytest.raises(UnknownClassError, match="'sofa'"):
         HierarchicalMap(HeliosConfig(), ["cup"], score_thresholds={"sofa": 0.5})
-
-
-def test_evidence_depth_gate_keeps_a_rim_splat_from_learning_the_surface_behind_it():
-    """A cup on a table, seen from the side: the splats on the cup's rim overhang table pixels a
-    few decimetres behind, inside the paper's 0.5 m re-observation window. The paper's update
-    (gate 0) tells those Gaussians they are table; with ``evidence_depth_gate`` a pixel only
-    speaks for Gaussians at its measured depth, so the cup's Gaussians keep (nearly) all of
-    their cup evidence and the table's own evidence is untouched."""
-    table = Box((2.8, -0.6, 0.3), (3.6, 0.6, 0.5), "table")
-    cup = Box((2.9, -0.1, 0.5), (3.1, 0.1, 0.7), "cup")
-    scene, cup_i, table_i = [FLOOR, table, cup], CLASSES.index("cup"), CLASSES.index("table")
-    results = {}
-    for gate in (0.0, 0.05):
-        gmap = make_map([f"gaussians.evidence_depth_gate={gate}"])
-        update(gmap, scene, detected={2: "cup"})
-        n_cup = len(gmap)
-        gamma0 = gmap.concentrations[:n_cup].clone()
-        update(gmap, scene, detected={1: "table", 2: "cup"})
-        assert len(gmap) > n_cup                       # the table got Gaussians of its own
-        delta = (gmap.concentrations[:n_cup] - gamma0).numpy()
-        results[gate] = delta
-        # the worst Gaussian's share of cup in this view's evidence: the rim's
-        results[gate, "rim"] = float((delta[:, cup_i] / delta.sum(axis=1)).min())
-    paper, gated = results[0.0], results[0.05]
-    assert results[0.0, "rim"] < 0.8 and results[0.05, "rim"] > 0.95, results
-    # the rim's table evidence is mostly gone, the cup evidence of the face nearly unchanged
-    assert gated[:, table_i].sum() < 0.2 * paper[:, table_i].sum()
-    assert paper[:, table_i].sum() > 0.5
-    assert gated[:, cup_i].sum() > 0.9 * paper[:, cup_i].sum()
-
-
-def test_evidence_depth_gate_must_be_a_distance():
-    with pytest.raises(ValueError, match="evidence_depth_gate"):
-        make_map(["gaussians.evidence_depth_gate=-0.1"])

@@ -288,7 +288,7 @@ class GaussianMap:
 
         t = time.perf_counter()
         reobserved = self._reobservation_mask(d, after)
-        updated = self._update_concentrations(after, reobserved, lab, d)
+        updated = self._update_concentrations(after, reobserved, lab)
         seconds["semantics"] = time.perf_counter() - t
 
         t = time.perf_counter()
@@ -362,19 +362,13 @@ class GaussianMap:
                                     borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
         return mask
 
-    def _update_concentrations(self, rendering: Rendering, reobserved: np.ndarray, labels: np.ndarray,
-                               depth: np.ndarray) -> np.ndarray:
+    def _update_concentrations(self, rendering: Rendering, reobserved: np.ndarray, labels: np.ndarray) -> np.ndarray:
         updated = np.zeros(len(self), dtype=bool)
         if rendering.weight.numel() == 0 or not reobserved.any():
             return updated
         mask_t = torch.as_tensor(reobserved.reshape(-1), device=self.device)
         # index_select with the kept positions: boolean-mask indexing is ~3x slower on the CPU
         inside = mask_t.index_select(0, rendering.pixel_index) & (rendering.weight > 0)
-        gate = self.cfg.evidence_depth_gate
-        if gate > 0:
-            # A pixel speaks for the Gaussians at its measured depth, not for splats in front of it.
-            d_t = torch.as_tensor(np.ascontiguousarray(depth, dtype=np.float32).reshape(-1), device=self.device)
-            inside &= (d_t.index_select(0, rendering.pixel_index) - rendering.pair_depth).abs() < gate
         kept = torch.nonzero(inside).squeeze(1)
         g = rendering.gaussian_index.index_select(0, kept)
         pix = rendering.pixel_index.index_select(0, kept)
