@@ -155,12 +155,13 @@ class GaussianConfig:
     """Initial Dirichlet concentration of every class of a new Gaussian (paper: not stated).
     0.5 is Jeffreys' prior for a categorical distribution. Its pseudo-counts (C x 0.5) weigh half
     as much as the flat prior's (C x 1) against the few views a Gaussian gets (15-25 units of
-    evidence), so an instance's S comes closer to the share of its views that labelled it: on
-    train the Psi rule then asks for about half as many extra views and HELIOS times out far less
-    (docs/search-experiments.md, "The Dirichlet prior"). 1 (the flat Dirichlet, this testbed's
-    value until 2026-12-06) keeps every optimistic IG >= 0; below 1 an update of tiny weight can
-    raise a Gaussian's entropy (at 0.5, five classes: -0.07 nats for a weight of 0.1, against
-    +0.5 to +2.3 for weights of 1 to 3); far below (ConvBKI's 0.001) that noise dominates."""
+    concentration, prior included), so an instance's S comes closer to the share of its views
+    that labelled it: on train the Psi rule then asks for about half as many extra views and
+    HELIOS times out far less (docs/search-experiments.md, "The Dirichlet prior"). 1 (the flat
+    Dirichlet, this testbed's value until 2026-12-06) is the largest-entropy prior; below 1 an
+    update of tiny weight can raise a Gaussian's entropy (at 0.5, five classes: -0.07 nats for a
+    weight of 0.1, against +0.5 to +2.3 for weights of 1 to 3); far below (ConvBKI's 0.001)
+    that noise dominates."""
     update_max_width: int = 160
     """The Gaussian layer works on images subsampled by the smallest integer factor that brings
     the width to at most this many pixels (320 x 240 input -> 160 x 120). Render cost scales with
