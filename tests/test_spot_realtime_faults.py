@@ -1283,9 +1283,17 @@ def test_a_signal_mid_task_or_during_shutdown_still_shuts_the_robot_down(tmp_pat
         t0 = time.monotonic()
         for i, name in enumerate(signals):
             if i:
-                time.sleep(0.6)                   # the second one lands while close() stows the arm
+                # The second one must land while close() stows the arm. Wait until the shutdown has
+                # begun: a second SIGINT sent before the first was handled merges with it (POSIX
+                # does not queue standard signals), which under CPU load made a fixed 0.6 s flaky.
+                for line in proc.stdout:
+                    lines.append(line)
+                    if "shutting down: stop, stow" in line:
+                        break
+                time.sleep(0.3)
             proc.send_signal(getattr(signal, name))
         out, err = proc.communicate(timeout=30)
+        out = "".join(lines) + out
         took = time.monotonic() - t0
     finally:
         if proc.poll() is None:
