@@ -1066,6 +1066,15 @@ _DEFAULT_HANGUP_THEN_EXEC = ("import os, signal, sys\n"
                              "os.execv(sys.executable, [sys.executable, *sys.argv[1:]])")
 
 
+def _read_until(stream, lines: list[str], marker: str) -> None:
+    """Read ``stream`` line by line into ``lines`` up to and including the first line with ``marker``
+    (or to its end)."""
+    for line in stream:
+        lines.append(line)
+        if marker in line:
+            return
+
+
 def _python_with_default_hangup(*args: str) -> list[str]:
     """argv for ``python ARGS...`` whose process takes SIGHUP and SIGTERM as a terminal's child does.
 
@@ -1275,10 +1284,7 @@ def test_a_signal_mid_task_or_during_shutdown_still_shuts_the_robot_down(tmp_pat
                             cwd=root, env=env, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
         lines = []
-        for line in proc.stdout:                  # mid-task: the arm is out for the grasp next
-            lines.append(line)
-            if "look at the mug" in line:
-                break
+        _read_until(proc.stdout, lines, "look at the mug")    # mid-task: the arm is out for the grasp next
         assert proc.poll() is None, "".join(lines)
         t0 = time.monotonic()
         for i, name in enumerate(signals):
@@ -1286,10 +1292,7 @@ def test_a_signal_mid_task_or_during_shutdown_still_shuts_the_robot_down(tmp_pat
                 # The second one must land while close() stows the arm. Wait until the shutdown has
                 # begun: a second SIGINT sent before the first was handled merges with it (POSIX
                 # does not queue standard signals), which under CPU load made a fixed 0.6 s flaky.
-                for line in proc.stdout:
-                    lines.append(line)
-                    if "shutting down: stop, stow" in line:
-                        break
+                _read_until(proc.stdout, lines, "shutting down: stop, stow")
                 time.sleep(0.3)
             proc.send_signal(getattr(signal, name))
         out, err = proc.communicate(timeout=30)
