@@ -47,6 +47,26 @@ if [ -z "$have_browser" ] && [ -z "${HELIOS_NO_BROWSER_INSTALL:-}" ] && command 
 fi
 
 # 3. Virtual environment + pinned dependencies (torch==2.13.0 is the local CPU wheel).
+# A venv that already serves another checkout (an editable install of this project from a folder
+# that still exists) is refused: pip install -e would silently re-point it here, and the other
+# checkout would go on running this one's code.
+if [ -x "$venv/bin/python" ]; then
+  served=$("$venv/bin/python" -I - <<'PY' 2>/dev/null || true
+import importlib.metadata as md, json
+try:
+    text = md.distribution("helios-testbed").read_text("direct_url.json") or "{}"
+except md.PackageNotFoundError:
+    raise SystemExit
+url = json.loads(text).get("url", "")
+if url.startswith("file://"):
+    print(url[len("file://"):])
+PY
+)
+  if [ -n "$served" ] && [ -d "$served" ] && [ "$(cd "$served" && pwd -P)" != "$(pwd -P)" ]; then
+    echo "[setup] error: $venv already serves the checkout at $served; installing would re-point it to $(pwd -P). Give this checkout its own venv (make VENV=.venv-here ...) or remove $venv first." >&2
+    exit 1
+  fi
+fi
 if [ ! -x "$venv/bin/python" ]; then
   say "creating $venv with $py"
   "$py" -m venv "$venv"
