@@ -52,6 +52,17 @@ def test_a_venv_serving_another_checkout_is_refused_before_anything_is_installed
     assert sorted(p.name for p in (venv / "lib").rglob("*")) == before
 
 
+def test_a_checkout_path_with_a_space_is_recognised(tmp_path):
+    """pip writes the checkout's path percent-encoded ("other%20checkout"): the guard decodes it."""
+    other = tmp_path / "other checkout"
+    other.mkdir()
+    venv = _venv_serving(tmp_path, other)
+    assert "%20" in (next((venv / "lib").rglob("direct_url.json"))).read_text()
+    result = _setup(venv)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert f"already serves the checkout at {other.resolve()};" in result.stderr
+
+
 def test_a_venv_left_by_a_deleted_checkout_is_not_refused(tmp_path):
     """A venv left over from a checkout that is gone may be taken over: the guard reads the
     folder it names, and prints nothing about it when that folder does not exist."""

@@ -52,14 +52,14 @@ fi
 # checkout would go on running this one's code.
 if [ -x "$venv/bin/python" ]; then
   served=$("$venv/bin/python" -I - <<'PY' 2>/dev/null || true
-import importlib.metadata as md, json
+import importlib.metadata as md, json, urllib.parse
 try:
     text = md.distribution("helios-testbed").read_text("direct_url.json") or "{}"
 except md.PackageNotFoundError:
     raise SystemExit
 url = json.loads(text).get("url", "")
 if url.startswith("file://"):
-    print(url[len("file://"):])
+    print(urllib.parse.unquote(url[len("file://"):]))    # pip writes the path percent-encoded
 PY
 )
   if [ -n "$served" ] && [ -d "$served" ] && [ "$(cd "$served" && pwd -P)" != "$(pwd -P)" ]; then
