@@ -205,7 +205,7 @@ def test_the_trusting_variant_is_refused_the_object_maps_settings():
                                               r".*; leave it out$"):
             check(agent, *setting.split())
     with pytest.raises(ConfigError, match=r"local_search_views \(set in the scenario file\) would change nothing"):
-        check("trusting", "agent_config.local_search_views=informative", explicit=False)
+        check("trusting", "agent_config.local_search_views=all", explicit=False)      # not the default
     with pytest.raises(ConfigError, match=r"alpha_d would change nothing .* goes to the highest-value frontier"):
         check("trusting", "helios.search.alpha_d=0.01")
     check("trusting", "helios.search.frontier_choice=value_minus_distance", "helios.search.alpha_d=0.01",
@@ -252,7 +252,7 @@ def test_settings_only_a_switched_off_part_of_the_agent_reads_are_refused():
             ("helios", "helios.decision.view_prediction=optimistic", "agent_config.max_looks_per_candidate=0"),
             ("helios", "helios.decision.view_prediction_poses=all", "agent_config.max_looks_per_candidate=0")):
         key = setting.partition("=")[0]
-        overrides = [setting] if switch.endswith(("=drop", "=all")) else [switch, setting]   # those are defaults
+        overrides = [setting] if switch.endswith("=drop") else [switch, setting]   # drop is the default
         with pytest.raises(ConfigError, match=rf"^{key} would change nothing with agent '{agent}': .*, which alone "
                                               rf"reads it, is off \({switch}; .* turns it on\); leave it out$"):
             check(agent, *overrides)
@@ -294,8 +294,11 @@ def test_settings_only_a_switched_off_part_of_the_agent_reads_are_refused():
         check("oracle", "agent_config.stall_radius=0.8")
     assert not unread_settings(TrialConfig(agent="oracle"))
     defaults = unread_settings(TrialConfig(agent="helios"))
-    assert {"agent_config.place.improved_height", "agent_config.local_search_min_gain"} <= set(defaults)
-    assert not {"agent_config.stall_radius", "agent_config.revisit_spacing", "helios.decision.tau_increase"} & set(defaults)
+    assert "agent_config.place.improved_height" in defaults
+    assert not {"agent_config.stall_radius", "agent_config.revisit_spacing", "helios.decision.tau_increase",
+                "agent_config.local_search_min_gain"} & set(defaults)          # informative views by default
+    assert "agent_config.local_search_min_gain" in unread_settings(
+        with_overrides(TrialConfig(agent="helios"), ["agent_config.local_search_views=all"]))
     for switch, off, *_ in ONLY_WITH:      # each switch's off value is a value the setting takes
         with_overrides(TrialConfig(agent="helios"), [f"{switch}={off}"])
 

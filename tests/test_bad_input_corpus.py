@@ -136,7 +136,7 @@ def ws(tmp_path_factory):
         "bool_tag.yaml": b"agent: oracle\nrecord: !!bool x\n",
         "comments.yaml": b"# all defaults, I hope\n\n",
         "oracle_helios.yaml": b"agent: oracle\nhelios:\n  search:\n    cs_start_receptacle: 0.4\n",
-        "trusting_local.yaml": b"agent: trusting\nagent_config:\n  local_search_views: informative\n",
+        "trusting_local.yaml": b"agent: trusting\nagent_config:\n  local_search_views: all\n",
         "drop_top_band.yaml": b"agent: helios\nagent_config:\n  place:\n    top_band: 0.05\n",
     }
     for name, data in configs.items():
@@ -821,7 +821,8 @@ CASES: list[tuple[str, list[str], str]] = [
      "improved place"),
     ("trials-surface-cell-drop", [*T, "--agent", "helios-no-global", "agent_config.place.surface_cell=0.05"],
      "(agent_config.place.mode=drop; improved turns it on)"),
-    ("trials-min-gain-all-views", [*T, "--agent", "helios", "agent_config.local_search_min_gain=0.2"],
+    ("trials-min-gain-all-views", [*T, "--agent", "helios", "agent_config.local_search_views=all",
+                                   "agent_config.local_search_min_gain=0.2"],
      "local search's choice of informative gaze points, which alone reads it, is off "
      "(agent_config.local_search_views=all; informative turns it on)"),
     ("trials-revisit-spacing-no-revisits", [*T, "--agent", "helios-5050", "agent_config.max_revisits=0",

@@ -284,7 +284,8 @@ def test_local_search_visits_the_informative_gaze_points_nearest_first():
     sim = SimEpisode.create(ep)
     try:
         agent = make_agent("helios", sim, agent_config=AgentConfig(local_search_views="informative"))
-        assert agent.config.local_search_views == "informative" and AgentConfig().local_search_views == "all"
+        assert agent.config.local_search_views == "informative" == AgentConfig().local_search_views
+        assert AgentConfig().gaze_hop == 1.5                        # the default since 2026-12-07
         inst = _start_candidate_after_the_scan(agent, ep, sim, min_views=4)
         views = agent._gaze_points_of(inst.id)
         cams = [predicted_camera(g.pose, g.look_at, agent.body.body_height, agent.config.view) for g in views]

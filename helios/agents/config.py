@@ -285,24 +285,28 @@ class AgentConfig:
     """The planner tries this many best places at once (the nearest reachable one wins)."""
     gaze_goal_radius: float = 0.15
     """Walking to a gaze point or grasp pose ends within this (m) of it."""
-    gaze_hop: float = 0.0
+    gaze_hop: float = 1.5
     """A gaze point within this distance (m) is reached by one straight holonomic move that turns
     while it walks (Spot walks in any direction), when the footprint's sweep along it is free and
-    seen; farther ones, or blocked hops, take the planner's rotate-then-forward actions (the
-    paper's action set, the default 0). Going round a table from one gaze point to the next with
-    those means turn ~90 degrees, walk 0.6 m, turn back: ~6 s of the ~10 s a gaze point costs.
-    Measured with ``local_search_views=informative`` (README, "Cheaper local search"): local search
-    took 28 % less robot time on 200 val episodes, which went to exploration instead; timeouts
-    and FindObj did not improve, so the default stays the paper's."""
+    seen; farther ones, or blocked hops, take the planner's rotate-then-forward actions. 0 is the
+    paper's action set alone (its planner only moves forward and rotates; the default until
+    2026-12-07). Going round a table from one gaze point to the next with those means turn ~90
+    degrees, walk 0.6 m, turn back: ~6 s of the ~10 s a gaze point costs. Default 1.5 since
+    2026-12-07, with ``local_search_views=informative``, chosen on train with Jeffreys' prior
+    (200 episodes: timeouts 32 against 39, FindObj 70.5 against 65.0, SR 17.5 against 17.0;
+    docs/search-experiments.md, "Cheaper local search again"). The informative views alone did
+    not cut timeouts (40 on train): the hop is what turns the saved gaze points into time. With
+    the flat prior (2026-12-01) the pair saved local-search time but not timeouts."""
     max_walk_chunks: int = 8
     """Plan-walk-look cycles allowed to reach one gaze point or grasp pose."""
-    local_search_views: Literal["all", "informative"] = "all"
+    local_search_views: Literal["all", "informative"] = "informative"
     """Which of a candidate pick location's gaze points local search visits: ``all`` (the paper's
-    local search section) or ``informative``: a greedy subset by information gain, each added
-    view raising the IG of those before it by at least ``local_search_min_gain`` of the IG of all
-    of them (``helios.search.information.informative_views``; the paper's Discussion names
-    "filtering for informative gaze points" as the way to make local search cheaper). It visits
-    3.2 instead of 5.0 gaze points per local search on val; see ``gaze_hop`` for the outcome."""
+    local search section; the default until 2026-12-07) or ``informative`` (the default): a
+    greedy subset by information gain, each added view raising the IG of those before it by at
+    least ``local_search_min_gain`` of the IG of all of them
+    (``helios.search.information.informative_views``; the paper's Discussion names "filtering for
+    informative gaze points" as the way to make local search cheaper). It visits 3.0 instead of
+    5.3 gaze points per local search on train; see ``gaze_hop`` for the outcome and the choice."""
     end_local_search_on_doubt: bool = False
     """End a local search (the location counts as searched) as soon as the location is no longer
     a candidate pick location: its instance merged away, or its class score fell below cs_a or
