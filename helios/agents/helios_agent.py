@@ -7,10 +7,9 @@ Each ``act`` call makes one decision and carries it out through the HAL:
    the decision rule (:mod:`helios.search.decisions`): grasp when Psi_g >= tau_g (the pick skill,
    :mod:`helios.agents.pick`); else take the one view (gaze point) with the highest predicted
    Psi'_g if Psi'_g >= min(tau_g, Psi_g + tau_inc); else leave it.
-2. Otherwise continue a running **local search** (the informative gaze points of a candidate
-   pick location by default, or all of them, the paper's local search, with
-   ``AgentConfig.local_search_views``; nearest first; the location is then marked visited), or
-   consult the **global objective**
+2. Otherwise continue a running **local search** (a candidate pick location's informative gaze
+   points, or all of them as in the paper: ``AgentConfig.local_search_views``; nearest first;
+   the location is then marked visited), or consult the **global objective**
    (:mod:`helios.search.objective`): locally search the best candidate pick location or walk
    towards the best frontier and look around.
 3. **Place phase** (holding the object): the same rule for goal-receptacle candidates (tau_b)
