@@ -118,5 +118,5 @@ def test_fake_episode_command_searches_as_the_trial_of_the_same_seed(tmp_path, c
     assert {f: sdk["metrics"][f] for f in ("find_obj", "pick")} == {"find_obj": True, "pick": True}, sdk["extra"]
     decisions = {k: sdk["extra"]["decisions"][k] for k in SEARCH_DECISIONS}
     assert decisions == {k: sim["extra"]["decisions"][k] for k in SEARCH_DECISIONS}
-    assert decisions["gaze_point_visits"] == 1 and decisions["local_search_sizes"] == [6]
+    assert decisions["gaze_point_visits"] == 1 and decisions["local_search_sizes"] == [3]   # the informative 3 of 6
     assert sdk["seed"] == sim["seed"]          # the record names the seed the trial's record names
